@@ -1,0 +1,100 @@
+"""The validated intermediate representation of a model family (frozen dataclasses).
+
+A family declares one parameter vector ``q`` (ordered components with defaults ``q0``),
+constants set at run time, input channels of measures with their implicit measurement
+equations ``c_i(q, m_i) = 0``, and models that differ by their parameter constraints
+``c0(q) = 0`` (report §2, §5). Code generators consume this IR only.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+
+import sympy as sp
+
+
+def symbol(name: str) -> sp.Symbol:
+    """The SymPy symbol kanagen uses for a declared name (all quantities are real)."""
+    return sp.Symbol(name, real=True)
+
+
+@dataclass(frozen=True)
+class Channel:
+    """An input channel: the columns of its data array and its measurement equations."""
+
+    name: str
+    components: tuple[str, ...]
+    exact: tuple[str, ...]
+    equations: tuple[sp.Expr, ...]
+
+    @property
+    def corrected(self) -> tuple[str, ...]:
+        """Components that the estimator corrects (all but the exact ones), in order."""
+        return tuple(c for c in self.components if c not in self.exact)
+
+
+@dataclass(frozen=True)
+class Alternative:
+    """A more general model and the cost factor Φ(d, d') that it must beat (report eq. 46)."""
+
+    model: str
+    phi: float | str = 1.0
+
+
+@dataclass(frozen=True)
+class Model:
+    """A model: parameter constraints, optional equation overrides, its alternatives."""
+
+    name: str
+    constraints: tuple[sp.Expr, ...]
+    equations: tuple[tuple[str, tuple[sp.Expr, ...]], ...] = ()
+    alternatives: tuple[Alternative, ...] = ()
+
+
+@dataclass(frozen=True)
+class Derived:
+    """A quantity derived from the parameter: scalar (shape ``()``), vector or matrix."""
+
+    name: str
+    shape: tuple[int, ...]
+    expressions: tuple[sp.Expr, ...]
+
+
+@dataclass(frozen=True)
+class Family:
+    """A validated model family."""
+
+    name: str
+    parameter: tuple[tuple[str, float], ...]
+    constants: tuple[tuple[str, float], ...]
+    channels: tuple[Channel, ...]
+    models: tuple[Model, ...]
+    derived: tuple[Derived, ...]
+    null_model: str
+    source: str
+    sha256: str
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        return tuple(name for name, _ in self.parameter)
+
+    def channel(self, name: str) -> Channel:
+        for channel in self.channels:
+            if channel.name == name:
+                return channel
+        raise KeyError(name)
+
+    def model(self, name: str) -> Model:
+        for model in self.models:
+            if model.name == name:
+                return model
+        raise KeyError(name)
+
+    def equations(self, model: str, channel: str) -> tuple[sp.Expr, ...]:
+        """The measurement equations of ``channel`` under ``model`` (its override, if any)."""
+        return dict(self.model(model).equations).get(channel, self.channel(channel).equations)
+
+
+def sha256_text(text: str) -> str:
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()

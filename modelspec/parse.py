@@ -1,0 +1,346 @@
+"""Turn YAML text or plain Python data (with SymPy expressions) into a validated :class:`Family`.
+
+Validation happens here, before any code is generated: names, types, the symbols each
+expression may use, the models' alternatives and the acyclicity of the model lattice.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Mapping
+from pathlib import Path
+
+import sympy as sp
+
+from .errors import SpecError
+from .expressions import CONSTANTS, FUNCTIONS, check_identifier, parse_expression
+from .ir import Alternative, Channel, Derived, Family, Model, sha256_text, symbol
+from .yamlsrc import Located, read_yaml
+
+_TOP_KEYS = ("name", "description", "constants", "parameter", "channels", "models", "derived",
+             "null_model")
+_CHANNEL_KEYS = ("components", "exact", "equations", "description")
+_MODEL_KEYS = ("constraints", "equations", "alternatives", "description")
+_PHI_WORDS = ("aic", "ftest", "exp")
+_SYMPY_FUNCS = tuple(f for f in FUNCTIONS.values() if isinstance(f, type))
+
+
+def load_spec(path: str | Path) -> Family:
+    """Read and validate a YAML spec file.
+
+    Examples
+    --------
+    >>> fam = load_spec("examples/line.yaml")  # doctest: +SKIP
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise SpecError(f"cannot read spec: {exc.strerror}", str(path)) from None
+    return parse_spec(text, source=str(path))
+
+
+def parse_spec(text: str, source: str = "<spec>") -> Family:
+    """Validate a YAML spec given as text; ``source`` names it in errors."""
+    return _Builder(read_yaml(text, source), sha256_text(text)).family()
+
+
+def family_from_data(data: Mapping, source: str = "<python>") -> Family:
+    """Validate a spec given as Python data: the YAML layout, with SymPy expressions or text.
+
+    Symbols may be given as ``sympy.Symbol`` or as names, anywhere a name is expected.
+
+    Examples
+    --------
+    >>> import sympy as sp
+    >>> a, b, x, y = sp.symbols("a b x y")
+    >>> fam = family_from_data({
+    ...     "name": "line", "parameter": {a: 1.0, b: 0.0},
+    ...     "channels": {"pt": {"components": [x, y], "equations": [y - a * x - b]}},
+    ...     "models": {"line": {"constraints": []}}})
+    >>> fam.parameter_names
+    ('a', 'b')
+    """
+    plain = _plain(data)
+    digest = hashlib.sha256(sp.srepr(_sympy_only(plain)).encode("utf-8")).hexdigest()
+    return _Builder(Located(plain, {}, source), digest).family()
+
+
+def _plain(value):
+    """Names for symbols, recursively; SymPy expressions kept as they are."""
+    if isinstance(value, sp.Symbol):
+        return value.name
+    if isinstance(value, Mapping):
+        return {_plain(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, sp.MatrixBase):
+        return [[value[i, j] for j in range(value.cols)] for i in range(value.rows)]
+    return value
+
+
+def _sympy_only(value):
+    if isinstance(value, Mapping):
+        return sp.Tuple(*(sp.Tuple(sp.Symbol(str(k)), _sympy_only(v)) for k, v in value.items()))
+    if isinstance(value, list):
+        return sp.Tuple(*(_sympy_only(v) for v in value))
+    if isinstance(value, sp.Basic):
+        return value
+    return sp.Symbol(repr(value))
+
+
+class _Builder:
+    def __init__(self, located: Located, digest: str):
+        self.src = located
+        self.digest = digest
+
+    def error(self, message: str, *path) -> SpecError:
+        return SpecError(message, self.src.source, self.src.line(*path))
+
+    # -- typed accessors ---------------------------------------------------------------------
+    def mapping(self, value, what, *path, empty_ok=True) -> dict:
+        if value is None and empty_ok:
+            return {}
+        if not isinstance(value, Mapping):
+            raise self.error(f"{what} must be a mapping, got {type(value).__name__}", *path)
+        if not value and not empty_ok:
+            raise self.error(f"{what} must not be empty", *path)
+        return dict(value)
+
+    def sequence(self, value, what, *path) -> list:
+        if value is None:
+            return []
+        if not isinstance(value, list):
+            raise self.error(f"{what} must be a list, got {type(value).__name__}", *path)
+        return value
+
+    def keys(self, mapping, allowed, what, *path):
+        for key in mapping:
+            if key not in allowed:
+                raise self.error(
+                    f"unknown key {key!r} in {what} (allowed: {', '.join(allowed)})", *path, key
+                )
+
+    def number(self, value, what, *path) -> float:
+        expr = self.expression(value, {}, *path)
+        if not expr.is_number or not expr.is_real:
+            raise self.error(f"{what} must be a real number, got {value!r}", *path)
+        number = float(expr)
+        if number != number or number in (float("inf"), float("-inf")):
+            raise self.error(f"{what} must be finite, got {value!r}", *path)
+        return number
+
+    def expression(self, value, allowed: Mapping[str, sp.Symbol], *path) -> sp.Expr:
+        if isinstance(value, sp.Basic):
+            expr = self.check_sympy(value, allowed, *path)
+        else:
+            expr = parse_expression(value, allowed, self.src.source, self.src.line(*path))
+        if expr.has(sp.zoo, sp.oo, -sp.oo, sp.nan):
+            raise self.error(f"expression {value!r} is not finite (division by zero?)", *path)
+        return expr
+
+    def check_sympy(self, expr, allowed, *path) -> sp.Expr:
+        names = {s.name for s in expr.free_symbols}
+        unknown = sorted(names - set(allowed))
+        if unknown:
+            raise self.error(f"unknown symbol {unknown[0]!r} in expression {expr}", *path)
+        for node in sp.preorder_traversal(expr):
+            ok = (
+                node.is_Symbol
+                or node.is_Number
+                or node in CONSTANTS.values()
+                or isinstance(node, sp.Add | sp.Mul | sp.Pow | _SYMPY_FUNCS)
+            )
+            if not ok:
+                raise self.error(f"{type(node).__name__} not allowed in expression {expr}", *path)
+        return expr.xreplace({s: allowed[s.name] for s in expr.free_symbols})
+
+    # -- the family --------------------------------------------------------------------------
+    def family(self) -> Family:
+        top = self.mapping(self.src.data, "the spec")
+        self.keys(top, _TOP_KEYS, "the spec")
+        for key in ("name", "parameter", "channels", "models"):
+            if key not in top:
+                raise self.error(f"missing required key {key!r}")
+        name = check_identifier(top["name"], "family", self.src.source, self.src.line("name"))
+        seen: dict[str, str] = {}
+
+        def declare(item, what, *path):
+            item = check_identifier(item, what, self.src.source, self.src.line(*path))
+            if item in seen:
+                raise self.error(f"duplicate name {item!r} (already a {seen[item]})", *path)
+            seen[item] = what
+            return item
+
+        parameter = tuple(
+            (declare(k, "parameter", "parameter", k), self.number(v, f"default of {k}",
+                                                                 "parameter", k))
+            for k, v in self.mapping(top["parameter"], "parameter", "parameter",
+                                     empty_ok=False).items()
+        )
+        constants = tuple(
+            (declare(k, "constant", "constants", k), self.number(v, f"value of {k}",
+                                                                "constants", k))
+            for k, v in self.mapping(top.get("constants"), "constants", "constants").items()
+        )
+        base = {n: symbol(n) for n, _ in parameter + constants}
+        channels = tuple(
+            self.channel(cname, spec, base, declare)
+            for cname, spec in self.mapping(top["channels"], "channels", "channels",
+                                            empty_ok=False).items()
+        )
+        by_channel = {c.name: c for c in channels}
+        models_spec = self.mapping(top["models"], "models", "models", empty_ok=False)
+        models = tuple(
+            self.model(mname, spec, base, by_channel, models_spec, declare)
+            for mname, spec in models_spec.items()
+        )
+        self.check_acyclic(models)
+        derived = tuple(
+            self.derived(dname, spec, base, declare)
+            for dname, spec in self.mapping(top.get("derived"), "derived", "derived").items()
+        )
+        null_model = top.get("null_model", models[0].name)
+        if null_model not in models_spec:
+            raise self.error(f"null_model {null_model!r} is not a declared model", "null_model")
+        return Family(
+            name=name,
+            parameter=parameter,
+            constants=constants,
+            channels=channels,
+            models=models,
+            derived=derived,
+            null_model=null_model,
+            source=self.src.source,
+            sha256=self.digest,
+        )
+
+    def channel(self, name, spec, base, declare) -> Channel:
+        path = ("channels", name)
+        name = declare(name, "channel", *path)
+        spec = self.mapping(spec, f"channel {name!r}", *path, empty_ok=False)
+        self.keys(spec, _CHANNEL_KEYS, f"channel {name!r}", *path)
+        comps = self.sequence(spec.get("components"), "components", *path, "components")
+        if not comps:
+            raise self.error(f"channel {name!r} needs at least one component", *path)
+        components = tuple(
+            declare(c, "component", *path, "components", i) for i, c in enumerate(comps)
+        )
+        exact = tuple(self.sequence(spec.get("exact"), "exact", *path, "exact"))
+        for i, c in enumerate(exact):
+            if c not in components:
+                raise self.error(f"exact component {c!r} is not a component of {name!r}",
+                                 *path, "exact", i)
+        if len(set(exact)) == len(components):
+            raise self.error(f"channel {name!r} has no component to correct (all are exact)",
+                             *path, "exact")
+        allowed = {**base, **{c: symbol(c) for c in components}}
+        equations = self.equations(spec.get("equations"), allowed, *path, "equations")
+        if not equations:
+            raise self.error(f"channel {name!r} needs at least one equation", *path)
+        return Channel(name, components, exact, equations)
+
+    def equations(self, value, allowed, *path) -> tuple[sp.Expr, ...]:
+        return tuple(
+            self.expression(e, allowed, *path, i)
+            for i, e in enumerate(self.sequence(value, "equations", *path))
+        )
+
+    def model(self, name, spec, base, channels, all_models, declare) -> Model:
+        path = ("models", name)
+        name = declare(name, "model", *path)
+        spec = self.mapping(spec, f"model {name!r}", *path)
+        self.keys(spec, _MODEL_KEYS, f"model {name!r}", *path)
+        constraints = self.equations(spec.get("constraints"), base, *path, "constraints")
+        overrides = []
+        for cname, eqs in self.mapping(spec.get("equations"), "equations", *path,
+                                       "equations").items():
+            if cname not in channels:
+                raise self.error(f"model {name!r} overrides unknown channel {cname!r}",
+                                 *path, "equations", cname)
+            allowed = {**base, **{c: symbol(c) for c in channels[cname].components}}
+            overrides.append((cname, self.equations(eqs, allowed, *path, "equations", cname)))
+            if not overrides[-1][1]:
+                raise self.error(f"model {name!r} gives no equation for channel {cname!r}",
+                                 *path, "equations", cname)
+        order = list(channels)
+        overrides.sort(key=lambda item: order.index(item[0]))
+        return Model(name, constraints, tuple(overrides),
+                     self.alternatives(spec.get("alternatives"), all_models, name, *path))
+
+    def alternatives(self, value, all_models, owner, *path) -> tuple[Alternative, ...]:
+        path = path + ("alternatives",)
+        if isinstance(value, Mapping):
+            items = [(k, v, path + (k,)) for k, v in value.items()]
+        else:
+            items = []
+            for i, entry in enumerate(self.sequence(value, "alternatives", *path)):
+                if isinstance(entry, Mapping) and len(entry) == 1:
+                    (k, v), = entry.items()
+                    items.append((k, v, path + (i,)))
+                else:
+                    items.append((entry, 1.0, path + (i,)))
+        out = []
+        for target, phi, where in items:
+            if not isinstance(target, str) or target not in all_models:
+                raise self.error(f"model {owner!r} names an unknown alternative {target!r}",
+                                 *where)
+            if target == owner:
+                raise self.error(f"model {owner!r} names itself as an alternative", *where)
+            out.append(Alternative(target, self.phi(phi, *where)))
+        return tuple(out)
+
+    def phi(self, value, *path) -> float | str:
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            if value <= 0:
+                raise self.error(f"cost factor must be positive, got {value}", *path)
+            return float(value)
+        if isinstance(value, str):
+            word, _, arg = value.partition(":")
+            if word in _PHI_WORDS and (word != "exp" or arg) and (word != "aic" or not arg):
+                if arg:
+                    self.number(arg, f"argument of {word}", *path)
+                return value
+        raise self.error(
+            f"cost factor {value!r} not understood (a number, 'aic', 'ftest', 'ftest:P' "
+            "or 'exp:kappa')",
+            *path,
+        )
+
+    def check_acyclic(self, models):
+        edges = {m.name: [a.model for a in m.alternatives] for m in models}
+        state: dict[str, int] = {}
+
+        def visit(node, trail):
+            state[node] = 1
+            for nxt in edges[node]:
+                if state.get(nxt) == 1:
+                    cycle = " -> ".join(trail[trail.index(nxt):] + [nxt])
+                    raise self.error(f"cycle in the model lattice: {cycle}", "models", node,
+                                     "alternatives")
+                if nxt not in state:
+                    visit(nxt, trail + [nxt])
+            state[node] = 2
+
+        for model in models:
+            if model.name not in state:
+                visit(model.name, [model.name])
+
+    def derived(self, name, spec, base, declare) -> Derived:
+        path = ("derived", name)
+        name = declare(name, "derived quantity", *path)
+        if isinstance(spec, list):
+            if spec and all(isinstance(row, list) for row in spec):
+                widths = {len(row) for row in spec}
+                if len(widths) != 1 or 0 in widths:
+                    raise self.error(f"derived matrix {name!r} has rows of unequal length",
+                                     *path)
+                exprs = tuple(self.expression(e, base, *path, i, j)
+                              for i, row in enumerate(spec) for j, e in enumerate(row))
+                return Derived(name, (len(spec), widths.pop()), exprs)
+            if not spec or any(isinstance(e, list) for e in spec):
+                raise self.error(f"derived {name!r} must be an expression, a list of "
+                                 "expressions or a list of rows", *path)
+            exprs = tuple(self.expression(e, base, *path, i) for i, e in enumerate(spec))
+            return Derived(name, (len(spec),), exprs)
+        return Derived(name, (), (self.expression(spec, base, *path),))

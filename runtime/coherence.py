@@ -1,0 +1,148 @@
+"""Measures against a fixed parameter: coherence errors (eq. 22–24) and the minimal solve
+(eq. 21) used by random sampling (report §3.6, §4)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from .family import ModelFamily
+from .fit import make_problem
+from .inputs import parameter_vector
+from .projector import quadratic
+from .sqrt import EPS, reduced_solve, reduced_sqrt
+
+
+def coherence(fam: ModelFamily, model: str, q, data: Mapping, info: Mapping | None = None,
+              constants=None, iterations: int | None = None, tol: float = 1e-10,
+              ) -> dict[str, np.ndarray]:
+    """Coherence error of every measure with a fixed parameter ``q`` (report eq. 22–24).
+
+    Each measure ``m•`` is projected onto ``c•(q, ·) = 0`` in its ``Q•`` metric (the projector
+    iteration in measure space only, vectorised over measures); its error is
+    ``e• = (‖m̃• − m•‖²_Q• + ‖c•(q, m̃•)‖²_{(D• Q•⁺ D•ᵀ)⁻}) / p•``.
+
+    Parameters
+    ----------
+    iterations : int, optional
+        Number of evaluations: 1 gives the Sampson error (first-order), ``None`` iterates to
+        convergence (the geometric error).
+
+    Returns
+    -------
+    dict
+        ``{channel: (M,) errors}``.
+
+    Examples
+    --------
+    >>> import numpy as np, kanagen
+    >>> fam = kanagen.load("line")
+    >>> e = kanagen.coherence(fam, "line", [1.0, 0.0], data={"point": [[0.0, 1.0]]})
+    >>> round(float(e["point"][0]), 6)   # distance² to y = x is 1/2, p = 1
+    0.5
+    """
+    problem = make_problem(fam, model, data, info, constants=constants)
+    q = parameter_vector(fam, q, "q")
+    cap = iterations if iterations is not None else 50
+    out = {}
+    for fn, (whiten, correct), ch in zip(problem.measures, problem.kernels, problem.channels,
+                                         strict=True):
+        mt = ch.m.copy()
+        errors = np.full(ch.size, np.inf)
+        active = np.ones(ch.size, dtype=bool)
+        with np.errstate(all="ignore"):
+            for it in range(cap):
+                c, _, D = fn(q, ch.with_corrected(mt), problem.k)
+                r = np.einsum("mpk,mk->mp", D, mt - ch.m) - c  # r − C q with q fixed
+                stacked = np.stack([r, c], axis=2)
+                Bbar, kept, state = whiten(D, ch.G, stacked, problem.eps)
+                p = np.maximum(kept.sum(axis=1), 1)
+                err = (quadratic(mt - ch.m, ch.Q) + np.sum(Bbar[..., 1] ** 2, axis=1)) / p
+                errors = np.where(active, err, errors)
+                if it == cap - 1 or not active.any():
+                    break
+                new = ch.m + correct(state, ch.G, Bbar[..., 0])
+                moved = quadratic(new - mt, ch.Q)
+                active &= moved > tol**2
+                mt = np.where(active[:, None] & np.isfinite(new), new, mt)
+        out[ch.name] = np.where(np.isfinite(errors), errors, np.inf)
+    return out
+
+
+@dataclass(frozen=True)
+class MinimalSolution:
+    """Result of :func:`minimal_solve`."""
+
+    q: np.ndarray
+    success: bool
+    rank: int
+    iterations: int
+    violation: float
+
+
+def minimal_solve(fam: ModelFamily, model: str, data: Mapping, q_start=None, constants=None,
+                  max_iter: int = 50, xtol: float = 1e-12, eps: float = EPS) -> MinimalSolution:
+    """The ``q`` closest to ``q_start`` (identity metric) satisfying ``c0`` and the equations
+    of the given measures, held fixed (report eq. 21, ``Q0 = 0``).
+
+    Never raises on numerical trouble: a degenerate sample gives ``success=False``.
+    """
+    problem = make_problem(fam, model, data, None, constants=constants)
+    target = parameter_vector(fam, q_start, "q_start")
+
+    def equations(q):
+        c0, C0 = problem.c0(q, problem.k)
+        cs, Js = [c0], [C0]
+        for fn, ch in zip(problem.measures, problem.channels, strict=True):
+            c, C, _ = fn(q, ch.X, problem.k)
+            cs.append(c.reshape(-1))
+            Js.append(C.reshape(-1, q.size))
+        return np.concatenate(cs), np.concatenate(Js)
+
+    q, rank = target.copy(), 0
+    with np.errstate(all="ignore"):
+        c, J = equations(q)
+        delta = float(np.max(np.abs(c), initial=0.0))
+        for it in range(1, max_iter + 1):
+            L, kept = reduced_sqrt(J @ J.T, eps)
+            rank = int(kept.sum())
+            d = J @ q - c
+            lam = reduced_solve(L, kept, reduced_solve(L, kept, J @ target - d), transpose=True)
+            step = target - J.T @ lam - q
+            if not np.all(np.isfinite(step)):
+                return MinimalSolution(q, False, rank, it, delta)
+            alpha = 1.0
+            while alpha > 2.0**-30:
+                trial = q + alpha * step
+                c_new, J_new = equations(trial)
+                d_new = float(np.max(np.abs(c_new), initial=0.0))
+                if np.isfinite(d_new) and d_new < delta + 1e-12 * (1 + delta):
+                    break
+                alpha /= 2
+            else:
+                return MinimalSolution(q, _solved(delta, q), rank, it, delta)
+            moved = np.max(np.abs(alpha * step), initial=0.0)
+            q, c, J, delta = trial, c_new, J_new, d_new
+            if moved <= xtol * (1 + np.max(np.abs(q))):
+                return MinimalSolution(q, _solved(delta, q), rank, it, delta)
+    return MinimalSolution(q, _solved(delta, q), rank, max_iter, delta)
+
+
+def _solved(delta: float, q: np.ndarray) -> bool:
+    return bool(np.isfinite(delta) and delta <= 1e-8 * (1 + np.max(np.abs(q))))
+
+
+def minimal_sample_size(fam: ModelFamily, model: str, channel: str, q=None,
+                        constants=None) -> int:
+    """The fewest measures of ``channel`` whose equations fix the ``n − p`` free degrees of
+    freedom of ``model`` (p: rank of the constraints at ``q``, default the spec's q0)."""
+    k = fam.constant_vector(constants)
+    q = parameter_vector(fam, q, "q")
+    _, C0 = fam.c0(model, q, k)
+    p = int(reduced_sqrt(C0 @ C0.T)[1].sum()) if C0.shape[0] else 0
+    width = len(fam.channel(channel).components)
+    c, _, _ = fam.measurement(model, channel, q, np.zeros((0, width)), k)
+    return math.ceil((fam.n - p) / c.shape[1])

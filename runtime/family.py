@@ -1,0 +1,186 @@
+"""A model family at run time: the generated module behind a small typed interface."""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import importlib.util
+import os
+import sys
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+
+from . import kernels as generic_kernels
+
+
+@dataclass(frozen=True)
+class ChannelInfo:
+    """An input channel: data columns, exact ones, and the corrected ones with their columns."""
+
+    name: str
+    components: tuple[str, ...]
+    exact: tuple[str, ...]
+    corrected: tuple[str, ...]
+
+    @property
+    def corrected_index(self) -> np.ndarray:
+        return np.array([self.components.index(c) for c in self.corrected], dtype=int)
+
+
+@dataclass(frozen=True)
+class ModelInfo:
+    """A model of the family: its constraints (as text), alternatives and equation overrides."""
+
+    name: str
+    constraints: tuple[str, ...]
+    alternatives: tuple[tuple[str, float | str], ...]
+    equations: Mapping[str, tuple[str, ...]]
+
+
+class ModelFamily:
+    """A compiled model family: evaluates equations and Jacobians through generated code.
+
+    Obtain one with :func:`kanagen.load`. ``use_generated_kernels=False`` switches the
+    per-measure algebra to the generic runtime implementation (same results).
+    """
+
+    def __init__(self, module: ModuleType, use_generated_kernels: bool = True):
+        self.module = module
+        meta = module.FAMILY
+        self.name: str = meta["name"]
+        self.sha256: str = module.SPEC_SHA256
+        self.parameter_names = tuple(n for n, _ in meta["parameter"])
+        self._q0 = np.array([v for _, v in meta["parameter"]], dtype=float)
+        self.constant_names = tuple(n for n, _ in meta["constants"])
+        self._constants = {n: float(v) for n, v in meta["constants"]}
+        self.channels = {
+            name: ChannelInfo(name, tuple(c["components"]), tuple(c["exact"]),
+                              tuple(c["corrected"]))
+            for name, c in meta["channels"].items()
+        }
+        self.models = {
+            name: ModelInfo(name, tuple(m["constraints"]),
+                            tuple((a, phi) for a, phi in m["alternatives"]),
+                            {c: tuple(e) for c, e in m["equations"].items()})
+            for name, m in meta["models"].items()
+        }
+        self.derived_shapes = {k: tuple(v) for k, v in meta["derived"].items()}
+        self.null_model: str = meta["null_model"]
+        self.use_generated_kernels = use_generated_kernels
+
+    def __repr__(self) -> str:
+        return (f"<ModelFamily {self.name!r}: parameter {list(self.parameter_names)}, "
+                f"models {list(self.models)}, channels {list(self.channels)}>")
+
+    @property
+    def n(self) -> int:
+        return len(self.parameter_names)
+
+    @property
+    def q0(self) -> np.ndarray:
+        """The default parameter value declared in the spec."""
+        return self._q0.copy()
+
+    @property
+    def constants(self) -> dict[str, float]:
+        """Default values of the constants."""
+        return dict(self._constants)
+
+    def constant_vector(self, constants: Mapping[str, float] | None = None) -> np.ndarray:
+        """Constants in declaration order, defaults overridden by ``constants``."""
+        values = dict(self._constants)
+        for key, value in (constants or {}).items():
+            if key not in values:
+                raise ValueError(f"unknown constant {key!r} (family {self.name!r} has "
+                                 f"{list(values) or 'none'})")
+            value = float(value)
+            if not np.isfinite(value):
+                raise ValueError(f"constant {key!r} must be finite, got {value}")
+            values[key] = value
+        return np.array([values[n] for n in self.constant_names], dtype=float)
+
+    def params_dict(self, q: np.ndarray) -> dict[str, float]:
+        return {n: float(v) for n, v in zip(self.parameter_names, q, strict=True)}
+
+    def model(self, name: str) -> ModelInfo:
+        try:
+            return self.models[name]
+        except KeyError:
+            raise ValueError(f"unknown model {name!r} (family {self.name!r} has "
+                             f"{list(self.models)})") from None
+
+    def channel(self, name: str) -> ChannelInfo:
+        try:
+            return self.channels[name]
+        except KeyError:
+            raise ValueError(f"unknown channel {name!r} (family {self.name!r} has "
+                             f"{list(self.channels)})") from None
+
+    def _k(self, constants):
+        return constants if isinstance(constants, np.ndarray) else self.constant_vector(constants)
+
+    def c0(self, model: str, q, constants=None) -> tuple[np.ndarray, np.ndarray]:
+        """Constraints ``c0(q)`` (p,) and their Jacobian (p, n)."""
+        self.model(model)
+        return self.module.MODELS[model]["c0"](np.asarray(q, dtype=float), self._k(constants))
+
+    def measurement(self, model: str, channel: str, q, m, constants=None):
+        """Equations (M, p), Jacobian in q (M, p, n) and in the corrected components (M, p, k).
+
+        ``m`` is the full data array (M, len(components)) in component order.
+        """
+        self.model(model)
+        self.channel(channel)
+        fn = self.module.MODELS[model]["channels"][channel]
+        return fn(np.asarray(q, dtype=float), np.asarray(m, dtype=float), self._k(constants))
+
+    def derived(self, q, constants=None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Every derived quantity and its Jacobian in q."""
+        if self.module.DERIVED is None:
+            return {}
+        return self.module.DERIVED(np.asarray(q, dtype=float), self._k(constants))
+
+    def kernel(self, p: int, k: int):
+        """The (whiten, correct) pair for p equations and k corrected components."""
+        if self.use_generated_kernels and (p, k) in self.module.KERNELS:
+            return self.module.KERNELS[(p, k)]
+        return generic_kernels.whiten, generic_kernels.correct
+
+
+def cache_dir() -> Path:
+    """Where specs built at run time are cached (``$KANAGEN_CACHE`` or the user cache)."""
+    root = os.environ.get("KANAGEN_CACHE")
+    if root:
+        return Path(root)
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "kanagen"
+
+
+def import_file(path: Path, module_name: str) -> ModuleType:
+    """Import a generated module from a file (generated by kanagen; never user text)."""
+    if module_name in sys.modules:
+        return sys.modules[module_name]
+    spec = importlib.util.spec_from_file_location(module_name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    sys.modules[module_name] = module
+    return module
+
+
+def shipped_module(name: str, sha256: str, fmt: int) -> ModuleType | None:
+    """The module under ``kanagen.generated`` for this spec, if it is there and up to date."""
+    try:
+        module = importlib.import_module(f"kanagen.generated.{name}")
+    except ImportError:
+        return None
+    if getattr(module, "SPEC_SHA256", None) == sha256 and getattr(module, "FORMAT", None) == fmt:
+        return module
+    return None
+
+
+def cache_key(sha256: str, generator_version: str) -> str:
+    return hashlib.sha256(f"{sha256}:{generator_version}".encode()).hexdigest()[:20]

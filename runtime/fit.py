@@ -1,0 +1,140 @@
+"""The local estimator: ``fit`` runs the iterated projector on one model (SPEC §2)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from .family import ModelFamily
+from .inputs import channel_data, parameter_vector, prior_information
+from .iterate import CONVERGED, FAILED, MAX_ITER, STALLED, iterate
+from .projector import Problem, project
+from .results import DerivedValue, FitResult, constrained_covariance
+from .sqrt import EPS
+
+
+def make_problem(fam: ModelFamily, model: str, data: Mapping, info: Mapping | None = None,
+                 q0=None, Q0=None, constants=None, eps: float = EPS) -> Problem:
+    """Validate the inputs and bundle everything the projector needs."""
+    fam.model(model)
+    channels = tuple(channel_data(fam, data, info))
+    k = fam.constant_vector(constants)
+    measures, kernels = [], []
+    for ch in channels:
+        measures.append(fam.module.MODELS[model]["channels"][ch.name])
+        p = _equation_count(fam, model, ch.name, k)
+        kernels.append(fam.kernel(p, len(ch.index)))
+    return Problem(
+        c0=fam.module.MODELS[model]["c0"],
+        measures=tuple(measures),
+        kernels=tuple(kernels),
+        channels=channels,
+        q0=parameter_vector(fam, q0),
+        Q0=prior_information(Q0, fam.n),
+        k=k,
+        eps=eps,
+    )
+
+
+def _equation_count(fam: ModelFamily, model: str, channel: str, k: np.ndarray) -> int:
+    width = len(fam.channel(channel).components)
+    c, _, _ = fam.module.MODELS[model]["channels"][channel](fam.q0, np.zeros((0, width)), k)
+    return c.shape[1]
+
+
+def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
+        info: Mapping | None = None, q0=None, Q0=None, constants=None, *, q_start=None,
+        max_iter: int = 100, xtol: float = 1e-10, eps: float = EPS) -> FitResult:
+    """Estimate the parameter of one model and correct the measures (report §2–3).
+
+    Parameters
+    ----------
+    fam : ModelFamily
+        From :func:`kanagen.load`.
+    model : str, optional
+        Model name; default the family's null model.
+    data : dict
+        ``{channel: array (M, components)}``, columns in the spec's component order.
+    info : dict, optional
+        ``{channel: Q}`` with Q a scalar, a (k, k) matrix, (M,) scalars or (M, k, k), over the
+        corrected components; default identity.
+    q0 : array or dict, optional
+        Prior / starting parameter; default the spec's values.
+    Q0 : optional
+        Prior information on q (scalar, diagonal or matrix); default 0.
+    constants : dict, optional
+        Run-time values of the spec's constants.
+    q_start : array, optional
+        Starting point of the iteration when it should differ from ``q0``.
+    max_iter, xtol, eps
+        Iteration cap, step tolerance, square-root pivot threshold.
+
+    Returns
+    -------
+    FitResult
+
+    Examples
+    --------
+    >>> import numpy as np, kanagen
+    >>> fam = kanagen.load("examples/line.yaml")  # doctest: +SKIP
+    >>> res = kanagen.fit(fam, "line", data={"point": np.array([[0., 1.], [1., 3.], [2., 5.]])})
+    ... # doctest: +SKIP
+    """
+    model = model or fam.null_model
+    problem = make_problem(fam, model, data or {}, info, q0, Q0, constants, eps)
+    start = problem.q0 if q_start is None else parameter_vector(fam, q_start, "q_start")
+    out = iterate(problem, start, max_iter=max_iter, xtol=xtol)
+    x, lin = out.point, out.lin
+    if out.status in (MAX_ITER, STALLED) or lin is None:
+        try:
+            with np.errstate(all="ignore"):
+                lin = project(problem, x)
+        except (np.linalg.LinAlgError, ValueError):
+            lin = None
+    n = fam.n
+    if lin is not None:
+        info_q, C0k = lin.info, lin.C0
+        rank0, ranks, residual = lin.rank0, lin.ranks, lin.residual
+        covariance = constrained_covariance(info_q, C0k)
+    else:
+        info_q, rank0, residual = np.full((n, n), np.nan), 0, np.nan
+        ranks = tuple(np.zeros(ch.size, dtype=int) for ch in problem.channels)
+        covariance = np.full((n, n), np.nan)
+    dof = n - rank0 + int(sum(int(r.sum()) for r in ranks))
+    success = out.status == CONVERGED or (out.status == STALLED and _feasible(x, residual))
+    measures = {ch.name: ch.with_corrected(m) for ch, m in zip(problem.channels, x.mt,
+                                                                 strict=True)}
+    return FitResult(
+        model=model,
+        params=fam.params_dict(x.q),
+        q=x.q.copy(),
+        measures=measures,
+        info=info_q,
+        covariance=covariance,
+        cost=x.cost,
+        dof=dof,
+        residual=residual,
+        constraint_violation=x.delta,
+        iterations=out.iterations,
+        success=bool(success and out.status != FAILED),
+        status=out.status,
+        message=out.message,
+        ranks={ch.name: r for ch, r in zip(problem.channels, ranks, strict=True)},
+        derived=derived_values(fam, x.q, covariance, problem.k),
+    )
+
+
+def _feasible(x, residual: float) -> bool:
+    return bool(np.isfinite(residual) and residual <= 1e-12 * max(1.0, x.cost))
+
+
+def derived_values(fam: ModelFamily, q: np.ndarray, covariance: np.ndarray,
+                   k: np.ndarray) -> dict[str, DerivedValue]:
+    """Derived quantities at ``q`` with covariances ``J Σ Jᵀ``."""
+    out = {}
+    with np.errstate(all="ignore"):
+        for name, (value, jac) in fam.derived(q, k).items():
+            J = jac.reshape(-1, fam.n)
+            out[name] = DerivedValue(value, J @ covariance @ J.T, jac)
+    return out

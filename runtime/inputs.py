@@ -1,0 +1,152 @@
+"""Validation of the numbers a user passes in: data arrays, information matrices, q0, Q0.
+
+Everything is checked before any work, with errors that say which channel, which measure and
+what is wrong. The estimator itself then never raises on bad numerics.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from .family import ModelFamily
+from .sqrt import closest_sqrt
+
+
+@dataclass(frozen=True)
+class ChannelData:
+    """The measures of one channel, ready for the projector."""
+
+    name: str
+    X: np.ndarray  # (M, components) observed data, all columns
+    index: np.ndarray  # columns of the corrected components
+    m: np.ndarray  # (M, k) observed corrected components
+    Q: np.ndarray  # information, (k, k) shared or (M, k, k)
+    G: np.ndarray  # inverse of the closest square root of Q, same shape
+
+    @property
+    def size(self) -> int:
+        return self.X.shape[0]
+
+    def with_corrected(self, mt: np.ndarray) -> np.ndarray:
+        """The data array with the corrected columns replaced by ``mt``."""
+        X = self.X.copy()
+        X[:, self.index] = mt
+        return X
+
+
+def _finite(a: np.ndarray, what: str) -> None:
+    bad = ~np.isfinite(a)
+    if bad.any():
+        where = np.argwhere(bad)[0]
+        raise ValueError(f"{what} contains NaN or infinite values (first at index "
+                         f"{tuple(int(i) for i in where)})")
+
+
+def _psd(Q: np.ndarray, what: str) -> None:
+    if not np.allclose(Q, np.swapaxes(Q, -1, -2), rtol=1e-10, atol=1e-12 * np.abs(Q).max(
+            initial=0.0)):
+        raise ValueError(f"{what} must be symmetric")
+    eig = np.linalg.eigvalsh(Q)
+    scale = np.maximum(np.abs(eig).max(axis=-1, initial=0.0), np.finfo(float).tiny)
+    worst = (eig.min(axis=-1) / scale) if eig.size else np.zeros(1)
+    if np.any(worst < -1e-10):
+        where = int(np.argmin(np.atleast_1d(worst)))
+        raise ValueError(f"{what} must be positive semi-definite (an eigenvalue is negative"
+                         + (f", measure {where})" if Q.ndim == 3 else ")"))
+
+
+def information(value, k: int, M: int, what: str) -> np.ndarray:
+    """Normalise an information specification to (k, k) or (M, k, k), validated."""
+    if value is None:
+        return np.eye(k)
+    Q = np.asarray(value, dtype=float)
+    _finite(Q, what)
+    if Q.ndim == 0:
+        if Q <= 0:
+            raise ValueError(f"{what} must be positive, got {float(Q)}")
+        return float(Q) * np.eye(k)
+    if Q.shape == (M,) and not (M == k and k > 1):
+        if np.any(Q <= 0):
+            raise ValueError(f"{what}: per-measure scalars must be positive "
+                             f"(measure {int(np.argmin(Q))} has {Q.min()})")
+        return Q[:, None, None] * np.eye(k)
+    if Q.shape == (k, k) or Q.shape == (M, k, k):
+        _psd(Q, what)
+        return Q
+    raise ValueError(f"{what} has shape {Q.shape}; expected a scalar, ({k}, {k}), ({M},) "
+                     f"or ({M}, {k}, {k})")
+
+
+def inverse_root(Q: np.ndarray) -> np.ndarray:
+    """``G = L⁻¹`` for ``L`` the closest square root of ``Q`` (so ``Q⁺ = Gᵀ G``)."""
+    L = closest_sqrt(Q)
+    eye = np.broadcast_to(np.eye(Q.shape[-1]), Q.shape)
+    return np.linalg.solve(L, eye)
+
+
+def channel_data(fam: ModelFamily, data: Mapping, info: Mapping | None) -> list[ChannelData]:
+    """Validate ``data`` and ``info`` (dicts keyed by channel name)."""
+    if not isinstance(data, Mapping):
+        raise ValueError("data must be a dict {channel name: array}")
+    info = info or {}
+    if not isinstance(info, Mapping):
+        raise ValueError("info must be a dict {channel name: information}")
+    for name in list(data) + list(info):
+        fam.channel(name)
+    out = []
+    for name, value in data.items():
+        ch = fam.channel(name)
+        X = np.array(value, dtype=float)
+        width = len(ch.components)
+        if X.ndim == 1 and width == 1:
+            X = X[:, None]
+        if X.ndim != 2 or X.shape[1] != width:
+            raise ValueError(f"data for channel {name!r} has shape {X.shape}; expected (M, "
+                             f"{width}) with columns {list(ch.components)}")
+        _finite(X, f"data for channel {name!r}")
+        idx = ch.corrected_index
+        Q = information(info.get(name), len(idx), X.shape[0], f"info for channel {name!r}")
+        out.append(ChannelData(name, X, idx, X[:, idx].copy(), Q, inverse_root(Q)))
+    return out
+
+
+def parameter_vector(fam: ModelFamily, q, what: str = "q0") -> np.ndarray:
+    """A parameter given as None (defaults), an array (n,) or a partial dict by name."""
+    if q is None:
+        return fam.q0
+    if isinstance(q, Mapping):
+        out = fam.q0
+        for key, value in q.items():
+            if key not in fam.parameter_names:
+                raise ValueError(f"{what}: unknown parameter {key!r} (family has "
+                                 f"{list(fam.parameter_names)})")
+            out[fam.parameter_names.index(key)] = float(value)
+    else:
+        out = np.array(q, dtype=float)
+        if out.shape != (fam.n,):
+            raise ValueError(f"{what} has shape {out.shape}; expected ({fam.n},)")
+    _finite(out, what)
+    return out
+
+
+def prior_information(Q0, n: int) -> np.ndarray:
+    """Q0 given as None (no prior), a scalar, a diagonal (n,) or a matrix (n, n)."""
+    if Q0 is None:
+        return np.zeros((n, n))
+    Q = np.asarray(Q0, dtype=float)
+    _finite(Q, "Q0")
+    if Q.ndim == 0:
+        if Q < 0:
+            raise ValueError(f"Q0 must be non-negative, got {float(Q)}")
+        return float(Q) * np.eye(n)
+    if Q.shape == (n,):
+        if np.any(Q < 0):
+            raise ValueError("Q0 diagonal must be non-negative")
+        return np.diag(Q)
+    if Q.shape != (n, n):
+        raise ValueError(f"Q0 has shape {Q.shape}; expected a scalar, ({n},) or ({n}, {n})")
+    _psd(Q, "Q0")
+    return Q

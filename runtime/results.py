@@ -1,0 +1,108 @@
+"""Results of an estimation, as frozen dataclasses that carry their uncertainty."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class DerivedValue:
+    """A derived quantity with its covariance propagated from the parameter's (J Σ Jᵀ)."""
+
+    value: np.ndarray
+    covariance: np.ndarray  # (size, size) over the flattened value
+    jacobian: np.ndarray
+
+    @property
+    def std(self) -> np.ndarray:
+        """Standard deviation of each entry, shaped like ``value``."""
+        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None)).reshape(self.value.shape)
+
+
+def constrained_covariance(info: np.ndarray, C0: np.ndarray) -> np.ndarray:
+    """Covariance of q̃: the top-left block of ``[[Q̃, C0ᵀ], [C0, 0]]⁻¹`` (pseudo-inverse)."""
+    n, p = info.shape[0], C0.shape[0]
+    K = np.zeros((n + p, n + p))
+    K[:n, :n] = info
+    K[:n, n:] = C0.T
+    K[n:, :n] = C0
+    try:
+        inv = np.linalg.inv(K)
+        if not np.all(np.isfinite(inv)):
+            raise np.linalg.LinAlgError
+    except np.linalg.LinAlgError:
+        inv = np.linalg.pinv(K, rcond=1e-13)
+    cov = inv[:n, :n]
+    return 0.5 * (cov + cov.T)
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """The outcome of :func:`kanagen.fit` (SPEC §2 outputs).
+
+    Attributes
+    ----------
+    model : str
+    params : dict[str, float]
+        Estimated parameter by component name.
+    q : ndarray (n,)
+    measures : dict[str, ndarray]
+        Corrected measures per channel, all columns (exact ones unchanged).
+    info : ndarray (n, n)
+        Q̃ = Q0 + A at the solution (report eq. 6).
+    covariance, std : ndarray
+        Covariance of q̃ under the constraints (inverse of the bordered information), and
+        the standard deviations.
+    cost : float
+        L̃² = ½‖q̃−q0‖²_Q0 + Σ ½‖m̃−m‖²_Q.
+    dof : int
+        d = n − p + Σ p_i with the ranks kept by the reduced square roots (eq. 7).
+    normalized_cost : float
+        L̃² / d.
+    residual : float
+        E², the constraint violation in the whitened metric (eq. 13/17).
+    iterations, success, status, message
+        See :mod:`kanagen.runtime.iterate` for the status codes.
+    """
+
+    model: str
+    params: dict[str, float]
+    q: np.ndarray
+    measures: dict[str, np.ndarray]
+    info: np.ndarray
+    covariance: np.ndarray
+    cost: float
+    dof: int
+    residual: float
+    constraint_violation: float
+    iterations: int
+    success: bool
+    status: int
+    message: str
+    ranks: dict[str, np.ndarray] = field(default_factory=dict)
+    derived: dict[str, DerivedValue] = field(default_factory=dict)
+
+    @property
+    def std(self) -> np.ndarray:
+        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+
+    @property
+    def normalized_cost(self) -> float:
+        return self.cost / self.dof if self.dof > 0 else float("inf")
+
+    def summary(self) -> str:
+        """A human-readable table of the estimate."""
+        lines = [f"model {self.model!r}: {self.message} after {self.iterations} iteration(s)",
+                 f"  cost L~^2 = {self.cost:.6g}, d = {self.dof}, L~^2/d = "
+                 f"{self.normalized_cost:.6g}, residual E^2 = {self.residual:.3g}"]
+        width = max(len(k) for k in self.params)
+        for (name, value), sd in zip(self.params.items(), self.std, strict=True):
+            lines.append(f"  {name:<{width}} = {value: .10g}  ± {sd:.3g}")
+        for name, d in self.derived.items():
+            if d.value.ndim == 0:
+                lines.append(f"  {name} = {float(d.value): .10g}  ± {float(d.std):.3g}")
+            else:
+                lines.append(f"  {name} = {np.array2string(d.value, precision=6)}")
+        return "\n".join(lines)

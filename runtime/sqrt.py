@@ -1,0 +1,174 @@
+"""The two generalised square-root decompositions of the report (§3.3, appendix D).
+
+Both work on symmetric positive semi-definite matrices, batched over leading axes, with
+loops over the (small, fixed) matrix size and vector operations over the batch.
+
+* :func:`closest_sqrt` — Cholesky where a pivot that is not > ε·scale is replaced by ε·scale:
+  the factor of a definite matrix next to the input.
+* :func:`reduced_sqrt` — Cholesky where a row/column whose pivot is <= ε·scale is dropped and
+  the factorisation goes on with the rest: it keeps the first independent equations.
+
+ε defaults to 10× machine epsilon and is relative to the matrix scale (its largest diagonal).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import lapack
+
+#: Default relative pivot threshold, 10× machine precision (report §3.3).
+EPS = 10 * np.finfo(float).eps
+_TINY = np.finfo(float).tiny
+_SMALL = 16  # single matrices up to this size are factored with plain floats (no array overhead)
+
+
+def _scale(S: np.ndarray) -> np.ndarray:
+    diag = np.diagonal(S, axis1=-2, axis2=-1)
+    return np.maximum(diag.max(axis=-1, initial=0.0), _TINY)
+
+
+def closest_sqrt(S: np.ndarray, eps: float = EPS) -> np.ndarray:
+    """Lower-triangular ``L`` with ``L Lᵀ = S + Σ v_k e_k e_kᵀ`` for the smallest pivots fixes.
+
+    Parameters
+    ----------
+    S : (..., n, n) array
+        Symmetric positive semi-definite matrices.
+    eps : float
+        Relative pivot floor.
+
+    Examples
+    --------
+    >>> L = closest_sqrt(np.array([[4.0, 2.0], [2.0, 1.0]]))   # singular input
+    >>> bool(np.all(np.diag(L) > 0))
+    True
+    """
+    S = np.asarray(S, dtype=float)
+    n = S.shape[-1]
+    if S.ndim == 2 and n <= _SMALL:
+        L, info = lapack.dpotrf(S, lower=1, clean=1)
+        diag = np.diagonal(L)
+        scale = max(float(np.max(np.diagonal(S), initial=0.0)), _TINY)
+        if info == 0 and float(np.min(diag * diag, initial=np.inf)) > eps * scale:
+            return L  # no pivot needs the fix: the plain factor is the closest one
+        return np.array(_factor_small(S.tolist(), eps, reduced=False)[0])
+    scale = _scale(S)
+    floor = np.where(scale > _TINY, eps * scale, eps)
+    try:
+        L = np.linalg.cholesky(S)
+        if (np.diagonal(L, axis1=-2, axis2=-1) ** 2 > floor[..., None]).all():
+            return L  # no pivot needs the fix: the plain factor is the closest one
+    except np.linalg.LinAlgError:
+        pass
+    L = np.zeros_like(S)
+    for k in range(n):
+        piv = S[..., k, k] - np.sum(L[..., k, :k] ** 2, axis=-1)
+        L[..., k, k] = np.sqrt(np.where(piv > floor, piv, floor))
+        if k + 1 < n:
+            rest = S[..., k + 1 :, k] - np.einsum("...ij,...j->...i", L[..., k + 1 :, :k],
+                                                  L[..., k, :k])
+            L[..., k + 1 :, k] = rest / L[..., k, k][..., None]
+    return L
+
+
+def reduced_sqrt(S: np.ndarray, eps: float = EPS) -> tuple[np.ndarray, np.ndarray]:
+    """Cholesky factor of the sub-matrix of ``S`` on its first independent rows.
+
+    Returns ``(L, kept)``: ``L`` lower triangular with zero rows and columns for the dropped
+    indices, and the boolean mask ``kept``. Use :func:`reduced_solve` to apply ``L⁻¹``.
+
+    Examples
+    --------
+    >>> C = np.array([[1.0, 0.0], [2.0, 0.0], [0.0, 1.0]])   # row 2 = 2 × row 1
+    >>> L, kept = reduced_sqrt(C @ C.T)
+    >>> kept.tolist()
+    [True, False, True]
+    """
+    S = np.asarray(S, dtype=float)
+    n = S.shape[-1]
+    if S.ndim == 2 and n <= _SMALL:
+        L, kept = _factor_small(S.tolist(), eps, reduced=True)
+        return np.array(L).reshape(n, n), np.array(kept, dtype=bool)
+    tol = eps * _scale(S)
+    L = np.zeros_like(S)
+    kept = np.zeros(S.shape[:-1], dtype=bool)
+    for k in range(n):
+        piv = S[..., k, k] - np.sum(L[..., k, :k] ** 2, axis=-1)
+        keep = piv > tol
+        kept[..., k] = keep
+        root = np.sqrt(np.where(keep, piv, 1.0))
+        L[..., k, k] = np.where(keep, root, 0.0)
+        if k + 1 < n:
+            rest = S[..., k + 1 :, k] - np.einsum("...ij,...j->...i", L[..., k + 1 :, :k],
+                                                  L[..., k, :k])
+            L[..., k + 1 :, k] = np.where(keep[..., None], rest / root[..., None], 0.0)
+    return L, kept
+
+
+def triangular_solve(L: np.ndarray, b: np.ndarray, transpose: bool = False) -> np.ndarray:
+    """Solve ``L x = b`` (or ``Lᵀ x = b``) for a lower-triangular, non-singular ``L``."""
+    x, info = lapack.dtrtrs(L, b, lower=1, trans=1 if transpose else 0)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"singular triangular factor (info {info})")
+    return x
+
+
+def reduced_solve(L: np.ndarray, kept: np.ndarray, B: np.ndarray, transpose: bool = False):
+    """Solve ``L y = B`` (or ``Lᵀ y = B``) on the kept indices; dropped entries of ``y`` are 0.
+
+    ``L`` is (..., p, p), ``kept`` (..., p), ``B`` (..., p) or (..., p, t).
+    """
+    vector = B.ndim == L.ndim - 1
+    if L.ndim == 2 and vector and L.shape[0] <= _SMALL:
+        return np.array(_solve_small(L.tolist(), kept.tolist(), B.tolist(), transpose))
+    Y = np.array(B[..., None] if vector else B, dtype=float)
+    p = L.shape[-1]
+    diag = np.diagonal(L, axis1=-2, axis2=-1)
+    inv = np.where(kept, 1.0 / np.where(kept, diag, 1.0), 0.0)[..., None]
+    order = range(p - 1, -1, -1) if transpose else range(p)
+    for a in order:
+        if transpose:
+            acc = Y[..., a, :] - np.einsum("...i,...it->...t", L[..., a + 1 :, a], Y[..., a + 1 :, :])
+        else:
+            acc = Y[..., a, :] - np.einsum("...i,...it->...t", L[..., a, :a], Y[..., :a, :])
+        Y[..., a, :] = acc * inv[..., a, :]
+    return Y[..., 0] if vector else Y
+
+
+def _factor_small(S: list, eps: float, reduced: bool) -> tuple[list, list]:
+    """The same factorisations on one small matrix, with Python floats."""
+    n = len(S)
+    scale = max(max((S[i][i] for i in range(n)), default=0.0), _TINY)
+    tol = eps * scale if (reduced or scale > _TINY) else eps
+    L = [[0.0] * n for _ in range(n)]
+    kept = [False] * n
+    for k in range(n):
+        Lk = L[k]
+        piv = S[k][k] - sum(v * v for v in Lk[:k])
+        if piv > tol:
+            kept[k] = True
+        elif reduced or piv != piv:
+            continue
+        else:
+            piv = tol
+        root = piv**0.5
+        Lk[k] = root
+        for i in range(k + 1, n):
+            Li = L[i]
+            Li[k] = (S[i][k] - sum(a * b for a, b in zip(Li[:k], Lk[:k], strict=True))) / root
+    return L, kept
+
+
+def _solve_small(L: list, kept: list, b: list, transpose: bool) -> list:
+    n = len(L)
+    y = [0.0] * n
+    order = range(n - 1, -1, -1) if transpose else range(n)
+    for a in order:
+        if not kept[a]:
+            continue
+        if transpose:
+            acc = b[a] - sum(L[i][a] * y[i] for i in range(a + 1, n))
+        else:
+            acc = b[a] - sum(L[a][i] * y[i] for i in range(a))
+        y[a] = acc / L[a][a]
+    return y
