@@ -57,7 +57,8 @@ def _convert(node, path, lines, source, constructor):
         out = {}
         for key_node, value_node in node.value:
             if not isinstance(key_node, yaml.ScalarNode):
-                raise SpecError("mapping keys must be plain names", source, key_node.start_mark.line + 1)
+                raise SpecError("mapping keys must be plain names", source,
+                                key_node.start_mark.line + 1)
             key = constructor.construct_object(key_node)
             if key in out:
                 raise SpecError(f"duplicate name {key!r}", source, key_node.start_mark.line + 1)

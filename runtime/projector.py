@@ -103,7 +103,7 @@ def project(problem: Problem, x: Point) -> Linearisation:
         stacked[..., n] = C @ q + (D @ (m - ch.m)[..., None])[..., 0] - c
         stacked[..., n + 1] = c
         Bbar, kept, state = whiten(D, ch.G, stacked, problem.eps)
-        Cbar, rbar, cbar = Bbar[..., :n], Bbar[..., n], Bbar[..., n + 1]
+        Cbar, rbar = Bbar[..., :n], Bbar[..., n]
         flat = Bbar.reshape(-1, n + 2)
         A += flat[:, :n].T @ flat[:, :n]
         b += flat[:, :n].T @ flat[:, n]

@@ -128,7 +128,8 @@ def reduced_solve(L: np.ndarray, kept: np.ndarray, B: np.ndarray, transpose: boo
     order = range(p - 1, -1, -1) if transpose else range(p)
     for a in order:
         if transpose:
-            acc = Y[..., a, :] - np.einsum("...i,...it->...t", L[..., a + 1 :, a], Y[..., a + 1 :, :])
+            below = L[..., a + 1 :, a]
+            acc = Y[..., a, :] - np.einsum("...i,...it->...t", below, Y[..., a + 1 :, :])
         else:
             acc = Y[..., a, :] - np.einsum("...i,...it->...t", L[..., a, :a], Y[..., :a, :])
         Y[..., a, :] = acc * inv[..., a, :]
