@@ -85,7 +85,7 @@ def parse_expression(
     >>> import sympy as sp
     >>> x = sp.Symbol("x")
     >>> parse_expression("2*x**2 - sqrt(x)", {"x": x})
-    2*x**2 - sqrt(x)
+    -sqrt(x) + 2*x**2
     """
     if isinstance(text, bool):
         raise SpecError(f"expected an expression, got the boolean {text}", source, line)

@@ -22,7 +22,7 @@ _TOP_KEYS = ("name", "description", "constants", "parameter", "channels", "model
 _CHANNEL_KEYS = ("components", "exact", "equations", "description")
 _MODEL_KEYS = ("constraints", "equations", "alternatives", "description")
 _PHI_WORDS = ("aic", "ftest", "exp")
-_SYMPY_FUNCS = tuple(f for f in FUNCTIONS.values() if isinstance(f, type))
+_SYMPY_FUNCS = tuple(f for f in FUNCTIONS.values() if isinstance(f, type))  # sqrt is a Pow
 
 
 def load_spec(path: str | Path) -> Family:
@@ -122,6 +122,8 @@ class _Builder:
                 )
 
     def number(self, value, what, *path) -> float:
+        if isinstance(value, bool) or value is None or isinstance(value, list | Mapping):
+            raise self.error(f"{what} must be a real number, got {value!r}", *path)
         expr = self.expression(value, {}, *path)
         if not expr.is_number or not expr.is_real:
             raise self.error(f"{what} must be a real number, got {value!r}", *path)
@@ -149,7 +151,7 @@ class _Builder:
                 node.is_Symbol
                 or node.is_Number
                 or node in CONSTANTS.values()
-                or isinstance(node, sp.Add | sp.Mul | sp.Pow | _SYMPY_FUNCS)
+                or isinstance(node, (sp.Add, sp.Mul, sp.Pow, *_SYMPY_FUNCS))
             )
             if not ok:
                 raise self.error(f"{type(node).__name__} not allowed in expression {expr}", *path)

@@ -97,6 +97,7 @@ def reduced_sqrt(S: np.ndarray, eps: float = EPS) -> tuple[np.ndarray, np.ndarra
         keep = piv > tol
         kept[..., k] = keep
         root = np.sqrt(np.where(keep, piv, 1.0))
+        L[..., k, :k] *= keep[..., None]  # a dropped equation leaves a zero row
         L[..., k, k] = np.where(keep, root, 0.0)
         if k + 1 < n:
             rest = S[..., k + 1 :, k] - np.einsum("...ij,...j->...i", L[..., k + 1 :, :k],
@@ -149,6 +150,7 @@ def _factor_small(S: list, eps: float, reduced: bool) -> tuple[list, list]:
         if piv > tol:
             kept[k] = True
         elif reduced or piv != piv:
+            Lk[:k] = [0.0] * k  # a dropped equation leaves a zero row
             continue
         else:
             piv = tol

@@ -1,0 +1,32 @@
+"""Shared fixtures: the repository root on sys.path (for ``benchmarks``), the shared data."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+
+def shared_data() -> Path:
+    """``$KANAGEN_DATA`` or ``../shared/data`` beside the repository."""
+    return Path(os.environ.get("KANAGEN_DATA", ROOT.parent / "shared" / "data"))
+
+
+@pytest.fixture
+def data_dir() -> Path:
+    path = shared_data()
+    if not path.is_dir():
+        pytest.skip(f"shared data not found at {path}")
+    return path
+
+
+@pytest.fixture(autouse=True)
+def _isolated_cache(tmp_path_factory, monkeypatch):
+    """Specs built at run time go to a per-session temporary cache."""
+    monkeypatch.setenv("KANAGEN_CACHE", str(tmp_path_factory.getbasetemp() / "kanagen-cache"))
