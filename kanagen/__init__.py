@@ -13,12 +13,20 @@ Examples
 True
 """
 
-from .loader import load, load_text
-from .modelspec import SpecError, family_from_data
-from .runtime.coherence import coherence, minimal_sample_size, minimal_solve
-from .runtime.family import ModelFamily
-from .runtime.fit import fit
-from .runtime.results import DerivedValue, FitResult
+from pathlib import Path as _Path
+
+# In a source checkout the subpackages sit beside this folder (modelspec/, codegen/, runtime/,
+# generated/); an installed kanagen has them inside it. Make the checkout importable as is.
+_here = _Path(__file__).resolve().parent
+if not (_here / "runtime").is_dir() and (_here.parent / "runtime" / "__init__.py").is_file():
+    __path__.append(str(_here.parent))  # noqa: F821 - the package's own __path__
+
+from .loader import load, load_text  # noqa: E402
+from .modelspec import SpecError, family_from_data  # noqa: E402
+from .runtime.coherence import coherence, minimal_sample_size, minimal_solve  # noqa: E402
+from .runtime.family import ModelFamily  # noqa: E402
+from .runtime.fit import fit  # noqa: E402
+from .runtime.results import DerivedValue, FitResult  # noqa: E402
 
 __version__ = "0.1.0"
 

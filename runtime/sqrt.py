@@ -19,7 +19,6 @@ from scipy.linalg import lapack
 #: Default relative pivot threshold, 10× machine precision (report §3.3).
 EPS = 10 * np.finfo(float).eps
 _TINY = np.finfo(float).tiny
-_SMALL = 16  # single matrices up to this size are factored with plain floats (no array overhead)
 
 
 def _scale(S: np.ndarray) -> np.ndarray:
@@ -45,13 +44,8 @@ def closest_sqrt(S: np.ndarray, eps: float = EPS) -> np.ndarray:
     """
     S = np.asarray(S, dtype=float)
     n = S.shape[-1]
-    if S.ndim == 2 and n <= _SMALL:
-        L, info = lapack.dpotrf(S, lower=1, clean=1)
-        diag = np.diagonal(L)
-        scale = max(float(np.max(np.diagonal(S), initial=0.0)), _TINY)
-        if info == 0 and float(np.min(diag * diag, initial=np.inf)) > eps * scale:
-            return L  # no pivot needs the fix: the plain factor is the closest one
-        return np.array(_factor_small(S.tolist(), eps, reduced=False)[0])
+    if S.ndim == 2:
+        return _closest_single(S, eps)
     scale = _scale(S)
     floor = np.where(scale > _TINY, eps * scale, eps)
     try:
@@ -86,9 +80,8 @@ def reduced_sqrt(S: np.ndarray, eps: float = EPS) -> tuple[np.ndarray, np.ndarra
     """
     S = np.asarray(S, dtype=float)
     n = S.shape[-1]
-    if S.ndim == 2 and n <= _SMALL:
-        L, kept = _factor_small(S.tolist(), eps, reduced=True)
-        return np.array(L).reshape(n, n), np.array(kept, dtype=bool)
+    if S.ndim == 2:
+        return _reduced_single(S, eps)
     tol = eps * _scale(S)
     L = np.zeros_like(S)
     kept = np.zeros(S.shape[:-1], dtype=bool)
@@ -120,8 +113,11 @@ def reduced_solve(L: np.ndarray, kept: np.ndarray, B: np.ndarray, transpose: boo
     ``L`` is (..., p, p), ``kept`` (..., p), ``B`` (..., p) or (..., p, t).
     """
     vector = B.ndim == L.ndim - 1
-    if L.ndim == 2 and vector and L.shape[0] <= _SMALL:
-        return np.array(_solve_small(L.tolist(), kept.tolist(), B.tolist(), transpose))
+    if L.ndim == 2 and vector:
+        y = np.zeros(B.shape)
+        if kept.any():
+            y[kept] = triangular_solve(L[np.ix_(kept, kept)], B[kept], transpose)
+        return y
     Y = np.array(B[..., None] if vector else B, dtype=float)
     p = L.shape[-1]
     diag = np.diagonal(L, axis1=-2, axis2=-1)
@@ -137,41 +133,48 @@ def reduced_solve(L: np.ndarray, kept: np.ndarray, B: np.ndarray, transpose: boo
     return Y[..., 0] if vector else Y
 
 
-def _factor_small(S: list, eps: float, reduced: bool) -> tuple[list, list]:
-    """The same factorisations on one small matrix, with Python floats."""
-    n = len(S)
-    scale = max(max((S[i][i] for i in range(n)), default=0.0), _TINY)
-    tol = eps * scale if (reduced or scale > _TINY) else eps
-    L = [[0.0] * n for _ in range(n)]
-    kept = [False] * n
-    for k in range(n):
-        Lk = L[k]
-        piv = S[k][k] - sum(v * v for v in Lk[:k])
-        if piv > tol:
-            kept[k] = True
-        elif reduced or piv != piv:
-            Lk[:k] = [0.0] * k  # a dropped equation leaves a zero row
-            continue
-        else:
-            piv = tol
-        root = piv**0.5
-        Lk[k] = root
-        for i in range(k + 1, n):
-            Li = L[i]
-            Li[k] = (S[i][k] - sum(a * b for a, b in zip(Li[:k], Lk[:k], strict=True))) / root
-    return L, kept
+def _closest_single(S: np.ndarray, eps: float) -> np.ndarray:
+    """One matrix through LAPACK: a pivot fix is the same as adding ``floor − pivot`` to that
+    diagonal entry, so each fix is followed by a fresh factorisation (usually none or one)."""
+    scale = float(np.max(np.diagonal(S), initial=0.0))
+    floor = eps * scale if scale > _TINY else eps
+    work = S.copy()
+    fixed = np.zeros(S.shape[0], dtype=bool)
+    for _ in range(2 * S.shape[0] + 2):
+        L, info = lapack.dpotrf(work, lower=1, clean=1)
+        if info == 0:
+            bad = np.flatnonzero(~(np.diagonal(L) ** 2 > floor) & ~fixed)
+            if bad.size == 0:
+                return L
+            k = int(bad[0])
+        elif info > 0:
+            k = info - 1
+        else:  # pragma: no cover - LAPACK argument error
+            raise np.linalg.LinAlgError(f"dpotrf failed (info {info})")
+        piv = work[k, k] - float(L[k, :k] @ L[k, :k])
+        # the pivot becomes `floor` (once more if rounding left it non-positive)
+        work[k, k] += floor - piv if not fixed[k] and np.isfinite(piv) else floor
+        fixed[k] = True
+    raise np.linalg.LinAlgError("closest square root did not settle")
 
 
-def _solve_small(L: list, kept: list, b: list, transpose: bool) -> list:
-    n = len(L)
-    y = [0.0] * n
-    order = range(n - 1, -1, -1) if transpose else range(n)
-    for a in order:
-        if not kept[a]:
+def _reduced_single(S: np.ndarray, eps: float) -> tuple[np.ndarray, np.ndarray]:
+    """One matrix through LAPACK: the first pivot <= tol drops its row and column, and the
+    factorisation restarts on the rest (the kept prefix is unchanged by the restart)."""
+    n = S.shape[0]
+    tol = eps * max(float(np.max(np.diagonal(S), initial=0.0)), _TINY)
+    kept = np.ones(n, dtype=bool)
+    while kept.any():
+        idx = np.flatnonzero(kept)
+        L, info = lapack.dpotrf(S[np.ix_(idx, idx)], lower=1, clean=1)
+        bad = info - 1 if info > 0 else None
+        if info == 0:
+            small = np.flatnonzero(~(np.diagonal(L) ** 2 > tol))
+            bad = int(small[0]) if small.size else None
+        if bad is not None:
+            kept[idx[bad]] = False
             continue
-        if transpose:
-            acc = b[a] - sum(L[i][a] * y[i] for i in range(a + 1, n))
-        else:
-            acc = b[a] - sum(L[a][i] * y[i] for i in range(a))
-        y[a] = acc / L[a][a]
-    return y
+        full = np.zeros_like(S)
+        full[np.ix_(idx, idx)] = L
+        return full, kept
+    return np.zeros_like(S), kept
