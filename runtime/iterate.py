@@ -62,6 +62,11 @@ def _small_step(problem: Problem, x: Point, lin: Linearisation, xtol: float) -> 
 def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
             xtol: float = 1e-10) -> Outcome:
     """Run eq. 18 from ``(q_start, m)``; never raises on numerical trouble."""
+    with np.errstate(all="ignore"):
+        return _iterate(problem, q_start, max_iter, xtol)
+
+
+def _iterate(problem: Problem, q_start: np.ndarray, max_iter: int, xtol: float) -> Outcome:
     x = evaluate(problem, q_start, tuple(ch.m.copy() for ch in problem.channels))
     if not x.finite:
         return Outcome(x, None, 0, FAILED, MESSAGES[FAILED] + " at the starting point")
@@ -69,8 +74,7 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
     lin = None
     for it in range(1, max_iter + 1):
         try:
-            with np.errstate(all="ignore"):
-                lin = project(problem, x)
+            lin = project(problem, x)
             ok = np.all(np.isfinite(lin.q)) and all(np.all(np.isfinite(m)) for m in lin.mt)
         except (np.linalg.LinAlgError, ValueError, ZeroDivisionError, FloatingPointError):
             ok = False

@@ -62,23 +62,30 @@ class Linearisation:
 
 def quadratic(v: np.ndarray, Q: np.ndarray) -> np.ndarray:
     """``vᵀ Q v`` per measure for v (M, k) and Q (k, k) or (M, k, k)."""
-    Qv = v @ Q if Q.ndim == 2 else np.einsum("mkl,ml->mk", Q, v)
-    return np.einsum("mk,mk->m", v, Qv)
+    if Q.ndim == 2:
+        return np.einsum("mk,kl,ml->m", v, Q, v)
+    return np.einsum("mk,mkl,ml->m", v, Q, v)
+
+
+def total_quadratic(v: np.ndarray, Q: np.ndarray) -> float:
+    """``Σ vᵢᵀ Q vᵢ`` over the measures."""
+    return float(np.einsum("mk,kl,ml->", v, Q, v) if Q.ndim == 2 else
+                 np.einsum("mk,mkl,ml->", v, Q, v))
 
 
 def evaluate(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...]) -> Point:
-    """Equations, Jacobians, ‖c‖∞ and the cost at ``(q, m̃)``."""
-    with np.errstate(all="ignore"):
-        c0, C0 = problem.c0(q, problem.k)
-        evals, delta = [], float(np.max(np.abs(c0), initial=0.0))
-        dq = q - problem.q0
-        cost = 0.5 * float(dq @ problem.Q0 @ dq)
-        for fn, ch, m in zip(problem.measures, problem.channels, mt, strict=True):
-            c, C, D = fn(q, ch.with_corrected(m), problem.k)
-            evals.append((c, C, D))
-            delta = max(delta, float(np.max(np.abs(c), initial=0.0)))
-            cost += 0.5 * float(np.sum(quadratic(m - ch.m, ch.Q)))
-    if np.isnan(delta):
+    """Equations, Jacobians, ‖c‖∞ and the cost at ``(q, m̃)`` (call under np.errstate)."""
+    c0, C0 = problem.c0(q, problem.k)
+    evals, delta = [], float(np.abs(c0).max()) if c0.size else 0.0
+    dq = q - problem.q0
+    cost = 0.5 * float(dq @ problem.Q0 @ dq)
+    for fn, ch, m in zip(problem.measures, problem.channels, mt, strict=True):
+        c, C, D = fn(q, ch.with_corrected(m), problem.k)
+        evals.append((c, C, D))
+        if c.size:
+            delta = max(delta, float(np.abs(c).max()))
+            cost += 0.5 * total_quadratic(m - ch.m, ch.Q)
+    if delta != delta:
         delta = np.inf
     return Point(q, tuple(mt), c0, C0, tuple(evals), delta, cost)
 

@@ -114,6 +114,8 @@ def reduced_solve(L: np.ndarray, kept: np.ndarray, B: np.ndarray, transpose: boo
     """
     vector = B.ndim == L.ndim - 1
     if L.ndim == 2 and vector:
+        if kept.all():
+            return triangular_solve(L, B, transpose)
         y = np.zeros(B.shape)
         if kept.any():
             y[kept] = triangular_solve(L[np.ix_(kept, kept)], B[kept], transpose)
@@ -136,14 +138,14 @@ def reduced_solve(L: np.ndarray, kept: np.ndarray, B: np.ndarray, transpose: boo
 def _closest_single(S: np.ndarray, eps: float) -> np.ndarray:
     """One matrix through LAPACK: a pivot fix is the same as adding ``floor − pivot`` to that
     diagonal entry, so each fix is followed by a fresh factorisation (usually none or one)."""
-    scale = float(np.max(np.diagonal(S), initial=0.0))
+    scale = float(S.diagonal().max()) if S.size else 0.0
     floor = eps * scale if scale > _TINY else eps
     work = S.copy()
     fixed = np.zeros(S.shape[0], dtype=bool)
     for _ in range(2 * S.shape[0] + 2):
         L, info = lapack.dpotrf(work, lower=1, clean=1)
         if info == 0:
-            bad = np.flatnonzero(~(np.diagonal(L) ** 2 > floor) & ~fixed)
+            bad = np.flatnonzero(~(L.diagonal() ** 2 > floor) & ~fixed)
             if bad.size == 0:
                 return L
             k = int(bad[0])
@@ -162,7 +164,12 @@ def _reduced_single(S: np.ndarray, eps: float) -> tuple[np.ndarray, np.ndarray]:
     """One matrix through LAPACK: the first pivot <= tol drops its row and column, and the
     factorisation restarts on the rest (the kept prefix is unchanged by the restart)."""
     n = S.shape[0]
-    tol = eps * max(float(np.max(np.diagonal(S), initial=0.0)), _TINY)
+    if n == 0:
+        return np.zeros((0, 0)), np.zeros(0, dtype=bool)
+    tol = eps * max(float(S.diagonal().max()), _TINY)
+    L, info = lapack.dpotrf(S, lower=1, clean=1)
+    if info == 0 and (L.diagonal() ** 2 > tol).all():
+        return L, np.ones(n, dtype=bool)  # every equation independent: the plain factor
     kept = np.ones(n, dtype=bool)
     while kept.any():
         idx = np.flatnonzero(kept)
