@@ -443,7 +443,6 @@ def spec_text(problem: Problem, start_index: int, *, transformed: bool = False) 
     )
 
 
-@functools.cache
 def family(name: str, start_index: int, transformed: bool = False) -> Any:
     """Build (once per process) the kanagen family of one problem and start.
 
@@ -461,12 +460,15 @@ def family(name: str, start_index: int, transformed: bool = False) -> Any:
     kanagen.Family
         ``kanagen.load_text(spec_text(...), source=f"nist_{name}.yaml")``.
     """
+    return _family(name, int(start_index), bool(transformed and load_problem(name).transformed))
+
+
+@functools.cache
+def _family(name: str, start_index: int, transformed: bool) -> Any:
     import kanagen
 
-    problem = load_problem(name)
-    transformed = transformed and problem.transformed
-    text = spec_text(problem, start_index, transformed=transformed)
-    suffix = "_" + TRANSFORMS[problem.response][0] if transformed else ""
+    text = spec_text(load_problem(name), start_index, transformed=transformed)
+    suffix = "_" + TRANSFORMS[RESPONSES[name]][0] if transformed else ""
     return kanagen.load_text(text, source=f"nist_{name}{suffix}.yaml")
 
 
@@ -608,7 +610,7 @@ def run_kanagen(
     *,
     transformed: bool = False,
     max_iter: int = 500,
-    xtol: float = 1e-12,
+    xtol: float | None = None,
     repeats: int = 1,
 ) -> RunResult:
     """Fit one case with :func:`kanagen.fit`.
@@ -621,8 +623,10 @@ def run_kanagen(
         0 for NIST's "Start 1", 1 for "Start 2" (it becomes the spec's parameter defaults).
     transformed : bool
         See :func:`spec_text`; ``True`` poses Nelson as NIST does (no effect on the others).
-    max_iter, xtol : int, float
+    max_iter : int
         Passed to :func:`kanagen.fit`.
+    xtol : float, optional
+        Passed to :func:`kanagen.fit` when given; default kanagen's own.
     repeats : int
         Timing repeats; the best time is kept.
 
@@ -638,15 +642,12 @@ def run_kanagen(
     arr = problem.data_array(transformed)
     info = kanagen_info(problem, transformed)
 
+    options: dict[str, Any] = {"max_iter": max_iter}
+    if xtol is not None:
+        options["xtol"] = xtol
+
     def call() -> Any:
-        return kanagen.fit(
-            fam,
-            model=MODEL,
-            data={CHANNEL: arr},
-            info={CHANNEL: info},
-            max_iter=max_iter,
-            xtol=xtol,
-        )
+        return kanagen.fit(fam, model=MODEL, data={CHANNEL: arr}, info={CHANNEL: info}, **options)
 
     try:
         res, elapsed = _timed(call, repeats)

@@ -29,6 +29,7 @@ FAMILY = {'name': 'conic',
  'null_model': 'circle'}
 
 _TINY = np.finfo(float).tiny
+_REDUNDANT = 1e3 * np.finfo(float).eps
 
 
 def c0_circle(q, k):
@@ -169,10 +170,11 @@ def whiten_1_2(D, G, B, eps):
     E_0_1 = D[:, 0, 0] * G[..., 1, 0] + D[:, 0, 1] * G[..., 1, 1]
     # S = E E^T (lower triangle)
     S_0_0 = E_0_0 * E_0_0 + E_0_1 * E_0_1
-    # Reduced square root of S: a pivot <= eps * scale drops its equation
+    # Reduced square root of S: a pivot <= eps * scale, or <= _REDUNDANT * its own diagonal,
+    # drops its equation
     tol = eps * np.maximum(S_0_0, _TINY)
     piv_0 = S_0_0
-    keep_0 = piv_0 > tol
+    keep_0 = (piv_0 > tol)
     inv_0 = np.where(keep_0, 1.0 / np.sqrt(np.where(keep_0, piv_0, 1.0)), 0.0)
     # Forward substitution over the kept equations
     Bbar = np.empty(B.shape)

@@ -30,6 +30,14 @@ class ChannelData:
     def size(self) -> int:
         return self.X.shape[0]
 
+    @property
+    def scale(self) -> float:
+        """Magnitude of the measures in their information metric (for rounding floors)."""
+        if not self.m.size:
+            return 0.0
+        q = np.abs(np.diagonal(self.Q, axis1=-2, axis2=-1)).max()
+        return float(np.abs(self.m).max() * np.sqrt(q))
+
     def with_corrected(self, mt: np.ndarray) -> np.ndarray:
         """The data array with the corrected columns replaced by ``mt``."""
         if self.index.size == self.X.shape[1]:

@@ -3,17 +3,26 @@
 Report rule: with ``δ_n = ‖c(x_n)‖∞``, step ``x_{n+1} = P(x_n)`` while ``δ`` does not grow
 (by more than ``ε``), else halve back towards the previous point.
 
+Globalisation (ours): when the report's step is refused and a few halvings (eq. 18) do not
+help, the parameter step is damped Levenberg–Marquardt style (``μ diag(H)`` added to the
+information, the linearised equations still solved exactly), ``μ`` growing tenfold until a
+step is accepted and shrinking tenfold after. Far from the solution this follows the
+gradient of the cost instead of a Gauss–Newton step that overshoots.
+
 Safeguard (ours): eq. 18 watches only the constraints, so near a feasible point it can
 cycle or walk uphill in cost. A trial point is accepted only if, besides the report's rule,
-it lowers the cost ``L²`` or makes a sufficient decrease in ``δ`` (``δ_new <= (1 − α/2) δ``
-for a step fraction ``α``) — a two-criterion filter. From a feasible point the projector step
-is a descent direction of the cost to first order, so halving always ends in an accepted step
-or in a step below the tolerance.
+it does not raise the cost ``L²`` or it strictly lowers ``δ`` (by a relative 10⁻⁴) — a
+two-criterion filter. Far from feasibility this is eq. 18 (a full Newton-like step that
+lowers the violation is taken even if the cost grows); once feasible, the projector step is a
+descent direction of the cost to first order, so halving ends in an accepted step or in a
+step below the tolerance.
 
 Status codes (``FitResult.status``):
 0 converged — the projector step is below the tolerance (a fixed point of ``P``);
 1 the iteration cap was reached;
-2 stalled — no fraction of the step is acceptable: precision limit, returns the best point;
+2 stalled — no fraction of the step is acceptable, only a negligible one is, or the step has
+  stopped shrinking (rounding noise): the precision limit; returns the best point (a success
+  when the equations hold there);
 3 numerical failure — non-finite values at the start or in the projector.
 """
 
@@ -23,7 +32,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .projector import Linearisation, Point, Problem, evaluate, project, quadratic
+from .projector import (
+    Linearisation,
+    Point,
+    Problem,
+    Projection,
+    evaluate,
+    linearise,
+    quadratic,
+    solve,
+)
 
 CONVERGED, MAX_ITER, STALLED, FAILED = 0, 1, 2, 3
 MESSAGES = {
@@ -34,28 +52,47 @@ MESSAGES = {
 }
 _MAX_HALVINGS = 40
 _ROUNDING = 1e3 * np.finfo(float).eps
+_STAGNATION = 5  # iterations without a smaller projector step
+_MU_MIN, _MU_MAX = 1e-4, 1e8  # Levenberg–Marquardt damping range, relative to diag(H)
+_HALVINGS_PER_DAMPING = 4
 
 
 @dataclass(frozen=True)
 class Outcome:
     point: Point
     lin: Linearisation | None
+    proj: Projection | None
     iterations: int
     status: int
     message: str
+    start_violation: float = 0.0
 
 
-def _small_step(problem: Problem, x: Point, lin: Linearisation, xtol: float) -> bool:
-    """``x`` is a fixed point of ``P``: each component of q moves by less than ``xtol``
-    relative to itself (or than the rounding level of ``q`` as a whole), and each measure by
-    less than ``xtol`` standard deviations (its information metric)."""
-    dq = np.abs(lin.q - x.q)
-    rounding = _ROUNDING * float(np.max(np.abs(x.q), initial=0.0))
-    if np.any(dq > xtol * np.abs(x.q) + rounding):
-        return False
+def _step_sizes(problem: Problem, x: Point, lin: Projection) -> tuple[float, float]:
+    """Size of the projector step: q components relative to themselves (floored at the
+    rounding level of q), and measures in standard deviations (their information metric)."""
+    floor = max(_ROUNDING * float(np.max(np.abs(x.q), initial=0.0)), np.finfo(float).tiny)
+    size_q = float(np.max(np.abs(lin.q - x.q) / (np.abs(x.q) + floor), initial=0.0))
+    size_m = 0.0
     for ch, m_new, m_old in zip(problem.channels, lin.mt, x.mt, strict=True):
-        if ch.size and np.max(quadratic(m_new - m_old, ch.Q)) > xtol**2:
-            return False
+        if ch.size:
+            size_m = max(size_m, float(np.max(quadratic(m_new - m_old, ch.Q))))
+    return size_q, np.sqrt(size_m)
+
+
+def _negligible(problem: Problem, q_old, q_new, mt_old, mt_new, xtol: float) -> bool:
+    """A move is negligible when each component of q moves by less than ``xtol`` relative to
+    itself, each measure by less than ``xtol`` standard deviations (its information metric) —
+    or, for both, by no more than the rounding level of the values."""
+    dq = np.abs(q_new - q_old)
+    rounding = _ROUNDING * float(np.max(np.abs(q_old), initial=0.0))
+    if np.any(dq > xtol * np.abs(q_old) + rounding):
+        return False
+    for ch, m_new, m_old in zip(problem.channels, mt_new, mt_old, strict=True):
+        if ch.size:
+            moved = float(np.max(quadratic(m_new - m_old, ch.Q)))
+            if moved > (xtol + _ROUNDING * ch.scale) ** 2:
+                return False
     return True
 
 
@@ -66,35 +103,91 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
         return _iterate(problem, q_start, max_iter, xtol)
 
 
+def _acceptable(trial: Point, x: Point, eps_delta: float, delta_cap: float) -> bool:
+    """A small filter over (cost, violation): accept a trial point that
+
+    * lowers the violation δ (eq. 18's aim), or
+    * does not raise the cost and does not raise δ (eq. 18's rule plus our cost guard), or
+    * clearly lowers the cost while δ stays below ``delta_cap`` (a hundredth of the starting
+      violation): near feasibility, a long step raises δ by second-order terms that the next
+      projection removes, and eq. 18 alone would refuse every such step.
+    """
+    if not trial.finite:
+        return False
+    if trial.delta <= (1 - 1e-4) * x.delta:
+        return True
+    if trial.delta < x.delta + eps_delta and trial.cost <= x.cost * (1 + 1e-13) + 1e-300:
+        return True
+    return trial.delta <= delta_cap and trial.cost < x.cost * (1 - 1e-10)
+
+
 def _iterate(problem: Problem, q_start: np.ndarray, max_iter: int, xtol: float) -> Outcome:
     x = evaluate(problem, q_start, tuple(ch.m.copy() for ch in problem.channels))
     if not x.finite:
-        return Outcome(x, None, 0, FAILED, MESSAGES[FAILED] + " at the starting point")
+        return Outcome(x, None, None, 0, FAILED, MESSAGES[FAILED] + " at the starting point")
     eps_delta = 1e-12 * (1.0 + x.delta)
-    lin = None
+    delta0 = x.delta
+    delta_cap = 1e-2 * delta0
+    lin = proj = None
+    mu = 0.0  # Levenberg–Marquardt damping, raised only when the plain step is refused
+    best = (np.inf, np.inf)
+    since_best = 0
+    last_cost = np.inf
+
+    def outcome(point, it, status, linearisation=None, projection=None):
+        return Outcome(point, linearisation, projection, it, status, MESSAGES[status], delta0)
+
     for it in range(1, max_iter + 1):
         try:
-            lin = project(problem, x)
-            ok = np.all(np.isfinite(lin.q)) and all(np.all(np.isfinite(m)) for m in lin.mt)
+            lin = linearise(problem, x)
+            proj = solve(problem, lin)
+            ok = np.all(np.isfinite(proj.q)) and all(np.all(np.isfinite(m)) for m in proj.mt)
         except (np.linalg.LinAlgError, ValueError, ZeroDivisionError, FloatingPointError):
             ok = False
         if not ok:
-            return Outcome(x, None, it, FAILED, MESSAGES[FAILED] + " in the projector")
-        if _small_step(problem, x, lin, xtol):
-            new = evaluate(problem, lin.q, lin.mt)
-            return Outcome(new if new.finite else x, lin, it, CONVERGED, MESSAGES[CONVERGED])
-        alpha = 1.0
-        for _ in range(_MAX_HALVINGS):
-            q = x.q + alpha * (lin.q - x.q)
-            mt = tuple(a + alpha * (b - a) for a, b in zip(x.mt, lin.mt, strict=True))
-            trial = evaluate(problem, q, mt)
-            if trial.finite and trial.delta < x.delta + eps_delta and (
-                trial.cost <= x.cost * (1 + 1e-13) + 1e-300
-                or trial.delta <= (1 - alpha / 2) * x.delta
-            ):
-                x = trial
-                break
-            alpha /= 2
+            return Outcome(x, None, None, it, FAILED, MESSAGES[FAILED] + " in the projector",
+                           delta0)
+        if _negligible(problem, x.q, proj.q, x.mt, proj.mt, xtol):
+            new = evaluate(problem, proj.q, proj.mt)
+            return outcome(new if new.finite else x, it, CONVERGED, lin, proj)
+        # Under linear convergence the step shrinks every iteration; once it stops shrinking
+        # while the cost stays put, it is rounding noise around the solution: stop there.
+        sizes = _step_sizes(problem, x, proj)
+        if (sizes[0] < 0.9 * best[0] or sizes[1] < 0.9 * best[1]
+                or x.cost < (1 - 1e-12) * last_cost):
+            best = (min(best[0], sizes[0]), min(best[1], sizes[1]))
+            since_best = 0
         else:
-            return Outcome(x, lin, it, STALLED, MESSAGES[STALLED])
-    return Outcome(x, lin, max_iter, MAX_ITER, MESSAGES[MAX_ITER])
+            since_best += 1
+            if since_best >= _STAGNATION:
+                return outcome(x, it, STALLED, lin, proj)
+        trial = _line_search(problem, lin, proj, x, mu, eps_delta, delta_cap)
+        if trial is None:
+            return outcome(x, it, STALLED, lin, proj)
+        trial, mu_used, alpha = trial
+        mu = mu_used / 10 if mu_used > _MU_MIN else 0.0
+        if alpha < 1 and _negligible(problem, x.q, trial.q, x.mt, trial.mt, xtol):
+            return outcome(trial, it, STALLED, lin, proj)
+        last_cost = x.cost
+        x = trial
+    return outcome(x, max_iter, MAX_ITER, lin, proj)
+
+
+def _line_search(problem, lin, proj, x, mu, eps_delta, delta_cap):
+    """Find an acceptable point: the report's step (or the damped one the last iteration
+    needed), halved back towards ``x`` a few times as eq. 18 does; if still refused, damp
+    more (Levenberg–Marquardt, tenfold, up to ``_MU_MAX``) and halve again — at the last
+    damping level for as long as eq. 18 would. Returns (point, μ used, α) or None."""
+    while True:
+        target = proj if mu == 0.0 else solve(problem, lin, mu)
+        alpha = 1.0
+        for _ in range(_MAX_HALVINGS if mu >= _MU_MAX else _HALVINGS_PER_DAMPING):
+            q = x.q + alpha * (target.q - x.q)
+            mt = tuple(a + alpha * (b - a) for a, b in zip(x.mt, target.mt, strict=True))
+            trial = evaluate(problem, q, mt)
+            if _acceptable(trial, x, eps_delta, delta_cap):
+                return trial, mu, alpha
+            alpha /= 2
+        if mu >= _MU_MAX:
+            return None
+        mu = max(10 * mu, _MU_MIN)

@@ -49,14 +49,30 @@ class Point:
 
 @dataclass(frozen=True)
 class Linearisation:
-    """The projector's output at a point: the target ``P(x)`` and the local information."""
+    """The linearised problem at a point (report eq. 38–43), whitened, ready to be solved.
+
+    The projector is written in increments: it solves for ``Δq = q − q•`` (and corrects the
+    measures for ``q• + Δq``), the same point ``P(x•)`` as eq. 12 without the cancellation of
+    the large ``C q•`` terms in ``r``.
+    """
+
+    x: Point
+    info: np.ndarray  # Q̃ = Q0 + A
+    H: np.ndarray  # Q̃ + ρ C0ᵀC0 (augmented form of the same KKT system)
+    rhs: np.ndarray  # Q0 (q0 − q•) + Σ C̄ᵀ r̄' + ρ C0ᵀ (−c0)
+    whitened: tuple  # per channel: (C̄, r̄', kernel state) or None
+    ranks: tuple[np.ndarray, ...]  # p_i per measure, per channel
+    residual: float  # Σ ‖W_i c_i‖², the measurement part of E²
+
+
+@dataclass(frozen=True)
+class Projection:
+    """``P(x•)`` (damped by μ when μ > 0): the new point and what the solve kept."""
 
     q: np.ndarray
     mt: tuple[np.ndarray, ...]
-    info: np.ndarray  # Q̃ = Q0 + A
     C0: np.ndarray  # kept rows of C0 (reduced square root)
-    rank0: int  # p, constraints kept
-    ranks: tuple[np.ndarray, ...]  # p_i per measure, per channel
+    rank0: int
     residual: float  # E² (eq. 13/17) at the linearisation point
 
 
@@ -83,19 +99,21 @@ def evaluate(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...]) -> Poi
         c, C, D = fn(q, ch.with_corrected(m), problem.k)
         evals.append((c, C, D))
         if c.size:
-            delta = max(delta, float(np.abs(c).max()))
+            worst = float(np.abs(c).max())
+            delta = np.inf if worst != worst else max(delta, worst)  # NaN counts as infinite
             cost += 0.5 * total_quadratic(m - ch.m, ch.Q)
     if delta != delta:
         delta = np.inf
     return Point(q, tuple(mt), c0, C0, tuple(evals), delta, cost)
 
 
-def project(problem: Problem, x: Point) -> Linearisation:
-    """One application of the projector ``P_{x0}(x•)`` (report eq. 12, Fig. 17)."""
+def linearise(problem: Problem, x: Point) -> Linearisation:
+    """Whitened linearisation at ``x`` (report appendix A, Fig. 17), per-measure work
+    vectorised over the measures of each channel."""
     q = x.q
     n = q.size
     A = np.zeros((n, n))
-    b = np.zeros(n)
+    g = np.zeros(n)
     residual = 0.0
     whitened, ranks = [], []
     for (whiten, _), ch, m, (c, C, D) in zip(problem.kernels, problem.channels, x.mt, x.evals,
@@ -106,38 +124,83 @@ def project(problem: Problem, x: Point) -> Linearisation:
             continue
         stacked = np.empty(C.shape[:2] + (n + 2,))
         stacked[..., :n] = C
-        # r_i = C q• + D (m• − m) − c (SPEC §2)
-        stacked[..., n] = C @ q + (D @ (m - ch.m)[..., None])[..., 0] - c
+        # r_i − C_i q• = D_i (m• − m) − c_i (SPEC §2, in increments)
+        stacked[..., n] = (D @ (m - ch.m)[..., None])[..., 0] - c
         stacked[..., n + 1] = c
         Bbar, kept, state = whiten(D, ch.G, stacked, problem.eps)
-        Cbar, rbar = Bbar[..., :n], Bbar[..., n]
         flat = Bbar.reshape(-1, n + 2)
         A += flat[:, :n].T @ flat[:, :n]
-        b += flat[:, :n].T @ flat[:, n]
+        g += flat[:, :n].T @ flat[:, n]
         residual += float(flat[:, n + 1] @ flat[:, n + 1])
-        whitened.append((Cbar, rbar, state))
+        whitened.append((Bbar[..., :n], Bbar[..., n], state))
         ranks.append(kept.sum(axis=1))
     info = problem.Q0 + A
-    Abar = closest_sqrt(info, problem.eps)  # Q0 + A = Ā Āᵀ
-    bbar = triangular_solve(Abar, problem.Q0 @ problem.q0 + b)
+    rhs = problem.Q0 @ (problem.q0 - q) + g
+    H = info
+    if x.C0.shape[0]:
+        # Augmented form of the same KKT system: adding ρ C0ᵀ(C0 Δq + c0) = 0 changes neither
+        # Δq nor λ0, but makes H definite wherever the constraints fix what the data leave
+        # free (e.g. the scale of a homogeneous parameter), so the closest root needs no ε
+        # floor there and C̄0 = Ā⁻¹ C0ᵀ stays well conditioned.
+        gram = x.C0.T @ x.C0
+        rho = _augmentation(info, gram)
+        H = info + rho * gram
+        rhs = rhs - rho * (x.C0.T @ x.c0)
+    return Linearisation(x, info, H, rhs, tuple(whitened), tuple(ranks), residual)
+
+
+def solve(problem: Problem, lin: Linearisation, mu: float = 0.0) -> Projection:
+    """The projector's point from a linearisation (report eq. 12/43, Fig. 17).
+
+    ``mu > 0`` adds Levenberg–Marquardt damping ``μ diag(H)`` to the parameter block (our
+    globalisation for starts far from the solution); ``mu = 0`` is the report's projector.
+    """
+    x = lin.x
+    H = lin.H
+    if mu > 0.0:
+        H = H + mu * np.diag(_equilibrium_weights(H))
+    Abar = closest_sqrt(H, problem.eps)  # H = Ā Āᵀ
+    bbar = triangular_solve(Abar, lin.rhs)
     C0 = x.C0
+    residual = lin.residual
     rank0, kept0 = 0, np.zeros(0, dtype=bool)
     if C0.shape[0]:
-        d0 = C0 @ q - x.c0
         C0bar_t = triangular_solve(Abar, C0.T)  # Ā⁻¹ C0ᵀ
         L0, kept0 = reduced_sqrt(C0bar_t.T @ C0bar_t, problem.eps)
-        lam = reduced_solve(L0, kept0, reduced_solve(L0, kept0, C0bar_t.T @ bbar - d0),
+        lam = reduced_solve(L0, kept0, reduced_solve(L0, kept0, C0bar_t.T @ bbar + x.c0),
                             transpose=True)
         bbar = bbar - C0bar_t @ lam
         e0 = reduced_solve(L0, kept0, x.c0)
         residual += float(e0 @ e0)
         rank0 = int(kept0.sum())
-    q_new = triangular_solve(Abar, bbar, transpose=True)
+    dq = triangular_solve(Abar, bbar, transpose=True)
     mt_new = []
-    for (_, correct), ch, w in zip(problem.kernels, problem.channels, whitened, strict=True):
+    for (_, correct), ch, w in zip(problem.kernels, problem.channels, lin.whitened,
+                                   strict=True):
         if w is None:
             mt_new.append(ch.m.copy())
             continue
         Cbar, rbar, state = w
-        mt_new.append(ch.m + correct(state, ch.G, rbar - Cbar @ q_new))  # eq. 44
-    return Linearisation(q_new, tuple(mt_new), info, C0[kept0], rank0, tuple(ranks), residual)
+        mt_new.append(ch.m + correct(state, ch.G, rbar - Cbar @ dq))  # eq. 44
+    return Projection(x.q + dq, tuple(mt_new), C0[kept0], rank0, residual)
+
+
+def project(problem: Problem, x: Point) -> tuple[Linearisation, Projection]:
+    """One application of the projector ``P_{x0}(x•)`` (report eq. 12, Fig. 17)."""
+    lin = linearise(problem, x)
+    return lin, solve(problem, lin)
+
+
+def _equilibrium_weights(H: np.ndarray) -> np.ndarray:
+    diag = np.abs(np.diagonal(H))
+    top = float(diag.max(initial=0.0))
+    return np.where(diag > 0, diag, top if top > 0 else 1.0)
+
+
+def _augmentation(info: np.ndarray, gram: np.ndarray) -> float:
+    """ρ that puts ρ C0ᵀC0 on the scale of the information matrix."""
+    top = float(np.max(np.diagonal(info), initial=0.0))
+    bottom = float(np.max(np.diagonal(gram), initial=0.0))
+    if bottom <= 0.0:
+        return 0.0
+    return (top if top > 0.0 else 1.0) / bottom

@@ -22,20 +22,46 @@ class DerivedValue:
 
 
 def constrained_covariance(info: np.ndarray, C0: np.ndarray) -> np.ndarray:
-    """Covariance of q̃: the top-left block of ``[[Q̃, C0ᵀ], [C0, 0]]⁻¹`` (pseudo-inverse)."""
+    """Covariance of q̃: the top-left block of ``[[Q̃, C0ᵀ], [C0, 0]]⁻¹``.
+
+    Directions that neither the information nor the constraints fix are unobservable: the
+    components they move get an infinite variance (not the pseudo-inverse's zero, which would
+    claim certainty).
+    """
     n, p = info.shape[0], C0.shape[0]
     K = np.zeros((n + p, n + p))
     K[:n, :n] = info
     K[:n, n:] = C0.T
     K[n:, :n] = C0
-    try:
-        inv = np.linalg.inv(K)
-        if not np.all(np.isfinite(inv)):
-            raise np.linalg.LinAlgError
-    except np.linalg.LinAlgError:
-        inv = np.linalg.pinv(K, rcond=1e-13)
-    cov = inv[:n, :n]
-    return 0.5 * (cov + cov.T)
+    if not np.all(np.isfinite(K)):
+        return np.full((n, n), np.nan)
+    # equilibrate: unit diagonal on the information block, unit rows of C0
+    diag = np.abs(np.diag(info))
+    d = np.sqrt(np.where(diag > 0, diag, max(float(diag.max(initial=0.0)), 1.0)))
+    rows = np.linalg.norm(C0 / d, axis=1) if p else np.zeros(0)
+    e = np.concatenate([d, np.where(rows > 0, rows, 1.0)])
+    K = K / np.outer(e, e)
+    w, V = np.linalg.eigh(K)
+    scale = np.abs(w).max(initial=0.0)
+    null = np.abs(w) <= 1e-12 * scale if scale > 0 else np.ones_like(w, dtype=bool)
+    inv_w = np.where(null, 0.0, 1.0 / np.where(null, 1.0, w))
+    cov = (V[:n] * inv_w) @ V[:n].T / np.outer(d, d)
+    cov = 0.5 * (cov + cov.T)
+    free = np.any(np.abs(V[:n, null]) > 1e-8, axis=1)
+    cov[free, :] = np.inf
+    cov[:, free] = np.inf
+    return cov
+
+
+def propagate(J: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    """``J Σ Jᵀ``, with infinite variance wherever J touches an unobservable component."""
+    free = ~np.isfinite(np.diag(covariance))
+    finite = np.where(np.isfinite(covariance), covariance, 0.0)
+    out = J @ finite @ J.T
+    touched = np.any(J[:, free] != 0, axis=1)
+    out[touched, :] = np.inf
+    out[:, touched] = np.inf
+    return out
 
 
 @dataclass(frozen=True)

@@ -5,10 +5,16 @@ loops over the (small, fixed) matrix size and vector operations over the batch.
 
 * :func:`closest_sqrt` — Cholesky where a pivot that is not > ε·scale is replaced by ε·scale:
   the factor of a definite matrix next to the input.
-* :func:`reduced_sqrt` — Cholesky where a row/column whose pivot is <= ε·scale is dropped and
+* :func:`reduced_sqrt` — Cholesky where a row/column whose pivot is too small is dropped and
   the factorisation goes on with the rest: it keeps the first independent equations.
 
 ε defaults to 10× machine epsilon and is relative to the matrix scale (its largest diagonal).
+The reduced root drops row ``k`` when its pivot is <= ε·scale (a vanishing row, as in the
+report) **or** <= :data:`REDUNDANT`·S_kk: the pivot over the row's own diagonal is sin² of
+the angle between the row and the span of the rows kept before it, and the rounding of a Gram
+matrix leaves a few ε·n there for a dependent row — 10 ε alone would keep some of them.
+Relative to its own scale, the test also leaves the report's invariance to rescaling one
+equation intact.
 """
 
 from __future__ import annotations
@@ -19,6 +25,8 @@ from scipy.linalg import lapack
 #: Default relative pivot threshold, 10× machine precision (report §3.3).
 EPS = 10 * np.finfo(float).eps
 _TINY = np.finfo(float).tiny
+#: Relative pivot below which a row is taken as a combination of the rows kept before it.
+REDUNDANT = 1e3 * np.finfo(float).eps
 
 
 def _scale(S: np.ndarray) -> np.ndarray:
@@ -27,7 +35,13 @@ def _scale(S: np.ndarray) -> np.ndarray:
 
 
 def closest_sqrt(S: np.ndarray, eps: float = EPS) -> np.ndarray:
-    """Lower-triangular ``L`` with ``L Lᵀ = S + Σ v_k e_k e_kᵀ`` for the smallest pivots fixes.
+    """Lower-triangular ``L`` with ``L Lᵀ = S + Σ v_k e_k e_kᵀ`` for the smallest pivot fixes.
+
+    A pivot is compared with ε times its row's own diagonal entry (the factorisation runs on
+    the equilibrated matrix), so parameters of very different scales are treated alike; a
+    row with a zero diagonal gets ε times the matrix scale. ε is never taken below
+    :data:`REDUNDANT`: on a semi-definite matrix a Schur complement that should vanish is
+    left with rounding noise of a few ε·n, and keeping such a pivot would amplify the noise.
 
     Parameters
     ----------
@@ -44,25 +58,20 @@ def closest_sqrt(S: np.ndarray, eps: float = EPS) -> np.ndarray:
     """
     S = np.asarray(S, dtype=float)
     n = S.shape[-1]
+    eps = max(eps, REDUNDANT)
     if S.ndim == 2:
         return _closest_single(S, eps)
-    scale = _scale(S)
-    floor = np.where(scale > _TINY, eps * scale, eps)
-    try:
-        L = np.linalg.cholesky(S)
-        if (np.diagonal(L, axis1=-2, axis2=-1) ** 2 > floor[..., None]).all():
-            return L  # no pivot needs the fix: the plain factor is the closest one
-    except np.linalg.LinAlgError:
-        pass
-    L = np.zeros_like(S)
+    d = _equilibrium(S)
+    U = S / (d[..., :, None] * d[..., None, :])
+    L = np.zeros_like(U)
     for k in range(n):
-        piv = S[..., k, k] - np.sum(L[..., k, :k] ** 2, axis=-1)
-        L[..., k, k] = np.sqrt(np.where(piv > floor, piv, floor))
+        piv = U[..., k, k] - np.sum(L[..., k, :k] ** 2, axis=-1)
+        L[..., k, k] = np.sqrt(np.where(piv > eps, piv, eps))
         if k + 1 < n:
-            rest = S[..., k + 1 :, k] - np.einsum("...ij,...j->...i", L[..., k + 1 :, :k],
+            rest = U[..., k + 1 :, k] - np.einsum("...ij,...j->...i", L[..., k + 1 :, :k],
                                                   L[..., k, :k])
             L[..., k + 1 :, k] = rest / L[..., k, k][..., None]
-    return L
+    return L * d[..., :, None]
 
 
 def reduced_sqrt(S: np.ndarray, eps: float = EPS) -> tuple[np.ndarray, np.ndarray]:
@@ -87,7 +96,7 @@ def reduced_sqrt(S: np.ndarray, eps: float = EPS) -> tuple[np.ndarray, np.ndarra
     kept = np.zeros(S.shape[:-1], dtype=bool)
     for k in range(n):
         piv = S[..., k, k] - np.sum(L[..., k, :k] ** 2, axis=-1)
-        keep = piv > tol
+        keep = (piv > tol) & (piv > REDUNDANT * S[..., k, k])
         kept[..., k] = keep
         root = np.sqrt(np.where(keep, piv, 1.0))
         L[..., k, :k] *= keep[..., None]  # a dropped equation leaves a zero row
@@ -135,29 +144,25 @@ def reduced_solve(L: np.ndarray, kept: np.ndarray, B: np.ndarray, transpose: boo
     return Y[..., 0] if vector else Y
 
 
+def _equilibrium(S: np.ndarray) -> np.ndarray:
+    """Diagonal scaling that gives ``S`` a unit diagonal; a zero diagonal entry (a component
+    nothing informs) takes the matrix scale, so its pivot floor is ε·scale."""
+    diag = np.diagonal(S, axis1=-2, axis2=-1)
+    scale = diag.max(axis=-1, initial=0.0)[..., None]
+    scale = np.where(scale > _TINY, scale, 1.0)  # S = 0: the closest definite matrix is ε I
+    return np.sqrt(np.where(diag > _TINY * scale, diag, scale))
+
+
 def _closest_single(S: np.ndarray, eps: float) -> np.ndarray:
-    """One matrix through LAPACK: a pivot fix is the same as adding ``floor − pivot`` to that
-    diagonal entry, so each fix is followed by a fresh factorisation (usually none or one)."""
-    scale = float(S.diagonal().max()) if S.size else 0.0
-    floor = eps * scale if scale > _TINY else eps
-    work = S.copy()
-    fixed = np.zeros(S.shape[0], dtype=bool)
-    for _ in range(2 * S.shape[0] + 2):
-        L, info = lapack.dpotrf(work, lower=1, clean=1)
-        if info == 0:
-            bad = np.flatnonzero(~(L.diagonal() ** 2 > floor) & ~fixed)
-            if bad.size == 0:
-                return L
-            k = int(bad[0])
-        elif info > 0:
-            k = info - 1
-        else:  # pragma: no cover - LAPACK argument error
-            raise np.linalg.LinAlgError(f"dpotrf failed (info {info})")
-        piv = work[k, k] - float(L[k, :k] @ L[k, :k])
-        # the pivot becomes `floor` (once more if rounding left it non-positive)
-        work[k, k] += floor - piv if not fixed[k] and np.isfinite(piv) else floor
-        fixed[k] = True
-    raise np.linalg.LinAlgError("closest square root did not settle")
+    """One matrix: LAPACK when no pivot needs the fix (the common case), else the row loop.
+
+    (LAPACK's recursive Cholesky leaves no sequential partial factor to repair after a
+    failure, so the pivot fixes are made by the reference loop.)"""
+    d = _equilibrium(S)
+    L, info = lapack.dpotrf(S / np.outer(d, d), lower=1, clean=1)
+    if info == 0 and (L.diagonal() ** 2 > eps).all():
+        return L * d[:, None]
+    return closest_sqrt(S[None], eps)[0]
 
 
 def _reduced_single(S: np.ndarray, eps: float) -> tuple[np.ndarray, np.ndarray]:
@@ -166,7 +171,8 @@ def _reduced_single(S: np.ndarray, eps: float) -> tuple[np.ndarray, np.ndarray]:
     n = S.shape[0]
     if n == 0:
         return np.zeros((0, 0)), np.zeros(0, dtype=bool)
-    tol = eps * max(float(S.diagonal().max()), _TINY)
+    diag = S.diagonal()
+    tol = np.maximum(eps * max(float(diag.max()), _TINY), REDUNDANT * diag)
     L, info = lapack.dpotrf(S, lower=1, clean=1)
     if info == 0 and (L.diagonal() ** 2 > tol).all():
         return L, np.ones(n, dtype=bool)  # every equation independent: the plain factor
@@ -176,7 +182,7 @@ def _reduced_single(S: np.ndarray, eps: float) -> tuple[np.ndarray, np.ndarray]:
         L, info = lapack.dpotrf(S[np.ix_(idx, idx)], lower=1, clean=1)
         bad = info - 1 if info > 0 else None
         if info == 0:
-            small = np.flatnonzero(~(np.diagonal(L) ** 2 > tol))
+            small = np.flatnonzero(~(np.diagonal(L) ** 2 > tol[idx]))
             bad = int(small[0]) if small.size else None
         if bad is not None:
             kept[idx[bad]] = False

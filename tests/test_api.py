@@ -124,10 +124,20 @@ def test_numerical_trouble_is_a_status_not_an_exception():
 
 
 def test_semidefinite_prior_and_partial_observation(line):
-    # a single measure cannot fix both a and b: the prior picks the closest solution
-    res = kanagen.fit(line, "line", data={"point": XY[:1]}, q0=[1.0, 0.0], Q0=[0.0, 1.0])
+    # one point cannot fix both a and b: a semi-definite prior on a alone picks the solution
+    res = kanagen.fit(line, "line", data={"point": XY[:1]}, q0=[1.5, 0.0], Q0=[1.0, 0.0])
     assert res.success
-    assert res.params["b"] == pytest.approx(0.0, abs=1e-9) or res.cost >= 0
+    assert res.params["a"] == pytest.approx(1.5) and res.params["b"] == pytest.approx(1.0)
+    assert res.cost == pytest.approx(0.0, abs=1e-20)
+    # without the prior any line through the point costs nothing: a solution is returned, and
+    # the direction that nothing observes has an infinite variance, not a zero one
+    free = kanagen.fit(line, "line", data={"point": XY[:1]})
+    assert free.success and free.cost == pytest.approx(0.0, abs=1e-20)
+    assert free.params["b"] == pytest.approx(1.0 + 0.0 * free.params["a"])
+    # b = y(0) − a·0 is observed, with σ² = 1 + a² for the corrected point on that line
+    assert np.isinf(free.std[0])
+    assert free.std[1] == pytest.approx(np.sqrt(1 + free.params["a"] ** 2))
+    assert np.isinf(free.derived["angle"].std)
 
 
 @pytest.mark.parametrize("module", ["kanagen", "kanagen.loader", "kanagen.runtime.coherence",
