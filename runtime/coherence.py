@@ -12,7 +12,7 @@ import numpy as np
 from .family import ModelFamily
 from .fit import make_problem
 from .inputs import parameter_vector
-from .projector import quadratic
+from .projector import project_measures, quadratic
 from .sqrt import EPS, reduced_solve, reduced_sqrt
 
 
@@ -46,28 +46,13 @@ def coherence(fam: ModelFamily, model: str, q, data: Mapping, info: Mapping | No
     """
     problem = make_problem(fam, model, data, info, constants=constants)
     q = parameter_vector(fam, q, "q")
-    cap = iterations if iterations is not None else 50
+    with np.errstate(all="ignore"):
+        mt, violations, ranks = project_measures(
+            problem, q, tuple(ch.m for ch in problem.channels),
+            iterations if iterations is not None else 50, tol)
     out = {}
-    for fn, (whiten, correct), ch in zip(problem.measures, problem.kernels, problem.channels,
-                                         strict=True):
-        mt = ch.m.copy()
-        errors = np.full(ch.size, np.inf)
-        active = np.ones(ch.size, dtype=bool)
-        with np.errstate(all="ignore"):
-            for it in range(cap):
-                c, _, D = fn(q, ch.with_corrected(mt), problem.k)
-                r = np.einsum("mpk,mk->mp", D, mt - ch.m) - c  # r − C q with q fixed
-                stacked = np.stack([r, c], axis=2)
-                Bbar, kept, state = whiten(D, ch.G, stacked, problem.eps)
-                p = np.maximum(kept.sum(axis=1), 1)
-                err = (quadratic(mt - ch.m, ch.Q) + np.sum(Bbar[..., 1] ** 2, axis=1)) / p
-                errors = np.where(active, err, errors)
-                if it == cap - 1 or not active.any():
-                    break
-                new = ch.m + correct(state, ch.G, Bbar[..., 0])
-                moved = quadratic(new - mt, ch.Q)
-                active &= moved > tol**2
-                mt = np.where(active[:, None] & np.isfinite(new), new, mt)
+    for ch, m, violation, rank in zip(problem.channels, mt, violations, ranks, strict=True):
+        errors = (quadratic(m - ch.m, ch.Q) + violation) / np.maximum(rank, 1)
         out[ch.name] = np.where(np.isfinite(errors), errors, np.inf)
     return out
 

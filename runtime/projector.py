@@ -107,6 +107,43 @@ def evaluate(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...]) -> Poi
     return Point(q, tuple(mt), c0, C0, tuple(evals), delta, cost)
 
 
+def project_measures(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...],
+                     iterations: int, tol: float = 1e-10):
+    """Project each measure onto ``c_i(q, ·) = 0`` with ``q`` fixed, in its ``Q_i`` metric
+    (report eq. 22: the projector in measure space only, vectorised over the measures).
+
+    ``iterations`` counts evaluations of the equations: 1 evaluates at ``mt`` and moves
+    nothing. Returns ``(mt, violations, ranks)`` with, per channel and measure, the whitened
+    violation ``‖c(q, m̃)‖²_{(D Q⁺ Dᵀ)⁻}`` and the number of equations kept, both at the last
+    evaluation.
+    """
+    out_mt, out_violation, out_rank = [], [], []
+    for fn, (whiten, correct), ch, m in zip(problem.measures, problem.kernels,
+                                            problem.channels, mt, strict=True):
+        m = m.copy()
+        violation = np.zeros(ch.size)
+        rank = np.zeros(ch.size, dtype=int)
+        active = np.ones(ch.size, dtype=bool)
+        for it in range(iterations if ch.size else 0):
+            c, _, D = fn(q, ch.with_corrected(m), problem.k)
+            r = (D @ (m - ch.m)[..., None])[..., 0] - c  # r − C q with q fixed
+            Bbar, kept, state = whiten(D, ch.G, np.stack([r, c], axis=2), problem.eps)
+            violation = np.where(active, np.sum(Bbar[..., 1] ** 2, axis=1), violation)
+            rank = np.where(active, kept.sum(axis=1), rank)
+            if it == iterations - 1:
+                break
+            new = ch.m + correct(state, ch.G, Bbar[..., 0])
+            ok = np.all(np.isfinite(new), axis=1)
+            active &= ok & (quadratic(new - m, ch.Q) > tol**2)
+            if not active.any():
+                break
+            m = np.where(active[:, None], new, m)
+        out_mt.append(m)
+        out_violation.append(violation)
+        out_rank.append(rank)
+    return tuple(out_mt), tuple(out_violation), tuple(out_rank)
+
+
 def linearise(problem: Problem, x: Point) -> Linearisation:
     """Whitened linearisation at ``x`` (report appendix A, Fig. 17), per-measure work
     vectorised over the measures of each channel."""
