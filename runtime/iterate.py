@@ -114,9 +114,11 @@ def _acceptable(trial: Point, x: Point, eps_delta: float, delta_cap: float) -> b
     """
     if not trial.finite:
         return False
-    if trial.delta <= (1 - 1e-4) * x.delta:
-        return True
-    if trial.delta < x.delta + eps_delta and trial.cost <= x.cost * (1 + 1e-13) + 1e-300:
+    if x.delta > eps_delta and trial.delta <= (1 - 1e-4) * x.delta:
+        return True  # (a fall of δ within its rounding level is no progress)
+    # At rounding-level feasibility, moving costs λ·δ of the same order: rounding too.
+    slack = 1e-10 if x.delta <= eps_delta else 1e-13
+    if trial.delta < x.delta + eps_delta and trial.cost <= x.cost * (1 + slack) + 1e-300:
         return True
     return trial.delta <= delta_cap and trial.cost < x.cost * (1 - 1e-10)
 
