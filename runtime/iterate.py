@@ -3,6 +3,10 @@
 Report rule: with ``δ_n = ‖c(x_n)‖∞``, step ``x_{n+1} = P(x_n)`` while ``δ`` does not grow
 (by more than ``ε``), else halve back towards the previous point.
 
+Restoration (ours): every trial point (and the start) has its measures projected back onto
+their equations for its ``q`` (the report's eq. 22 projection, a few vectorised steps), so
+points are compared at their true cost and δ measures what the measures cannot absorb.
+
 Globalisation (ours): when the report's step is refused and a few halvings (eq. 18) do not
 help, the parameter step is damped Levenberg–Marquardt style (``μ diag(H)`` added to the
 information, the linearised equations still solved exactly), ``μ`` growing tenfold until a
@@ -39,6 +43,7 @@ from .projector import (
     Projection,
     evaluate,
     linearise,
+    project_measures,
     quadratic,
     solve,
 )
@@ -52,6 +57,7 @@ MESSAGES = {
 }
 _MAX_HALVINGS = 40
 _ROUNDING = 1e3 * np.finfo(float).eps
+_RESTORATION = 3  # evaluations when restoring the measures of a trial point
 _STAGNATION = 5  # iterations without a smaller projector step
 _MU_MIN, _MU_MAX = 1e-4, 1e8  # Levenberg–Marquardt damping range, relative to diag(H)
 _HALVINGS_PER_DAMPING = 4
@@ -123,12 +129,22 @@ def _acceptable(trial: Point, x: Point, eps_delta: float, delta_cap: float) -> b
     return trial.delta <= delta_cap and trial.cost < x.cost * (1 - 1e-10)
 
 
+def _restored(problem: Problem, q: np.ndarray, mt) -> Point:
+    """The point with its measures projected back onto their equations for this ``q``
+    (report eq. 22, a few measure-space steps): trial points are compared at their true cost."""
+    mt, _, _ = project_measures(problem, q, mt, _RESTORATION)
+    return evaluate(problem, q, mt)
+
+
 def _iterate(problem: Problem, q_start: np.ndarray, max_iter: int, xtol: float) -> Outcome:
     x = evaluate(problem, q_start, tuple(ch.m.copy() for ch in problem.channels))
     if not x.finite:
         return Outcome(x, None, None, 0, FAILED, MESSAGES[FAILED] + " at the starting point")
     eps_delta = 1e-12 * (1.0 + x.delta)
     delta0 = x.delta
+    restored = _restored(problem, q_start, x.mt)
+    if restored.finite and restored.delta <= x.delta:
+        x = restored
     delta_cap = 1e-2 * delta0
     lin = proj = None
     mu = 0.0  # Levenberg–Marquardt damping, raised only when the plain step is refused
@@ -186,7 +202,7 @@ def _line_search(problem, lin, proj, x, mu, eps_delta, delta_cap):
         for _ in range(_MAX_HALVINGS if mu >= _MU_MAX else _HALVINGS_PER_DAMPING):
             q = x.q + alpha * (target.q - x.q)
             mt = tuple(a + alpha * (b - a) for a, b in zip(x.mt, target.mt, strict=True))
-            trial = evaluate(problem, q, mt)
+            trial = _restored(problem, q, mt)
             if _acceptable(trial, x, eps_delta, delta_cap):
                 return trial, mu, alpha
             alpha /= 2

@@ -15,6 +15,8 @@ import numpy as np
 from .inputs import ChannelData
 from .sqrt import EPS, closest_sqrt, reduced_solve, reduced_sqrt, triangular_solve
 
+_ROUNDING = 1e3 * np.finfo(float).eps
+
 
 @dataclass(frozen=True)
 class Problem:
@@ -110,12 +112,12 @@ def evaluate(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...]) -> Poi
 def project_measures(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...],
                      iterations: int, tol: float = 1e-10):
     """Project each measure onto ``c_i(q, ·) = 0`` with ``q`` fixed, in its ``Q_i`` metric
-    (report eq. 22: the projector in measure space only, vectorised over the measures).
+    (report eq. 22: the projector in measure space only, with eq. 18's halving per measure,
+    vectorised over the measures).
 
-    ``iterations`` counts evaluations of the equations: 1 evaluates at ``mt`` and moves
-    nothing. Returns ``(mt, violations, ranks)`` with, per channel and measure, the whitened
-    violation ``‖c(q, m̃)‖²_{(D Q⁺ Dᵀ)⁻}`` and the number of equations kept, both at the last
-    evaluation.
+    ``iterations`` counts projector steps plus one: 1 evaluates at ``mt`` and moves nothing.
+    Returns ``(mt, violations, ranks)`` with, per channel and measure, the whitened violation
+    ``‖c(q, m̃)‖²_{(D Q⁺ Dᵀ)⁻}`` and the number of equations kept, at the returned point.
     """
     out_mt, out_violation, out_rank = [], [], []
     for fn, (whiten, correct), ch, m in zip(problem.measures, problem.kernels,
@@ -123,25 +125,46 @@ def project_measures(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...]
         m = m.copy()
         violation = np.zeros(ch.size)
         rank = np.zeros(ch.size, dtype=int)
-        active = np.ones(ch.size, dtype=bool)
-        for it in range(iterations if ch.size else 0):
+        if ch.size:
             c, _, D = fn(q, ch.with_corrected(m), problem.k)
+            active = np.ones(ch.size, dtype=bool)
+        for it in range(iterations if ch.size else 0):
             r = (D @ (m - ch.m)[..., None])[..., 0] - c  # r − C q with q fixed
             Bbar, kept, state = whiten(D, ch.G, np.stack([r, c], axis=2), problem.eps)
-            violation = np.where(active, np.sum(Bbar[..., 1] ** 2, axis=1), violation)
-            rank = np.where(active, kept.sum(axis=1), rank)
-            if it == iterations - 1:
+            violation = np.sum(Bbar[..., 1] ** 2, axis=1)
+            rank = kept.sum(axis=1)
+            if it == iterations - 1 or not active.any():
                 break
-            new = ch.m + correct(state, ch.G, Bbar[..., 0])
-            ok = np.all(np.isfinite(new), axis=1)
-            active &= ok & (quadratic(new - m, ch.Q) > tol**2)
-            if not active.any():
-                break
-            m = np.where(active[:, None], new, m)
+            step = ch.m + correct(state, ch.G, Bbar[..., 0]) - m
+            step[~active | ~np.all(np.isfinite(step), axis=1)] = 0.0
+            m, c, D, moved = _halving(problem, fn, ch, q, m, c, step)
+            seen = quadratic(moved, ch.Q) > tol**2
+            # where the information does not see a move (Q semi-definite): the rounding level
+            unseen = np.any(np.abs(moved) > _ROUNDING * (1.0 + np.abs(m)), axis=1)
+            active &= seen | unseen
         out_mt.append(m)
         out_violation.append(violation)
         out_rank.append(rank)
     return tuple(out_mt), tuple(out_violation), tuple(out_rank)
+
+
+def _halving(problem: Problem, fn, ch, q, m, c, step, halvings: int = 30):
+    """Eq. 18 per measure: take ``m + α step`` with α halved where the violation grows."""
+    worst = np.max(np.abs(c), axis=1) if c.shape[1] else np.zeros(len(m))
+    alpha = np.ones(len(m))
+    for _ in range(halvings):
+        cand = m + alpha[:, None] * step
+        c_new, _, D_new = fn(q, ch.with_corrected(cand), problem.k)
+        new_worst = np.max(np.abs(c_new), axis=1) if c_new.shape[1] else worst
+        grew = ~(new_worst <= worst + 1e-12 * (1.0 + worst))  # NaN counts as growth
+        if not grew.any():
+            break
+        alpha = np.where(grew, alpha / 2, alpha)
+    else:
+        alpha = np.where(grew, 0.0, alpha)
+        cand = m + alpha[:, None] * step
+        c_new, _, D_new = fn(q, ch.with_corrected(cand), problem.k)
+    return cand, c_new, D_new, cand - m
 
 
 def linearise(problem: Problem, x: Point) -> Linearisation:

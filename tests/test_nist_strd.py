@@ -168,7 +168,6 @@ def test_generated_residual_reproduces_certified_rss(name: str) -> None:
 # turns these into failures to remove from the list.
 KNOWN_HARD = {
     ("BoxBOD", 0): "the first projector step jumps to the b2 -> inf plateau (RSS 9772)",
-    ("MGH09", 0): "crawls in a flat valley: RSS 1.8e-3 vs 3.1e-4 after 500 iterations",
     ("MGH10", 0): "stalls far from the solution (violation 7.4), reported as a failure",
     ("MGH17", 0): "ends at a local point, RSS 1.1 vs 5.5e-5",
 }
