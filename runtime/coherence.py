@@ -47,7 +47,7 @@ def coherence(fam: ModelFamily, model: str, q, data: Mapping, info: Mapping | No
     problem = make_problem(fam, model, data, info, constants=constants)
     q = parameter_vector(fam, q, "q")
     with np.errstate(all="ignore"):
-        mt, violations, ranks = project_measures(
+        mt, violations, ranks, _ = project_measures(
             problem, q, tuple(ch.m for ch in problem.channels),
             iterations if iterations is not None else 50, tol)
     out = {}

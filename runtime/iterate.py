@@ -43,6 +43,7 @@ from .projector import (
     Projection,
     evaluate,
     linearise,
+    point,
     project_measures,
     quadratic,
     solve,
@@ -57,7 +58,7 @@ MESSAGES = {
 }
 _MAX_HALVINGS = 40
 _ROUNDING = 1e3 * np.finfo(float).eps
-_RESTORATION = 3  # evaluations when restoring the measures of a trial point
+_RESTORATION = 2  # one projection step restores the measures of a trial point
 _STAGNATION = 5  # iterations without a smaller projector step
 _MU_MIN, _MU_MAX = 1e-4, 1e8  # Levenberg–Marquardt damping range, relative to diag(H)
 _HALVINGS_PER_DAMPING = 4
@@ -132,8 +133,8 @@ def _acceptable(trial: Point, x: Point, eps_delta: float, delta_cap: float) -> b
 def _restored(problem: Problem, q: np.ndarray, mt) -> Point:
     """The point with its measures projected back onto their equations for this ``q``
     (report eq. 22, a few measure-space steps): trial points are compared at their true cost."""
-    mt, _, _ = project_measures(problem, q, mt, _RESTORATION)
-    return evaluate(problem, q, mt)
+    mt, _, _, evals = project_measures(problem, q, mt, _RESTORATION)
+    return point(problem, q, mt, evals)
 
 
 def _iterate(problem: Problem, q_start: np.ndarray, max_iter: int, xtol: float) -> Outcome:

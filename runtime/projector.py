@@ -93,13 +93,18 @@ def total_quadratic(v: np.ndarray, Q: np.ndarray) -> float:
 
 def evaluate(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...]) -> Point:
     """Equations, Jacobians, ‖c‖∞ and the cost at ``(q, m̃)`` (call under np.errstate)."""
+    evals = tuple(fn(q, ch.with_corrected(m), problem.k)
+                  for fn, ch, m in zip(problem.measures, problem.channels, mt, strict=True))
+    return point(problem, q, mt, evals)
+
+
+def point(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...], evals) -> Point:
+    """A :class:`Point` from the measurement equations already evaluated at ``(q, m̃)``."""
     c0, C0 = problem.c0(q, problem.k)
-    evals, delta = [], float(np.abs(c0).max()) if c0.size else 0.0
+    delta = float(np.abs(c0).max()) if c0.size else 0.0
     dq = q - problem.q0
     cost = 0.5 * float(dq @ problem.Q0 @ dq)
-    for fn, ch, m in zip(problem.measures, problem.channels, mt, strict=True):
-        c, C, D = fn(q, ch.with_corrected(m), problem.k)
-        evals.append((c, C, D))
+    for ch, m, (c, _, _) in zip(problem.channels, mt, evals, strict=True):
         if c.size:
             worst = float(np.abs(c).max())
             delta = np.inf if worst != worst else max(delta, worst)  # NaN counts as infinite
@@ -116,18 +121,18 @@ def project_measures(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...]
     vectorised over the measures).
 
     ``iterations`` counts projector steps plus one: 1 evaluates at ``mt`` and moves nothing.
-    Returns ``(mt, violations, ranks)`` with, per channel and measure, the whitened violation
-    ``‖c(q, m̃)‖²_{(D Q⁺ Dᵀ)⁻}`` and the number of equations kept, at the returned point.
+    Returns ``(mt, violations, ranks, evals)`` with, per channel and measure, the whitened
+    violation ``‖c(q, m̃)‖²_{(D Q⁺ Dᵀ)⁻}`` and the number of equations kept, and per channel
+    the equations ``(c, C, D)``, all at the returned point.
     """
-    out_mt, out_violation, out_rank = [], [], []
+    out_mt, out_violation, out_rank, out_evals = [], [], [], []
     for fn, (whiten, correct), ch, m in zip(problem.measures, problem.kernels,
                                             problem.channels, mt, strict=True):
         m = m.copy()
         violation = np.zeros(ch.size)
         rank = np.zeros(ch.size, dtype=int)
-        if ch.size:
-            c, _, D = fn(q, ch.with_corrected(m), problem.k)
-            active = np.ones(ch.size, dtype=bool)
+        c, C, D = fn(q, ch.with_corrected(m), problem.k)
+        active = np.ones(ch.size, dtype=bool)
         for it in range(iterations if ch.size else 0):
             r = (D @ (m - ch.m)[..., None])[..., 0] - c  # r − C q with q fixed
             Bbar, kept, state = whiten(D, ch.G, np.stack([r, c], axis=2), problem.eps)
@@ -137,7 +142,7 @@ def project_measures(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...]
                 break
             step = ch.m + correct(state, ch.G, Bbar[..., 0]) - m
             step[~active | ~np.all(np.isfinite(step), axis=1)] = 0.0
-            m, c, D, moved = _halving(problem, fn, ch, q, m, c, step)
+            m, (c, C, D), moved = _halving(problem, fn, ch, q, m, c, step)
             seen = quadratic(moved, ch.Q) > tol**2
             # where the information does not see a move (Q semi-definite): the rounding level
             unseen = np.any(np.abs(moved) > _ROUNDING * (1.0 + np.abs(m)), axis=1)
@@ -145,26 +150,30 @@ def project_measures(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...]
         out_mt.append(m)
         out_violation.append(violation)
         out_rank.append(rank)
-    return tuple(out_mt), tuple(out_violation), tuple(out_rank)
+        out_evals.append((c, C, D))
+    return tuple(out_mt), tuple(out_violation), tuple(out_rank), tuple(out_evals)
 
 
-def _halving(problem: Problem, fn, ch, q, m, c, step, halvings: int = 30):
-    """Eq. 18 per measure: take ``m + α step`` with α halved where the violation grows."""
+def _halving(problem: Problem, fn, ch, q, m, c, step, halvings: int = 4):
+    """Eq. 18 per measure: take ``m + α step`` with α halved where the violation grows (a few
+    times: the far-point instability of the plain step needs α <= 1/4); a measure whose
+    violation still grows stays where it is."""
     worst = np.max(np.abs(c), axis=1) if c.shape[1] else np.zeros(len(m))
     alpha = np.ones(len(m))
     for _ in range(halvings):
         cand = m + alpha[:, None] * step
-        c_new, _, D_new = fn(q, ch.with_corrected(cand), problem.k)
+        new = fn(q, ch.with_corrected(cand), problem.k)
+        c_new = new[0]
         new_worst = np.max(np.abs(c_new), axis=1) if c_new.shape[1] else worst
-        grew = ~(new_worst <= worst + 1e-12 * (1.0 + worst))  # NaN counts as growth
+        grew = ~(new_worst <= worst + 1e-9 * (1.0 + worst))  # NaN counts as growth
         if not grew.any():
             break
         alpha = np.where(grew, alpha / 2, alpha)
     else:
         alpha = np.where(grew, 0.0, alpha)
         cand = m + alpha[:, None] * step
-        c_new, _, D_new = fn(q, ch.with_corrected(cand), problem.k)
-    return cand, c_new, D_new, cand - m
+        new = fn(q, ch.with_corrected(cand), problem.k)
+    return cand, new, cand - m
 
 
 def linearise(problem: Problem, x: Point) -> Linearisation:
