@@ -1,0 +1,2 @@
+"""The estimation runtime: square roots (§3.3), the block projector (appendix A), the
+iteration (eq. 18), coherence (eq. 22–24), the minimal solve (eq. 21) and the results."""

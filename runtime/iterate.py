@@ -1,4 +1,4 @@
-"""The non-linear iteration of the report (eq. 18) with a cost safeguard.
+"""The non-linear iteration of the report (eq. 18), with restoration, damping and a filter.
 
 Report rule: with ``δ_n = ‖c(x_n)‖∞``, step ``x_{n+1} = P(x_n)`` while ``δ`` does not grow
 (by more than ``ε``), else halve back towards the previous point.
@@ -13,13 +13,16 @@ information, the linearised equations still solved exactly), ``μ`` growing tenf
 step is accepted and shrinking tenfold after. Far from the solution this follows the
 gradient of the cost instead of a Gauss–Newton step that overshoots.
 
-Safeguard (ours): eq. 18 watches only the constraints, so near a feasible point it can
-cycle or walk uphill in cost. A trial point is accepted only if, besides the report's rule,
-it does not raise the cost ``L²`` or it strictly lowers ``δ`` (by a relative 10⁻⁴) — a
-two-criterion filter. Far from feasibility this is eq. 18 (a full Newton-like step that
-lowers the violation is taken even if the cost grows); once feasible, the projector step is a
-descent direction of the cost to first order, so halving ends in an accepted step or in a
-step below the tolerance.
+Safeguard (ours): eq. 18 watches only the constraints, so near a feasible point it can walk
+uphill in cost, and it refuses every long step there, since curvature raises δ a little. A
+trial point is accepted by a small filter over (cost, δ), see :func:`_acceptable`: it lowers
+δ (above δ's rounding level); or it raises neither the cost nor δ; or it clearly lowers the
+cost while δ stays below a hundredth of its starting value. Far from feasibility this is
+eq. 18 (a Newton-like step that lowers the violation is taken even if the cost grows); once
+feasible, the projector step is a descent direction of the cost to first order.
+
+Stopping (ours): when the step stops shrinking at the rounding level while the cost stays
+put, the iteration stops as "stalled" (the precision limit) instead of wandering.
 
 Status codes (``FitResult.status``):
 0 converged — the projector step is below the tolerance (a fixed point of ``P``);
@@ -37,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .projector import (
+    _ROUNDING,
     Linearisation,
     Point,
     Problem,
@@ -57,7 +61,6 @@ MESSAGES = {
     FAILED: "numerical failure: non-finite values",
 }
 _MAX_HALVINGS = 40
-_ROUNDING = 1e3 * np.finfo(float).eps
 _RESTORATION = 2  # one projection step restores the measures of a trial point
 _STAGNATION = 5  # iterations without a smaller projector step
 _MU_MIN, _MU_MAX = 1e-4, 1e8  # Levenberg–Marquardt damping range, relative to diag(H)
@@ -75,13 +78,13 @@ class Outcome:
     start_violation: float = 0.0
 
 
-def _step_sizes(problem: Problem, x: Point, lin: Projection) -> tuple[float, float]:
+def _step_sizes(problem: Problem, x: Point, proj: Projection) -> tuple[float, float]:
     """Size of the projector step: q components relative to themselves (floored at the
     rounding level of q), and measures in standard deviations (their information metric)."""
     floor = max(_ROUNDING * float(np.max(np.abs(x.q), initial=0.0)), np.finfo(float).tiny)
-    size_q = float(np.max(np.abs(lin.q - x.q) / (np.abs(x.q) + floor), initial=0.0))
+    size_q = float(np.max(np.abs(proj.q - x.q) / (np.abs(x.q) + floor), initial=0.0))
     size_m = 0.0
-    for ch, m_new, m_old in zip(problem.channels, lin.mt, x.mt, strict=True):
+    for ch, m_new, m_old in zip(problem.channels, proj.mt, x.mt, strict=True):
         if ch.size:
             size_m = max(size_m, float(np.max(quadratic(m_new - m_old, ch.Q))))
     return size_q, np.sqrt(size_m)

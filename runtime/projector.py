@@ -15,6 +15,7 @@ import numpy as np
 from .inputs import ChannelData
 from .sqrt import EPS, closest_sqrt, reduced_solve, reduced_sqrt, triangular_solve
 
+#: Relative rounding level of stored values (moves below it are noise).
 _ROUNDING = 1e3 * np.finfo(float).eps
 
 
