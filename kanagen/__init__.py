@@ -27,6 +27,7 @@ from .runtime.coherence import coherence, minimal_sample_size, minimal_solve  # 
 from .runtime.family import ModelFamily  # noqa: E402
 from .runtime.fit import fit  # noqa: E402
 from .runtime.results import DerivedValue, FitResult  # noqa: E402
+from .runtime.robust import RobustEstimate, robust_fit  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -43,4 +44,6 @@ __all__ = [
     "load_text",
     "minimal_sample_size",
     "minimal_solve",
+    "robust_fit",
+    "RobustEstimate",
 ]

@@ -12,7 +12,7 @@ import numpy as np
 from .family import ModelFamily
 from .fit import make_problem
 from .inputs import parameter_vector
-from .projector import project_measures, quadratic
+from .projector import Problem, project_measures, quadratic
 from .sqrt import EPS, reduced_solve, reduced_sqrt
 
 
@@ -46,15 +46,22 @@ def coherence(fam: ModelFamily, model: str, q, data: Mapping, info: Mapping | No
     """
     problem = make_problem(fam, model, data, info, constants=constants)
     q = parameter_vector(fam, q, "q")
+    errors = coherence_errors(problem, q, iterations, tol)
+    return {ch.name: e for ch, e in zip(problem.channels, errors, strict=True)}
+
+
+def coherence_errors(problem: Problem, q: np.ndarray, iterations: int | None = None,
+                     tol: float = 1e-10) -> tuple[np.ndarray, ...]:
+    """:func:`coherence` on a validated problem: per channel, the (M,) errors (eq. 24)."""
     with np.errstate(all="ignore"):
         mt, violations, ranks, _ = project_measures(
             problem, q, tuple(ch.m for ch in problem.channels),
             iterations if iterations is not None else 50, tol)
-    out = {}
+    out = []
     for ch, m, violation, rank in zip(problem.channels, mt, violations, ranks, strict=True):
         errors = (quadratic(m - ch.m, ch.Q) + violation) / np.maximum(rank, 1)
-        out[ch.name] = np.where(np.isfinite(errors), errors, np.inf)
-    return out
+        out.append(np.where(np.isfinite(errors), errors, np.inf))
+    return tuple(out)
 
 
 @dataclass(frozen=True)
@@ -77,6 +84,12 @@ def minimal_solve(fam: ModelFamily, model: str, data: Mapping, q_start=None, con
     """
     problem = make_problem(fam, model, data, None, constants=constants)
     target = parameter_vector(fam, q_start, "q_start")
+    return solve_minimal(problem, target, max_iter, xtol, eps)
+
+
+def solve_minimal(problem: Problem, target: np.ndarray, max_iter: int = 50,
+                  xtol: float = 1e-12, eps: float = EPS) -> MinimalSolution:
+    """:func:`minimal_solve` on a validated problem (its measures are the sample)."""
 
     def equations(q):
         c0, C0 = problem.c0(q, problem.k)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import replace
 
 import numpy as np
 
@@ -85,6 +86,16 @@ def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
     model = model or fam.null_model
     problem = make_problem(fam, model, data or {}, info, q0, Q0, constants, eps)
     start = problem.q0 if q_start is None else parameter_vector(fam, q_start, "q_start")
+    return fit_problem(fam, model, problem, q_start=start, max_iter=max_iter, xtol=xtol)
+
+
+def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0=None,
+                Q0=None, max_iter: int = 100, xtol: float = 1e-10) -> FitResult:
+    """:func:`fit` on a validated problem (optionally with another prior ``q0``, ``Q0``)."""
+    if q0 is not None or Q0 is not None:
+        problem = replace(problem, q0=problem.q0 if q0 is None else q0,
+                          Q0=problem.Q0 if Q0 is None else Q0)
+    start = problem.q0 if q_start is None else np.asarray(q_start, dtype=float)
     out = iterate(problem, start, max_iter=max_iter, xtol=xtol)
     x, lin, proj = out.point, out.lin, out.proj
     if lin is None or lin.x is not x:  # the outputs are taken at the returned point

@@ -38,6 +38,13 @@ class ChannelData:
         q = np.abs(np.diagonal(self.Q, axis1=-2, axis2=-1)).max()
         return float(np.abs(self.m).max() * np.sqrt(q))
 
+    def subset(self, rows: np.ndarray) -> ChannelData:
+        """The same channel restricted to some measures (no validation again)."""
+        per_measure = self.Q.ndim == 3
+        return ChannelData(self.name, self.X[rows], self.index, self.m[rows],
+                           self.Q[rows] if per_measure else self.Q,
+                           self.G[rows] if per_measure else self.G)
+
     def with_corrected(self, mt: np.ndarray) -> np.ndarray:
         """The data array with the corrected columns replaced by ``mt``."""
         if self.index.size == self.X.shape[1]:

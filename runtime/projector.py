@@ -8,7 +8,7 @@ measures of a channel, and the big KKT matrix is never formed.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -31,6 +31,12 @@ class Problem:
     Q0: np.ndarray
     k: np.ndarray
     eps: float = EPS
+
+
+    def subset(self, rows) -> Problem:
+        """The same problem on some measures only: ``rows`` per channel (index arrays)."""
+        return replace(self, channels=tuple(ch.subset(r) for ch, r in zip(self.channels, rows,
+                                                                           strict=True)))
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,288 @@
+"""Robust estimation of one model by random minimal samples (report §4).
+
+:class:`ModelSearch` is a small state machine the estimator drives one sample at a time
+(anytime, suspendable): each :meth:`~ModelSearch.step` draws a minimal sample (eq. 21),
+scores the estimate by the errors of every measure (eq. 22–24, the Sampson first-order error
+here) and keeps the best; :meth:`~ModelSearch.finish` thresholds the error histogram, refines
+on the inliers with the full estimator of §2–3, thresholds once more and refines again.
+:func:`robust_fit` runs one search to the end.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .coherence import coherence_errors, solve_minimal
+from .family import ModelFamily
+from .fit import fit_problem, make_problem
+from .projector import Problem
+from .results import FitResult
+from .scoring import samples_for_confidence
+from .scoring import scorer as get_scorer
+from .sqrt import reduced_sqrt
+
+
+def outlier_threshold(errors: np.ndarray, scale: float, window: float = 0.35) -> float:
+    """Threshold between inliers and outliers from the histogram of the errors (report §4).
+
+    The histogram (bins of ``L*/20`` up to ``20 L*``) is smoothed over a window of
+    ``window·L*`` (25–50 % of ``L*``); the threshold is its first local minimum or saddle
+    after the mode. Without one in range (no outlier population there), it is the range end.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> e = np.r_[rng.chisquare(1, 200), rng.uniform(30, 80, 50)]  # inliers, outliers
+    >>> 4.0 < outlier_threshold(e, 4.0) < 30.0                       # L* = 4
+    True
+    """
+    if not 0.25 <= window <= 0.5:
+        raise ValueError("the smoothing window is 25–50 % of L*")
+    e = np.asarray(errors, dtype=float)
+    e = e[np.isfinite(e)]
+    top = 20.0 * scale
+    width = scale / 20.0
+    counts, edges = np.histogram(np.clip(e, 0.0, top), bins=int(round(top / width)),
+                                 range=(0.0, top + 1e-12 * top))
+    counts[-1] = 0  # the clipped tail is not a population of the histogram
+    half = max(1, int(round(window * scale / width / 2)))
+    kernel = np.r_[np.arange(1, half + 1), np.arange(half + 1, 0, -1)].astype(float)
+    kernel /= kernel.sum()  # triangular, of full width window·L*
+    padded = np.r_[counts[half - 1::-1], counts]  # errors are >= 0: reflect at 0
+    smooth = np.convolve(padded, kernel, mode="same")[half:]
+    # A minimum is real when the histogram rises after it by more than its Poisson noise
+    # (the kernel averages about `half` bins); a plateau at zero is a saddle.
+    i = int(np.argmax(smooth))
+    while i + 1 < smooth.size:
+        if smooth[i + 1] < smooth[i]:
+            i += 1
+            continue
+        if smooth[i] * half < 0.5:
+            break  # flat and empty: saddle
+        ahead = smooth[i + 1:i + 1 + 2 * half]
+        noise = 3.0 * np.sqrt((smooth[i] + 1.0 / half) / half)
+        if ahead.size and ahead.max() - smooth[i] > noise:
+            break  # a genuine local minimum
+        i += 1
+    return float(edges[i + 1])
+
+
+@dataclass(frozen=True)
+class RobustEstimate:
+    """The outcome of a robust search of one model."""
+
+    model: str
+    fit: FitResult  # the refined estimate (full estimator on the inliers)
+    inliers: dict[str, np.ndarray]  # per channel, indices into the data given
+    outliers: dict[str, np.ndarray]
+    errors: dict[str, np.ndarray]  # per channel, every measure's error at the estimate
+    threshold: float
+    relevance: float  # score of the final estimate on all measures
+    samples: int
+    degenerate: int
+    history: list[tuple[int, float]] = field(default_factory=list)  # (samples, best score)
+
+    @property
+    def q(self) -> np.ndarray:
+        return self.fit.q
+
+    @property
+    def params(self) -> dict[str, float]:
+        return self.fit.params
+
+    @property
+    def cost(self) -> float:
+        return self.fit.cost
+
+    @property
+    def dof(self) -> int:
+        return self.fit.dof
+
+    @property
+    def normalized_cost(self) -> float:
+        return self.fit.normalized_cost
+
+
+class ModelSearch:
+    """Random minimal samples for one model, scored against every measure.
+
+    Parameters
+    ----------
+    fam, model : the family and the model searched.
+    problem : Problem
+        The validated measures (all channels); samples are drawn from ``channel``.
+    channel : int
+        Index of the sampled channel in ``problem.channels``.
+    start : ndarray
+        Starting value of the minimal solves (the parent's estimate, or q0).
+    pool : ndarray, optional
+        Measures of the sampled channel that samples may use (default all).
+    sample_size : int, optional
+        Measures per sample (default: the minimal size for the model's free degrees of
+        freedom, or for the extra ones over ``parent_free``).
+    """
+
+    def __init__(self, fam: ModelFamily, model: str, problem: Problem, channel: int,
+                 start: np.ndarray, rng: np.random.Generator, scale: float = 1.0,
+                 scorer: str | Callable = "relevance", pool: np.ndarray | None = None,
+                 sample_size: int | None = None, parent_free: int | None = None):
+        self.fam = fam
+        self.model = model
+        self.problem = problem
+        self.channel = channel
+        self.start = np.asarray(start, dtype=float)
+        self.rng = rng
+        self.scale = float(scale)
+        self.score_fn = get_scorer(scorer)
+        size = problem.channels[channel].size
+        self.pool = np.arange(size) if pool is None else np.asarray(pool, dtype=int)
+        self.sample_size = sample_size or self._minimal(parent_free)
+        self.samples = 0
+        self.degenerate = 0
+        self.best_q: np.ndarray | None = None
+        self.best_score = -np.inf
+        self.best_errors: tuple[np.ndarray, ...] | None = None
+        self.history: list[tuple[int, float]] = []
+
+    def free_dof(self, q: np.ndarray | None = None) -> int:
+        """``n − p``: the parameter's degrees of freedom left free by the constraints."""
+        _, C0 = self.problem.c0(self.start if q is None else q, self.problem.k)
+        p = int(reduced_sqrt(C0 @ C0.T)[1].sum()) if C0.shape[0] else 0
+        return self.fam.n - p
+
+    def _minimal(self, parent_free: int | None) -> int:
+        free = self.free_dof()
+        extra = free if parent_free is None else max(free - parent_free, 1)
+        width = len(self.fam.channel(self.problem.channels[self.channel].name).components)
+        fn = self.problem.measures[self.channel]
+        c, _, _ = fn(self.start, np.zeros((0, width)), self.problem.k)
+        return max(1, math.ceil(extra / max(c.shape[1], 1)))
+
+    @property
+    def exhausted(self) -> bool:
+        """Too few measures in the pool for one sample."""
+        return self.pool.size < self.sample_size
+
+    def step(self) -> bool:
+        """Draw and score one sample; True when it gave a better estimate. Never raises."""
+        if self.exhausted:
+            return False
+        self.samples += 1
+        rows = self.rng.choice(self.pool, size=self.sample_size, replace=False)
+        picked = tuple(rows if i == self.channel else np.zeros(0, dtype=int)
+                       for i in range(len(self.problem.channels)))
+        improved = False
+        try:
+            with np.errstate(all="ignore"):
+                sol = solve_minimal(self.problem.subset(picked), self.start)
+                if not sol.success:
+                    self.degenerate += 1
+                else:
+                    errors = coherence_errors(self.problem, sol.q, iterations=1)
+                    score = self.score_fn(np.concatenate(errors), self.scale)
+                    if score > self.best_score:
+                        self.best_q, self.best_score, self.best_errors = sol.q, score, errors
+                        improved = True
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError, ZeroDivisionError):
+            self.degenerate += 1
+        self.history.append((self.samples, self.best_score))
+        return improved
+
+    def finish(self, q0: np.ndarray, Q0: np.ndarray, window: float = 0.35,
+               max_iter: int = 100) -> RobustEstimate | None:
+        """Threshold, refine on the inliers, threshold once more, refine again (report §4).
+
+        Returns None when no sample gave an estimate.
+        """
+        if self.best_q is None:
+            return None
+        q, errors = self.best_q, self.best_errors
+        threshold = outlier_threshold(np.concatenate(errors), self.scale, window)
+        result = None
+        for _ in range(2):
+            rows = tuple(np.flatnonzero(e < threshold) for e in errors)
+            sub = self.problem.subset(rows)
+            result = fit_problem(self.fam, self.model, sub, q_start=q, q0=q0, Q0=Q0,
+                                 max_iter=max_iter)
+            if not np.all(np.isfinite(result.q)):
+                break
+            q = result.q
+            errors = coherence_errors(self.problem, q)
+            threshold = outlier_threshold(np.concatenate(errors), self.scale, window)
+        rows = tuple(np.flatnonzero(e < threshold) for e in errors)
+        names = [ch.name for ch in self.problem.channels]
+        return RobustEstimate(
+            model=self.model,
+            fit=result,
+            inliers=dict(zip(names, rows, strict=True)),
+            outliers={n: np.flatnonzero(~(e < threshold)) for n, e in zip(names, errors,
+                                                                          strict=True)},
+            errors=dict(zip(names, errors, strict=True)),
+            threshold=threshold,
+            relevance=self.score_fn(np.concatenate(errors), self.scale),
+            samples=self.samples,
+            degenerate=self.degenerate,
+            history=list(self.history),
+        )
+
+
+def robust_fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
+               info: Mapping | None = None, *, channel: str | None = None, scale: float = 1.0,
+               scorer: str | Callable = "relevance", seed: int | None = 0,
+               max_samples: int = 500, confidence: float | None = None,
+               inlier_ratio: float | None = None, no_gain: int | None = None,
+               time_budget: float | None = None, stop: Callable | None = None,
+               window: float = 0.35, q0=None, Q0=None, constants=None) -> RobustEstimate | None:
+    """Robust estimate of one model: random minimal samples, threshold, refinement.
+
+    Stopping: ``max_samples``; eq. 25 when ``confidence`` and ``inlier_ratio`` are given;
+    ``no_gain`` samples without a better estimate; ``time_budget`` seconds; or
+    ``stop(history)`` returning True (history: list of (samples, best score)).
+
+    Examples
+    --------
+    >>> import numpy as np, kanagen
+    >>> rng = np.random.default_rng(1)
+    >>> x = rng.uniform(0, 10, 60)
+    >>> xy = np.c_[x, 2 * x + 1 + rng.normal(0, 0.1, 60)]
+    >>> xy[:15, 1] += rng.choice([-1, 1], 15) * rng.uniform(3, 20, 15)  # 25 % outliers
+    >>> est = kanagen.robust_fit(kanagen.load("line"), "line", data={"point": xy},
+    ...                          info={"point": 100.0}, scale=4.0, max_samples=100)
+    >>> sorted(set(range(15)) & set(est.inliers["point"]))
+    []
+    >>> round(est.params["a"], 1)
+    2.0
+    """
+    model = model or fam.null_model
+    problem = make_problem(fam, model, data or {}, info, q0, Q0, constants)
+    names = [ch.name for ch in problem.channels]
+    if channel is None:
+        if len(names) != 1:
+            raise ValueError(f"channel= is required: data has channels {names}")
+        channel = names[0]
+    if channel not in names:
+        raise ValueError(f"no data for channel {channel!r} (data has {names})")
+    if not scale > 0:
+        raise ValueError(f"scale (L*) must be positive, got {scale}")
+    search = ModelSearch(fam, model, problem, names.index(channel), problem.q0,
+                         np.random.default_rng(seed), scale, scorer)
+    budget = max_samples
+    if confidence is not None and inlier_ratio is not None:
+        budget = min(budget, samples_for_confidence(confidence, inlier_ratio,
+                                                    search.sample_size))
+    started = time.perf_counter()
+    since_gain = 0
+    while search.samples < budget and not search.exhausted:
+        since_gain = 0 if search.step() else since_gain + 1
+        if no_gain is not None and since_gain >= no_gain:
+            break
+        if time_budget is not None and time.perf_counter() - started > time_budget:
+            break
+        if stop is not None and stop(search.history):
+            break
+    return search.finish(problem.q0, problem.Q0, window)
