@@ -142,6 +142,9 @@ class ModelSearch:
         size = problem.channels[channel].size
         self.pool = np.arange(size) if pool is None else np.asarray(pool, dtype=int)
         self.sample_size = sample_size or self._minimal(parent_free)
+        # a sample must fix this many equations (constraints + sampled), else it is degenerate
+        self.full_rank = min(fam.n, fam.n - self.free_dof()
+                             + self.sample_size * self._equations_per_measure())
         self.samples = 0
         self.degenerate = 0
         self.best_q: np.ndarray | None = None
@@ -155,13 +158,16 @@ class ModelSearch:
         p = int(reduced_sqrt(C0 @ C0.T)[1].sum()) if C0.shape[0] else 0
         return self.fam.n - p
 
+    def _equations_per_measure(self) -> int:
+        width = len(self.fam.channel(self.problem.channels[self.channel].name).components)
+        c, _, _ = self.problem.measures[self.channel](self.start, np.zeros((0, width)),
+                                                      self.problem.k)
+        return max(c.shape[1], 1)
+
     def _minimal(self, parent_free: int | None) -> int:
         free = self.free_dof()
         extra = free if parent_free is None else max(free - parent_free, 1)
-        width = len(self.fam.channel(self.problem.channels[self.channel].name).components)
-        fn = self.problem.measures[self.channel]
-        c, _, _ = fn(self.start, np.zeros((0, width)), self.problem.k)
-        return max(1, math.ceil(extra / max(c.shape[1], 1)))
+        return max(1, math.ceil(extra / self._equations_per_measure()))
 
     @property
     def exhausted(self) -> bool:
@@ -180,7 +186,7 @@ class ModelSearch:
         try:
             with np.errstate(all="ignore"):
                 sol = solve_minimal(self.problem.subset(picked), self.start)
-                if not sol.success:
+                if not sol.success or sol.rank < self.full_rank:
                     self.degenerate += 1
                 else:
                     errors = coherence_errors(self.problem, sol.q, iterations=1)
