@@ -24,6 +24,7 @@ if not (_here / "runtime").is_dir() and (_here.parent / "runtime" / "__init__.py
 from .loader import load, load_text  # noqa: E402
 from .modelspec import SpecError, family_from_data  # noqa: E402
 from .runtime.coherence import coherence, minimal_sample_size, minimal_solve  # noqa: E402
+from .runtime.estimator import Estimator, ModelState  # noqa: E402
 from .runtime.family import ModelFamily  # noqa: E402
 from .runtime.fit import fit  # noqa: E402
 from .runtime.results import DerivedValue, FitResult  # noqa: E402
@@ -33,6 +34,8 @@ __version__ = "0.1.0"
 
 __all__ = [
     "DerivedValue",
+    "Estimator",
+    "ModelState",
     "FitResult",
     "ModelFamily",
     "SpecError",

@@ -130,7 +130,8 @@ class ModelSearch:
     def __init__(self, fam: ModelFamily, model: str, problem: Problem, channel: int,
                  start: np.ndarray, rng: np.random.Generator, scale: float = 1.0,
                  scorer: str | Callable = "relevance", pool: np.ndarray | None = None,
-                 sample_size: int | None = None, parent_free: int | None = None):
+                 sample_size: int | None = None, parent_free: int | None = None,
+                 base: np.ndarray | None = None):
         self.fam = fam
         self.model = model
         self.problem = problem
@@ -142,9 +143,14 @@ class ModelSearch:
         size = problem.channels[channel].size
         self.pool = np.arange(size) if pool is None else np.asarray(pool, dtype=int)
         self.sample_size = sample_size or self._minimal(parent_free)
+        # a child model: the extra measures come from `pool` (not coherent with the parent),
+        # the rest of a full minimal sample from `base` (the parent's inliers)
+        self.base = None if base is None else np.asarray(base, dtype=int)
+        self.base_size = self._minimal(None) - self.sample_size if base is not None else 0
         # a sample must fix this many equations (constraints + sampled), else it is degenerate
         self.full_rank = min(fam.n, fam.n - self.free_dof()
-                             + self.sample_size * self._equations_per_measure())
+                             + (self.sample_size + self.base_size)
+                             * self._equations_per_measure())
         self.samples = 0
         self.degenerate = 0
         self.best_q: np.ndarray | None = None
@@ -169,10 +175,19 @@ class ModelSearch:
         extra = free if parent_free is None else max(free - parent_free, 1)
         return max(1, math.ceil(extra / self._equations_per_measure()))
 
+    def seed_estimate(self, q: np.ndarray) -> None:
+        """Start from a known estimate (a re-queued model): it is the best so far."""
+        with np.errstate(all="ignore"):
+            errors = coherence_errors(self.problem, np.asarray(q, dtype=float), iterations=1)
+        self.best_q = np.asarray(q, dtype=float)
+        self.best_errors = errors
+        self.best_score = self.score_fn(np.concatenate(errors), self.scale)
+
     @property
     def exhausted(self) -> bool:
-        """Too few measures in the pool for one sample."""
-        return self.pool.size < self.sample_size
+        """Too few measures in the pools for one sample."""
+        short_base = self.base is not None and self.base.size < self.base_size
+        return self.pool.size < self.sample_size or short_base
 
     def step(self) -> bool:
         """Draw and score one sample; True when it gave a better estimate. Never raises."""
@@ -180,6 +195,8 @@ class ModelSearch:
             return False
         self.samples += 1
         rows = self.rng.choice(self.pool, size=self.sample_size, replace=False)
+        if self.base_size > 0:
+            rows = np.r_[rows, self.rng.choice(self.base, size=self.base_size, replace=False)]
         picked = tuple(rows if i == self.channel else np.zeros(0, dtype=int)
                        for i in range(len(self.problem.channels)))
         improved = False

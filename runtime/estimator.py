@@ -1,0 +1,437 @@
+"""The estimator as a module (report §5–6): measures in, the best model out, at any time.
+
+``init(); while step(): check(); finalize()`` — the search through the lattice of models
+advances one random sample per :meth:`Estimator.step`, so it can be fed, queried, suspended
+and resumed between any two samples, from another thread too. Numerical trouble is absorbed
+into the status; nothing raises out of :meth:`~Estimator.run` or :meth:`~Estimator.step`.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .family import ModelFamily
+from .fit import fit_problem
+from .inputs import ChannelData, channel_data, parameter_vector, prior_information
+from .phi import phi as get_phi
+from .projector import Problem
+from .results import DerivedValue
+from .robust import ModelSearch, RobustEstimate
+from .scoring import samples_for_confidence
+
+_RESUME_FRACTION = 10  # a re-queued model draws a tenth of a fresh search's samples
+_SUPPORT = 0.95  # a general model must keep this fraction of its parent's relevance
+_MORE_SUPPORT = 1.2  # ... and wins outright when it explains this much more
+
+
+@dataclass(frozen=True)
+class ModelState:
+    """One model as estimated so far (report §5, "a model state")."""
+
+    model: str
+    parent: str | None
+    params: dict[str, float]
+    q: np.ndarray
+    info: np.ndarray
+    covariance: np.ndarray
+    inliers: np.ndarray  # measure ids
+    outliers: np.ndarray  # measure ids
+    cost: float  # L̃²/d, the normalised cost compared between models
+    dof: int
+    relevance: float
+    samples: int
+    threshold: float
+    accepted: bool  # it beat its parent by the cost factor Φ (the null model: always)
+    derived: dict[str, DerivedValue] = field(default_factory=dict)
+    status: str = "estimated"
+
+
+class Estimator:
+    """Robust multi-model estimation over a family's lattice of models.
+
+    Parameters
+    ----------
+    fam : ModelFamily
+    scale : float
+        ``L*``, the order of magnitude of an inlier's error (eq. 29).
+    scorer : str or callable
+        ``"relevance"`` (default), ``"ransac"``, ``"trimmed"`` or ``f(errors, scale)``.
+    phi : optional
+        Cost factor for every edge (number, ``"aic"``, ``"ftest"``, ``"ftest:P"``,
+        ``"exp:κ"`` or callable); default: each edge's factor from the spec.
+    seed : int
+        Seed of the random samples: same seed and same calls give the same results.
+    channel : str, optional
+        The channel samples are drawn from (default: the only one).
+    samples_per_model : int, optional
+        Samples per model (default: eq. 25 with ``confidence`` and ``inlier_ratio``).
+    q0, Q0, constants : the prior and the constants, as for :func:`kanagen.fit`.
+
+    Examples
+    --------
+    >>> import numpy as np, kanagen
+    >>> est = kanagen.Estimator(kanagen.load("line"), scale=4.0, seed=0)
+    >>> x = np.linspace(0, 10, 40)
+    >>> ids = est.add_measures("point", np.c_[x, 0.5 * x + 3], info=100.0)
+    >>> best = est.run(max_samples=200)
+    >>> best.model, round(best.params["a"], 3)
+    ('line', 0.5)
+    """
+
+    def __init__(self, fam: ModelFamily, scale: float = 1.0,
+                 scorer: str | Callable = "relevance", phi=None, seed: int | None = 0,
+                 channel: str | None = None, samples_per_model: int | None = None,
+                 confidence: float = 0.99, inlier_ratio: float = 0.5, window: float = 0.35,
+                 q0=None, Q0=None, constants=None):
+        if not scale > 0:
+            raise ValueError(f"scale (L*) must be positive, got {scale}")
+        self.fam = fam
+        self.scale = float(scale)
+        self.scorer = scorer
+        self.phi = phi
+        self.seed = seed
+        self.channel = channel
+        self.samples_per_model = samples_per_model
+        self.confidence = confidence
+        self.inlier_ratio = inlier_ratio
+        self.window = window
+        self.q0 = parameter_vector(fam, q0)
+        self.Q0 = prior_information(Q0, fam.n)
+        self._constants = dict(constants or {})
+        fam.constant_vector(self._constants)  # validate now
+        self._rows: dict[str, list] = {name: [] for name in fam.channels}  # (id, X row, Q)
+        self._next_id = 0
+        self._lock = threading.RLock()
+        self._running = threading.Event()
+        self._running.set()
+        self._stopped = False
+        self._on_model: list[Callable] = []
+        self._on_done: list[Callable] = []
+        self.history: list[tuple[int, float]] = []
+        self.status = "no measures"
+        self._restart()
+
+    # -- measures and constants ---------------------------------------------------------------
+    def add_measures(self, channel: str, data, info=None) -> np.ndarray:
+        """Add measures (any time); returns their stable integer ids.
+
+        An outlier of the current best model changes nothing; an inlier re-queues the model.
+        """
+        with self._lock:
+            ch = channel_data(self.fam, {channel: data}, {channel: info})[0]
+            Q = ch.Q if ch.Q.ndim == 3 else np.broadcast_to(ch.Q, (ch.size,) + ch.Q.shape)
+            ids = np.arange(self._next_id, self._next_id + ch.size)
+            self._next_id += ch.size
+            self._rows[channel].extend(zip(ids.tolist(), ch.X, Q, strict=True))
+            self._problem = None
+            best = self._best_state()
+            if best is None or best.status == "null":
+                self._restart_if_idle()
+            elif self._coherent_with(best, channel, ch):
+                self._requeue(best.model)
+            return ids
+
+    def remove_measures(self, ids) -> None:
+        """Remove measures by id (any time). Removing an inlier re-queues the parents."""
+        with self._lock:
+            gone = set(np.asarray(ids, dtype=int).tolist())
+            for name in self._rows:
+                self._rows[name] = [r for r in self._rows[name] if r[0] not in gone]
+            self._problem = None
+            touched = [s for s in self._states.values()
+                       if gone & set(s.inliers.tolist())]
+            for state in touched:
+                self._requeue(state.parent or state.model)
+                self._requeue(state.model)
+
+    def set_constants(self, **constants: float) -> None:
+        """Set constants (state input); restarts the search from the null model."""
+        with self._lock:
+            merged = {**self._constants, **constants}
+            self.fam.constant_vector(merged)
+            self._constants = merged
+            self._problem = None
+            self._restart()
+
+    # -- control --------------------------------------------------------------------------------
+    def on_model(self, callback: Callable[[ModelState], None]) -> None:
+        """Call ``callback(state)`` whenever a better model is found."""
+        self._on_model.append(callback)
+
+    def on_done(self, callback: Callable[[ModelState | None], None]) -> None:
+        """Call ``callback(best)`` when the search ends."""
+        self._on_done.append(callback)
+
+    def suspend(self) -> None:
+        """Pause :meth:`run` after the current sample (thread-safe)."""
+        self._running.clear()
+
+    def resume(self) -> None:
+        self._running.set()
+
+    def stop(self) -> None:
+        """End :meth:`run` after the current sample (thread-safe); :meth:`step` still works."""
+        self._stopped = True
+        self._running.set()
+
+    def run(self, max_samples: int = 2000, time_budget: float | None = None) -> ModelState | None:
+        """Step until the lattice is explored, ``max_samples`` more samples, ``time_budget``
+        seconds, or :meth:`stop`; returns the best model."""
+        self._stopped = False
+        started = time.perf_counter()
+        budget = self._samples + max_samples
+        while not self._stopped and self._samples < budget:
+            self._running.wait()
+            if self._stopped or not self.step():
+                break
+            if time_budget is not None and time.perf_counter() - started > time_budget:
+                break
+        return self.best()
+
+    def step(self) -> bool:
+        """One unit of work (usually one random sample). False when nothing is left to do."""
+        with self._lock:
+            try:
+                return self._step()
+            except Exception as exc:  # absorbed: numerical trouble shows in the status
+                self.status = f"error absorbed in step: {type(exc).__name__}: {exc}"
+                self._queue.clear()
+                self._search = None
+                self._finish()
+                return False
+
+    # -- outputs --------------------------------------------------------------------------------
+    def best(self) -> ModelState | None:
+        """The best model so far (least normalised cost among accepted ones)."""
+        with self._lock:
+            return self._best_state()
+
+    def states(self) -> list[ModelState]:
+        """Every model estimated so far, with its figures."""
+        with self._lock:
+            return list(self._states.values())
+
+    # -- internals ------------------------------------------------------------------------------
+    def _restart(self) -> None:
+        self._rng = np.random.default_rng(self.seed)
+        self._states: dict[str, ModelState] = {}
+        # (model, parent, estimate to resume from or None)
+        self._queue: list[tuple[str, str | None, np.ndarray | None]] = [
+            (self.fam.null_model, None, None)]
+        self._search: tuple[str, str | None, ModelSearch, int] | None = None
+        self._samples = 0
+        self._done = False
+        self._problem = None
+        self.history = []
+        self._states[self.fam.null_model] = self._null_state()
+
+    def _restart_if_idle(self) -> None:
+        if self._done or self._search is None:
+            self._restart()
+
+    def _null_state(self) -> ModelState:
+        n = self.fam.n
+        return ModelState(self.fam.null_model, None, self.fam.params_dict(self.q0),
+                          self.q0.copy(), self.Q0.copy(), np.full((n, n), np.inf),
+                          np.zeros(0, int), np.zeros(0, int), np.inf, 0, 0.0, 0, np.inf, True,
+                          status="null")
+
+    def _channels(self) -> tuple[list[str], Problem, list[np.ndarray]]:
+        if self._problem is None:
+            names = [n for n, rows in self._rows.items() if rows]
+            chans, ids = [], []
+            for name in names:
+                rows = self._rows[name]
+                X = np.array([r[1] for r in rows])
+                Q = np.array([r[2] for r in rows])
+                info = channel_data(self.fam, {name: X}, {name: Q})[0]
+                chans.append(info)
+                ids.append(np.array([r[0] for r in rows], dtype=int))
+            self._problem = (names, chans, ids)
+        return self._problem
+
+    def _problem_for(self, model: str) -> tuple[Problem, list[np.ndarray], int]:
+        from .fit import make_problem
+
+        names, chans, ids = self._channels()
+        data = {ch.name: ch.X for ch in chans}
+        info = {ch.name: ch.Q for ch in chans}
+        problem = make_problem(self.fam, model, data, info, self.q0, self.Q0, self._constants)
+        channel = self.channel or (names[0] if len(names) == 1 else None)
+        if channel is None:
+            raise ValueError(f"channel= is required: measures in {names}")
+        return problem, ids, names.index(channel)
+
+    def _budget(self, search: ModelSearch) -> int:
+        if self.samples_per_model is not None:
+            return self.samples_per_model
+        return samples_for_confidence(self.confidence, self.inlier_ratio,
+                                      search.sample_size + search.base_size)
+
+    def _step(self) -> bool:
+        if self._search is None and not self._start_next():
+            self._finish()
+            return False
+        model, parent, search, budget = self._search
+        search.step()
+        self._samples += 1
+        previous = self.history[-1][1] if self.history else -np.inf
+        self.history.append((self._samples, max(previous, self._best_relevance(search))))
+        if search.samples >= budget or search.exhausted:
+            self._search = None
+            self._conclude(model, parent, search)
+        return True
+
+    def _best_relevance(self, search: ModelSearch) -> float:
+        done = [s.relevance for s in self._states.values() if s.accepted and s.samples]
+        current = search.best_score if np.isfinite(search.best_score) else 0.0
+        return max(done + [current])
+
+    def _start_next(self) -> bool:
+        while self._queue:
+            model, parent, resume = self._queue.pop(0)
+            if not sum(len(r) for r in self._rows.values()):
+                self.status = "no measures"
+                return False
+            problem, ids, channel = self._problem_for(model)
+            parent_state = self._states.get(parent) if parent else None
+            start = parent_state.q if parent_state is not None else self.q0
+            pool = base = parent_free = None
+            if parent_state is not None:
+                # the extra measures among those not coherent with the parent (report §5),
+                # the rest of the sample among the parent's inliers
+                ch_ids = ids[channel]
+                pool = np.flatnonzero(np.isin(ch_ids, parent_state.outliers))
+                base = np.flatnonzero(np.isin(ch_ids, parent_state.inliers))
+                parent_free = self._free(parent, parent_state.q)
+            search = ModelSearch(self.fam, model, problem, channel, start, self._rng,
+                                 self.scale, self.scorer, pool=pool, parent_free=parent_free,
+                                 base=base)
+            if search.exhausted:
+                continue
+            budget = self._budget(search)
+            if resume is not None:  # re-queued: resume from its estimate, a few more samples
+                search.seed_estimate(resume)
+                budget = max(1, budget // _RESUME_FRACTION)
+            self._search = (model, parent, search, budget)
+            self.status = f"searching {model}"
+            return True
+        return False
+
+    def _free(self, model: str, q: np.ndarray) -> int:
+        from .sqrt import reduced_sqrt
+
+        _, C0 = self.fam.c0(model, q, self._constants)
+        return self.fam.n - (int(reduced_sqrt(C0 @ C0.T)[1].sum()) if C0.shape[0] else 0)
+
+    def _conclude(self, model: str, parent: str | None, search: ModelSearch) -> None:
+        estimate = search.finish(self.q0, self.Q0, self.window)
+        if estimate is None or not np.all(np.isfinite(estimate.q)):
+            return
+        _, _, ids = self._channels()
+        state = self._state(model, parent, estimate, ids)
+        self._states[model] = state
+        if state.accepted:
+            best = self._best_state()
+            if best is state:
+                for cb in self._on_model:
+                    cb(state)
+            known = {m for m, _, _ in self._queue}
+            for alt, _ in self.fam.model(model).alternatives:
+                if alt not in known and alt not in self._states:
+                    self._queue.append((alt, model, None))
+
+    def _state(self, model, parent, est: RobustEstimate, ids) -> ModelState:
+        names = list(est.inliers)
+        channel_ids = dict(zip(self._channels()[0], ids, strict=True))
+        inliers = np.concatenate([channel_ids[n][est.inliers[n]] for n in names])
+        outliers = np.concatenate([channel_ids[n][est.outliers[n]] for n in names])
+        cost = est.fit.normalized_cost
+        accepted = True
+        if parent is not None:
+            p = self._states.get(parent)
+            if p is not None and p.samples and np.isfinite(p.cost):
+                accepted = self._beats(parent, p, model, est)
+        return ModelState(model, parent, est.params, est.q, est.fit.info, est.fit.covariance,
+                          np.sort(inliers), np.sort(outliers), cost, est.fit.dof,
+                          est.relevance, est.samples, est.threshold, accepted,
+                          est.fit.derived, "estimated" if est.fit.success else est.fit.message)
+
+    def _beats(self, parent: str, p: ModelState, model: str, est: RobustEstimate) -> bool:
+        """Does the general model replace its parent? (report eq. 46, made comparable)
+
+        A general model that explains clearly more measures (relevance up by a fifth) wins
+        on support; one that explains fewer loses (a general model fitted to a few measures
+        has a small cost for free). Otherwise both are refitted on the measures both take as
+        inliers and ``L̃'²/d' < Φ(d, d') L̃²/d`` decides: on common measures ``d' − d`` counts
+        only the extra freedom, as the F-test of appendix B presumes.
+        """
+        if est.relevance >= _MORE_SUPPORT * p.relevance:
+            return True
+        if est.relevance < _SUPPORT * p.relevance:
+            return False
+        problem, ids, _ = self._problem_for(parent)
+        names = [ch.name for ch in problem.channels]
+        channel_ids = dict(zip(self._channels()[0], ids, strict=True))
+        common = tuple(est.inliers[n][np.isin(channel_ids[n][est.inliers[n]], p.inliers)]
+                       for n in names)
+        costs = []
+        for name, q in ((parent, p.q), (model, est.q)):
+            prob = self._problem_for(name)[0].subset(common)
+            costs.append(fit_problem(self.fam, name, prob, q_start=q))
+        general, specific = costs[1], costs[0]
+        if not (np.isfinite(specific.normalized_cost) and np.isfinite(general.normalized_cost)):
+            return False
+        factor = self._phi(parent, model)(specific.dof, general.dof)
+        return bool(general.normalized_cost < factor * specific.normalized_cost)
+
+    def _phi(self, parent: str, model: str):
+        if self.phi is not None:
+            return get_phi(self.phi)
+        for alt, choice in self.fam.model(parent).alternatives:
+            if alt == model:
+                return get_phi(choice)
+        return get_phi(1.0)
+
+    def _best_state(self) -> ModelState | None:
+        """The least-cost accepted model that no accepted, more general model replaced."""
+        accepted = [s for s in self._states.values() if s.accepted]
+        if not accepted:
+            return None
+        replaced = {s.parent for s in accepted if s.parent is not None and s.samples}
+        leaves = [s for s in accepted if s.model not in replaced]
+        estimated = [s for s in leaves if s.samples] or leaves
+        return min(estimated, key=lambda s: (s.cost, -s.dof))
+
+    def _coherent_with(self, state: ModelState, channel: str, ch: ChannelData) -> bool:
+        from .coherence import coherence_errors
+        from .fit import make_problem
+
+        problem = make_problem(self.fam, state.model, {channel: ch.X}, {channel: ch.Q},
+                               constants=self._constants)
+        errors = coherence_errors(problem, state.q, iterations=1)[0]
+        return bool(np.any(errors < state.threshold))
+
+    def _requeue(self, model: str) -> None:
+        state = self._states.get(model)
+        if state is None or state.status == "null":
+            return
+        if all(m != model for m, _, _ in self._queue):
+            self._queue.insert(0, (model, state.parent, state.q))
+        self._done = False
+
+    def _finish(self) -> None:
+        if self._done:
+            return
+        self._done = True
+        best = self._best_state()
+        self.status = "done" if best is not None else self.status
+        for cb in self._on_done:
+            cb(best)
+
+
