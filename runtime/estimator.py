@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -71,6 +71,8 @@ class Estimator:
     samples_per_model : int, optional
         Samples per model (default: eq. 25 with ``confidence`` and ``inlier_ratio``).
     q0, Q0, constants : the prior and the constants, as for :func:`kanagen.fit`.
+    model : str, optional
+        Search this model only (no lattice); default: the lattice from the null model.
 
     Examples
     --------
@@ -87,7 +89,7 @@ class Estimator:
                  scorer: str | Callable = "relevance", phi=None, seed: int | None = 0,
                  channel: str | None = None, samples_per_model: int | None = None,
                  confidence: float = 0.99, inlier_ratio: float = 0.5, window: float = 0.35,
-                 q0=None, Q0=None, constants=None):
+                 q0=None, Q0=None, constants=None, model: str | None = None):
         if not scale > 0:
             raise ValueError(f"scale (L*) must be positive, got {scale}")
         self.fam = fam
@@ -100,6 +102,9 @@ class Estimator:
         self.confidence = confidence
         self.inlier_ratio = inlier_ratio
         self.window = window
+        if model is not None:
+            fam.model(model)
+        self.model = model  # a single model (no lattice), or None for the whole lattice
         self.q0 = parameter_vector(fam, q0)
         self.Q0 = prior_information(Q0, fam.n)
         self._constants = dict(constants or {})
@@ -179,9 +184,12 @@ class Estimator:
         self._stopped = True
         self._running.set()
 
-    def run(self, max_samples: int = 2000, time_budget: float | None = None) -> ModelState | None:
-        """Step until the lattice is explored, ``max_samples`` more samples, ``time_budget``
-        seconds, or :meth:`stop`; returns the best model."""
+    def run(self, max_samples: int = 2000, time_budget: float | None = None,
+            no_gain: int | None = None,
+            until: Callable[[list[tuple[int, float]]], bool] | None = None) -> ModelState | None:
+        """Step until the lattice is explored, or ``max_samples`` more samples, or
+        ``time_budget`` seconds, or ``no_gain`` samples without a better relevance, or
+        ``until(history)`` is true, or :meth:`stop`; returns the best model."""
         self._stopped = False
         started = time.perf_counter()
         budget = self._samples + max_samples
@@ -190,6 +198,11 @@ class Estimator:
             if self._stopped or not self.step():
                 break
             if time_budget is not None and time.perf_counter() - started > time_budget:
+                break
+            if no_gain is not None and len(self.history) > no_gain and \
+                    self.history[-1][1] <= self.history[-1 - no_gain][1]:
+                break
+            if until is not None and until(self.history):
                 break
         return self.best()
 
@@ -221,14 +234,15 @@ class Estimator:
         self._rng = np.random.default_rng(self.seed)
         self._states: dict[str, ModelState] = {}
         # (model, parent, estimate to resume from or None)
+        self._root = self.model or self.fam.null_model
         self._queue: list[tuple[str, str | None, np.ndarray | None]] = [
-            (self.fam.null_model, None, None)]
+            (self._root, None, None)]
         self._search: tuple[str, str | None, ModelSearch, int] | None = None
         self._samples = 0
         self._done = False
         self._problem = None
         self.history = []
-        self._states[self.fam.null_model] = self._null_state()
+        self._states[self._root] = self._null_state()
 
     def _restart_if_idle(self) -> None:
         if self._done or self._search is None:
@@ -236,7 +250,7 @@ class Estimator:
 
     def _null_state(self) -> ModelState:
         n = self.fam.n
-        return ModelState(self.fam.null_model, None, self.fam.params_dict(self.q0),
+        return ModelState(self._root, None, self.fam.params_dict(self.q0),
                           self.q0.copy(), self.Q0.copy(), np.full((n, n), np.inf),
                           np.zeros(0, int), np.zeros(0, int), np.inf, 0, 0.0, 0, np.inf, True,
                           status="null")
@@ -342,7 +356,7 @@ class Estimator:
                 for cb in self._on_model:
                     cb(state)
             known = {m for m, _, _ in self._queue}
-            for alt, _ in self.fam.model(model).alternatives:
+            for alt, _ in ([] if self.model else self.fam.model(model).alternatives):
                 if alt not in known and alt not in self._states:
                     self._queue.append((alt, model, None))
 
@@ -435,3 +449,75 @@ class Estimator:
             cb(best)
 
 
+
+
+def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None,
+                    max_structures: int = 5, model: str | None = None,
+                    min_inliers: int | None = None, max_samples: int = 2000,
+                    **options) -> list[ModelState]:
+    """Several structures in the same data (report §4, clustered data): find one, take its
+    inliers out, search again, until nothing relevant is left or ``max_structures``.
+
+    Parameters
+    ----------
+    data, info : dicts by channel, as for :func:`kanagen.fit`.
+    model : str, optional
+        The model of every structure; default: the lattice search picks one per structure.
+    min_inliers : int, optional
+        A structure needs more inliers than this (default: twice the minimal sample).
+    options : the :class:`Estimator` options (``scale``, ``scorer``, ``phi``, ``seed``,
+        ``channel``, ``constants``, ...).
+
+    Returns
+    -------
+    list of ModelState
+        Strongest (most inliers) first; ``inliers``/``outliers`` are row indices into the
+        arrays given (ids follow the rows of ``data``, channel after channel).
+    """
+    sizes = {name: len(np.asarray(rows)) for name, rows in data.items()}
+    offsets = dict(zip(sizes, np.cumsum([0] + list(sizes.values()))[:-1].tolist(),
+                       strict=True))
+    remaining = {name: np.arange(size) for name, size in sizes.items()}
+    info = dict(info or {})
+    found: list[ModelState] = []
+    seed = options.pop("seed", 0)
+    for k in range(max_structures):
+        est = Estimator(fam, model=model, seed=None if seed is None else seed + k, **options)
+        index = []  # estimator id -> global row (channel offset + row)
+        for name, rows in remaining.items():
+            if rows.size == 0:
+                continue
+            est.add_measures(name, np.asarray(data[name], dtype=float)[rows],
+                             _rows_of(info.get(name), rows, sizes[name]))
+            index.append(offsets[name] + rows)
+        if not index:
+            break
+        best = est.run(max_samples=max_samples)
+        if best is None or not best.samples:
+            break
+        needed = min_inliers if min_inliers is not None else 2 * _minimal(est, best)
+        if len(best.inliers) <= needed:
+            break
+        index = np.concatenate(index)
+        state = replace(best, inliers=index[best.inliers], outliers=index[best.outliers])
+        found.append(state)
+        for name, rows in remaining.items():
+            remaining[name] = rows[~np.isin(offsets[name] + rows, state.inliers)]
+    return sorted(found, key=lambda s: -len(s.inliers))
+
+
+def _rows_of(info, rows: np.ndarray, size: int):
+    """The information of some measures: per-measure forms are sliced, shared ones kept."""
+    if info is None or np.ndim(info) == 0:
+        return info
+    info = np.asarray(info, dtype=float)
+    per_measure = info.ndim == 3 or (info.ndim == 1 and info.shape[0] == size)
+    return info[rows] if per_measure else info
+
+
+def _minimal(est: Estimator, state: ModelState) -> int:
+    from .sqrt import reduced_sqrt
+
+    _, C0 = est.fam.c0(state.model, state.q, est._constants)
+    free = est.fam.n - (int(reduced_sqrt(C0 @ C0.T)[1].sum()) if C0.shape[0] else 0)
+    return max(1, free)

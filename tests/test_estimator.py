@@ -125,3 +125,34 @@ def test_numerical_trouble_is_absorbed(lattice):
     best = est.run(max_samples=100)
     assert best is not None  # no exception out of run(); the status tells
     assert isinstance(est.status, str)
+
+
+def test_find_structures_takes_out_each_structure(lattice):
+    a, _ = arc("circle", 1, n=120, outliers=0.0, radius=80)
+    b, _ = arc("line", 2, n=100, outliers=0.0)
+    noise = np.random.default_rng(0).uniform([0, 0], [640, 480], (60, 2))
+    xy = np.r_[a, b, noise]
+    labels = np.r_[np.zeros(120), np.ones(100), -np.ones(60)]
+    found = kanagen.find_structures(lattice, data={"point": xy}, max_structures=4, scale=4.0,
+                                    seed=0)
+    assert [s.model for s in found] == ["circle", "line"]
+    for state, label in zip(found, (0, 1), strict=True):
+        share = np.mean(labels[state.inliers] == label)
+        assert share > 0.9 and len(state.inliers) > 0.85 * np.sum(labels == label)
+    assert not set(found[0].inliers) & set(found[1].inliers)
+    only_lines = kanagen.find_structures(lattice, data={"point": xy}, model="line",
+                                         max_structures=1, scale=4.0)
+    assert only_lines[0].model == "line"
+
+
+def test_run_stopping_rules(lattice):
+    xy, _ = arc("conic", 8)
+    est = kanagen.Estimator(lattice, scale=4.0, seed=8)
+    est.add_measures("point", xy)
+    est.run(max_samples=25)
+    assert len(est.history) == 25
+    est.run(until=lambda h: len(h) >= 40)
+    assert len(est.history) == 40
+    est.run(no_gain=3)
+    h = est.history
+    assert h[-1][1] <= h[-4][1] or not est.step()
