@@ -23,6 +23,7 @@ from .projector import Problem
 from .results import DerivedValue
 from .robust import ModelSearch, RobustEstimate
 from .scoring import samples_for_confidence
+from .scoring import scorer as get_scorer
 
 _RESUME_FRACTION = 10  # a re-queued model draws a tenth of a fresh search's samples
 _SUPPORT = 0.95  # a general model must keep this fraction of its parent's relevance
@@ -49,6 +50,11 @@ class ModelState:
     accepted: bool  # it beat its parent by the cost factor Φ (the null model: always)
     derived: dict[str, DerivedValue] = field(default_factory=dict)
     status: str = "estimated"
+
+    @property
+    def estimated(self) -> bool:
+        """False for the placeholder of the first moment (the null model at ``q0``)."""
+        return self.samples > 0
 
 
 class Estimator:
@@ -92,6 +98,9 @@ class Estimator:
                  q0=None, Q0=None, constants=None, model: str | None = None):
         if not scale > 0:
             raise ValueError(f"scale (L*) must be positive, got {scale}")
+        get_scorer(scorer)  # validate now: a bad choice must not surface mid-run
+        if phi is not None:
+            get_phi(phi)
         self.fam = fam
         self.scale = float(scale)
         self.scorer = scorer
@@ -193,18 +202,31 @@ class Estimator:
         self._stopped = False
         started = time.perf_counter()
         budget = self._samples + max_samples
-        while not self._stopped and self._samples < budget:
+        reason = None
+        while reason is None:
+            if self._samples >= budget:
+                reason = "sample budget"
+                break
             self._running.wait()
-            if self._stopped or not self.step():
-                break
-            if time_budget is not None and time.perf_counter() - started > time_budget:
-                break
-            if no_gain is not None and len(self.history) > no_gain and \
+            if self._stopped:
+                reason = "stop()"
+            elif not self.step():
+                break  # done: the status says so
+            elif time_budget is not None and time.perf_counter() - started > time_budget:
+                reason = "time budget"
+            elif no_gain is not None and len(self.history) > no_gain and \
                     self.history[-1][1] <= self.history[-1 - no_gain][1]:
-                break
-            if until is not None and until(self.history):
-                break
+                reason = f"no gain in {no_gain} samples"
+            elif until is not None and until(self.history):
+                reason = "until()"
+        if reason is not None and not self._done:
+            self.status = f"paused ({reason}); {self.status}"
         return self.best()
+
+    @property
+    def samples(self) -> int:
+        """Random samples drawn so far."""
+        return self._samples
 
     def step(self) -> bool:
         """One unit of work (usually one random sample). False when nothing is left to do."""

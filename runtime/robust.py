@@ -69,7 +69,7 @@ def outlier_threshold(errors: np.ndarray, scale: float, window: float = 0.35) ->
         if ahead.size and ahead.max() - smooth[i] > noise:
             break  # a genuine local minimum
         i += 1
-    return float(edges[i + 1])
+    return max(float(edges[i + 1]), float(scale))
 
 
 @dataclass(frozen=True)
@@ -238,6 +238,10 @@ class ModelSearch:
             errors = coherence_errors(self.problem, q)
             threshold = outlier_threshold(np.concatenate(errors), self.scale, window)
         rows = tuple(np.flatnonzero(e < threshold) for e in errors)
+        if result is not None and np.all(np.isfinite(result.q)):
+            # the reported estimate (its cost, d, Q̃) is the fit on the reported inliers
+            result = fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=q,
+                                 q0=q0, Q0=Q0, max_iter=max_iter)
         names = [ch.name for ch in self.problem.channels]
         return RobustEstimate(
             model=self.model,

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import json
 import shutil
+from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from scenes import arc
 
 from kanagen.cli import main
 
@@ -46,10 +48,125 @@ def test_build_writes_and_check_detects_drift(run, tmp_path):
     assert "-" in out.output and "+" in out.output and "edited" in out.output
 
 
-def test_fit_prints_the_estimate_and_writes_json(run, tmp_path):
+@pytest.fixture
+def circle_csv(tmp_path):
+    """Points of a circular arc with 30 % uniform outliers, as a CSV with a header."""
+    xy, truth = arc("circle", 0)
+    path = tmp_path / "arc.csv"
+    np.savetxt(path, xy, delimiter=",", header="x,y", comments="", fmt="%.6f")
+    return path, truth
+
+
+LATTICE = ROOT / "examples/conic_lattice.yaml"
+
+
+def test_fit_help_explains_the_robust_search(run):
+    out = run("fit", "--help")
+    assert out.exit_code == 0
+    for word in ("--scale", "--scorer", "--phi", "--seed", "--max-samples", "--local",
+                 "--json", "lattice", "Exit status"):
+        assert word in out.output
+
+
+def test_robust_fit_chooses_the_circle_and_writes_json(run, circle_csv, tmp_path):
+    path, truth = circle_csv
+    out_json = tmp_path / "res.json"
+    out = run("fit", LATTICE, path, "--sigma", "1", "--json", out_json)
+    assert out.exit_code == 0, out.output
+    text = out.output
+    assert "* circle" in text and "chosen model 'circle'" in text and "±" in text
+    assert "matrix" in text  # the derived quantity
+    res = json.loads(out_json.read_text())  # valid JSON: no Infinity / NaN
+    assert res["model"] == "circle" and res["status"] == "done"
+    assert res["channel"] == "point" and res["measures"] == len(truth)
+    rows = {r["model"]: r for r in res["lattice"]}
+    assert rows["circle"]["chosen"] and rows["circle"]["accepted"]
+    assert rows["line"]["parent"] is None and rows["circle"]["parent"] == "line"
+    for row in res["lattice"]:
+        assert {"dof", "cost", "relevance", "inliers", "samples", "accepted"} <= set(row)
+    assert list(res["params"]) == ["A", "B", "C", "D", "E", "F"]
+    assert set(res["std"]) == set(res["params"])
+    assert np.array(res["covariance"]).shape == (6, 6) == np.array(res["info"]).shape
+    q = np.array(list(res["params"].values()))
+    assert np.linalg.norm(q) == pytest.approx(1.0)
+    assert res["params"]["A"] == pytest.approx(res["params"]["C"])  # a circle
+    inliers, outliers = np.array(res["inliers"]), np.array(res["outliers"])
+    assert len(inliers) + len(outliers) == len(truth)
+    assert np.count_nonzero(truth[inliers]) >= 0.9 * np.count_nonzero(truth)
+    assert res["relevance"] == rows["circle"]["relevance"] > 0
+    assert res["samples"] == rows["circle"]["samples"] > 0
+    assert np.array(res["derived"]["matrix"]["value"]).shape == (3, 3)
+    assert np.array(res["derived"]["matrix"]["std"]).shape == (3, 3)
+    history = np.array(res["history"])
+    assert history.shape == (res["total_samples"], 2)
+    assert np.all(np.diff(history[:, 0]) > 0) and np.all(np.diff(history[:, 1]) >= 0)
+
+
+def test_robust_fit_options(run, circle_csv, tmp_path):
+    path, _ = circle_csv
+    out_json = tmp_path / "res.json"
+    out = run("fit", LATTICE, path, "--scale", "4", "--scorer", "trimmed", "--phi", "aic",
+              "--seed", "3", "--const", "f0=100", "--json", out_json)
+    assert out.exit_code == 0, out.output
+    res = json.loads(out_json.read_text())
+    assert res["scale"] == 4.0 and res["scorer"] == "trimmed" and res["phi"] == "aic"
+    assert res["seed"] == 3
+    out = run("fit", LATTICE, path, "--phi", "0.5", "--model", "circle", "--json", out_json)
+    assert out.exit_code == 0, out.output
+    res = json.loads(out_json.read_text())
+    assert res["phi"] == 0.5 and [r["model"] for r in res["lattice"]] == ["circle"]
+
+
+@pytest.mark.skipif(tuple(map(int, version("click").split(".")[:2])) < (8, 2),
+                    reason="CliRunner separates stdout from stderr from click 8.2")
+def test_json_dash_keeps_stdout_pure_json(run, circle_csv):
+    out = run("fit", LATTICE, circle_csv[0], "--json", "-")
+    assert out.exit_code == 0, out.output
+    assert json.loads(out.stdout)["model"] == "circle"
+    assert "* circle" in out.stderr
+
+
+def test_robust_fit_without_a_model_exits_1_with_null_for_inf(run, circle_csv, tmp_path):
+    out_json = tmp_path / "res.json"
+    out = run("fit", LATTICE, circle_csv[0], "--max-samples", "1", "--json", out_json)
+    assert out.exit_code == 1
+    assert "no model found" in out.output and "stopped at --max-samples 1" in out.output
+    res = json.loads(out_json.read_text())
+    assert res["model"] is None and res["lattice"][0]["cost"] is None  # inf -> null
+    assert res["total_samples"] == 1 and res["status"].startswith("searching")
+
+
+def test_robust_fit_reports_bad_input_without_traceback(run, circle_csv, tmp_path):
+    path, _ = circle_csv
+    out = run("fit", LATTICE, path, "--channel", "pixel")
+    assert out.exit_code == 2 and "error: unknown channel 'pixel'" in out.output
+    bad = tmp_path / "bad.csv"
+    bad.write_text("x,z\n1,2\n")
+    out = run("fit", LATTICE, bad)
+    assert out.exit_code == 2 and "error: " in out.output
+    assert "lacks component(s) ['y']" in out.output
+    bad.write_text("x,y\n1,oops\n")
+    out = run("fit", LATTICE, bad)
+    assert out.exit_code == 2 and "not a row of numbers" in out.output
+    bad.write_text("x,y\n")
+    out = run("fit", LATTICE, bad)
+    assert out.exit_code == 2 and "no measures" in out.output
+    for option, message in ((("--phi", "often"), "unknown cost factor"),
+                            (("--scale", "0"), "must be positive"),
+                            (("--const", "g=1"), "unknown constant 'g'"),
+                            (("--model", "parabola"), "unknown model 'parabola'")):
+        out = run("fit", LATTICE, path, *option)
+        assert out.exit_code == 2 and message in out.output, out.output
+    spec = tmp_path / "bad.yaml"
+    spec.write_text("name: bad\nparameter: {A: 0}\n")
+    out = run("fit", spec, path)
+    assert out.exit_code == 2 and "error: " in out.output and "Traceback" not in out.output
+
+
+def test_local_fit_prints_the_estimate_and_writes_json(run, tmp_path):
     out_json = tmp_path / "res.json"
     out = run("fit", ROOT / "examples/conic.yaml", ROOT / "examples/data/ellipse_arc.csv",
-              "--model", "conic", "--sigma", "1", "--json", out_json)
+              "--model", "conic", "--local", "--sigma", "1", "--json", out_json)
     assert out.exit_code == 0, out.output
     assert "converged" in out.output and "discriminant" in out.output
     res = json.loads(out_json.read_text())
@@ -59,17 +176,17 @@ def test_fit_prints_the_estimate_and_writes_json(run, tmp_path):
     assert res["derived"]["discriminant"]["value"] > 0  # an ellipse
 
 
-def test_fit_reports_bad_data_without_traceback(run, tmp_path):
+def test_local_fit_reports_bad_data_without_traceback(run, tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("x,z\n1,2\n")
-    out = run("fit", ROOT / "examples/conic.yaml", bad, "--model", "conic")
+    out = run("fit", ROOT / "examples/conic.yaml", bad, "--model", "conic", "--local")
     assert out.exit_code == 2
     assert "lacks component(s) ['y']" in out.output
     bad.write_text("x,y\n1,nan\n")
-    out = run("fit", ROOT / "examples/conic.yaml", bad, "--model", "conic")
+    out = run("fit", ROOT / "examples/conic.yaml", bad, "--model", "conic", "--local")
     assert out.exit_code == 2 and "NaN" in out.output
     out = run("fit", ROOT / "examples/conic.yaml", ROOT / "examples/data/ellipse_arc.csv",
-              "--model", "parabola")
+              "--model", "parabola", "--local")
     assert out.exit_code == 2 and "unknown model 'parabola'" in out.output
 
 
