@@ -133,6 +133,12 @@ def _solved(delta: float, q: np.ndarray) -> bool:
     return bool(np.isfinite(delta) and delta <= 1e-8 * (1 + np.max(np.abs(q))))
 
 
+def free_dof(C0: np.ndarray, n: int) -> int:
+    """``n − p``: the parameter's degrees of freedom left free by constraints with Jacobian
+    ``C0`` (``p`` its rank, as the reduced square root keeps it)."""
+    return n - (int(reduced_sqrt(C0 @ C0.T)[1].sum()) if C0.shape[0] else 0)
+
+
 def minimal_sample_size(fam: ModelFamily, model: str, channel: str, q=None,
                         constants=None) -> int:
     """The fewest measures of ``channel`` whose equations fix the ``n − p`` free degrees of
@@ -140,7 +146,6 @@ def minimal_sample_size(fam: ModelFamily, model: str, channel: str, q=None,
     k = fam.constant_vector(constants)
     q = parameter_vector(fam, q, "q")
     _, C0 = fam.c0(model, q, k)
-    p = int(reduced_sqrt(C0 @ C0.T)[1].sum()) if C0.shape[0] else 0
     width = len(fam.channel(channel).components)
     c, _, _ = fam.measurement(model, channel, q, np.zeros((0, width)), k)
-    return math.ceil((fam.n - p) / c.shape[1])
+    return math.ceil(free_dof(C0, fam.n) / c.shape[1])

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .coherence import free_dof
 from .family import ModelFamily
 from .fit import fit_problem
 from .inputs import ChannelData, channel_data, parameter_vector, prior_information
@@ -360,10 +361,8 @@ class Estimator:
         return False
 
     def _free(self, model: str, q: np.ndarray) -> int:
-        from .sqrt import reduced_sqrt
-
         _, C0 = self.fam.c0(model, q, self._constants)
-        return self.fam.n - (int(reduced_sqrt(C0 @ C0.T)[1].sum()) if C0.shape[0] else 0)
+        return free_dof(C0, self.fam.n)
 
     def _conclude(self, model: str, parent: str | None, search: ModelSearch) -> None:
         estimate = search.finish(self.q0, self.Q0, self.window)
@@ -538,8 +537,4 @@ def _rows_of(info, rows: np.ndarray, size: int):
 
 
 def _minimal(est: Estimator, state: ModelState) -> int:
-    from .sqrt import reduced_sqrt
-
-    _, C0 = est.fam.c0(state.model, state.q, est._constants)
-    free = est.fam.n - (int(reduced_sqrt(C0 @ C0.T)[1].sum()) if C0.shape[0] else 0)
-    return max(1, free)
+    return max(1, est._free(state.model, state.q))

@@ -17,14 +17,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .coherence import coherence_errors, solve_minimal
+from .coherence import coherence_errors, free_dof, solve_minimal
 from .family import ModelFamily
 from .fit import fit_problem, make_problem
 from .projector import Problem
 from .results import FitResult
 from .scoring import samples_for_confidence
 from .scoring import scorer as get_scorer
-from .sqrt import reduced_sqrt
 
 
 def outlier_threshold(errors: np.ndarray, scale: float, window: float = 0.35) -> float:
@@ -161,8 +160,7 @@ class ModelSearch:
     def free_dof(self, q: np.ndarray | None = None) -> int:
         """``n − p``: the parameter's degrees of freedom left free by the constraints."""
         _, C0 = self.problem.c0(self.start if q is None else q, self.problem.k)
-        p = int(reduced_sqrt(C0 @ C0.T)[1].sum()) if C0.shape[0] else 0
-        return self.fam.n - p
+        return free_dof(C0, self.fam.n)
 
     def _equations_per_measure(self) -> int:
         width = len(self.fam.channel(self.problem.channels[self.channel].name).components)
