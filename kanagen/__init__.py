@@ -24,11 +24,12 @@ if not (_here / "runtime").is_dir() and (_here.parent / "runtime" / "__init__.py
 from .loader import load, load_text  # noqa: E402
 from .modelspec import SpecError, family_from_data  # noqa: E402
 from .runtime.coherence import coherence, minimal_sample_size, minimal_solve  # noqa: E402
-from .runtime.estimator import Estimator, ModelState, find_structures  # noqa: E402
+from .runtime.estimator import Estimator, ModelState  # noqa: E402
 from .runtime.family import ModelFamily  # noqa: E402
 from .runtime.fit import fit  # noqa: E402
 from .runtime.results import DerivedValue, FitResult  # noqa: E402
 from .runtime.robust import RobustEstimate, robust_fit  # noqa: E402
+from .runtime.structures import find_structures  # noqa: E402
 
 __version__ = "0.1.0"
 
