@@ -150,6 +150,18 @@ def derived_function(family: Family) -> Function:
     )
 
 
+def slack_function(family: Family) -> Function:
+    """The measure ``c`` of each slack's relation (``c >= 0``, ``c > 0``, ``c != 0``)."""
+    k = len(family.slack_relations)
+    return _function(
+        "slack_measures", ("q", "k"),
+        "For each slack component, c of its relation (c >= 0, c > 0 or c != 0).",
+        family,
+        [("c", f"({k},)", [(f"{i}", c) for i, (_, c) in enumerate(family.slack_relations)])],
+        "c",
+    )
+
+
 def describe(family: Family, source_name: str) -> dict:
     """The plain-data description of everything generated for ``family``."""
     functions, models, shapes = [], {}, set()
@@ -177,6 +189,7 @@ def describe(family: Family, source_name: str) -> dict:
         "models": models,
         "has_derived": bool(family.derived),
         "derived": derived_function(family) if family.derived else None,
+        "slack_measures": slack_function(family) if family.slack else None,
         "kernels": sorted(shapes),
     }
 
@@ -206,4 +219,8 @@ def family_metadata(family: Family) -> dict:
         },
         "derived": {d.name: list(d.shape) for d in family.derived},
         "null_model": family.null_model,
+        "slack": list(family.slack),
+        "slack_kinds": [kind for kind, _ in family.slack_relations],
+        "slack_owner": list(family.slack_owner),
+        "slack_clauses": {m: [list(c) for c in cl] for m, cl in family.slack_clauses},
     }

@@ -21,7 +21,11 @@ FAMILY = {'name': 'line',
                            'alternatives': [['line', 1.0]]},
             'line': {'constraints': [], 'equations': {}, 'alternatives': []}},
  'derived': {'angle': [], 'intercept_x': []},
- 'null_model': 'horizontal'}
+ 'null_model': 'horizontal',
+ 'slack': [],
+ 'slack_kinds': [],
+ 'slack_owner': [],
+ 'slack_clauses': {}}
 
 _TINY = np.finfo(float).tiny
 _REDUNDANT = 1e3 * np.finfo(float).eps
@@ -137,6 +141,7 @@ MODELS = {
     },
 }
 DERIVED = derived
+SLACK_MEASURES = None
 KERNELS = {
     (1, 2): (whiten_1_2, correct_1_2),
 }

@@ -306,27 +306,16 @@ def _std(covariance) -> np.ndarray:
 
 
 def _state_summary(best, measures: int) -> str:
+    from .runtime.results import estimate_lines
+
     lines = [f"chosen model {best.model!r}: {len(best.inliers)} inlier(s), "
              f"{len(best.outliers)} outlier(s) of {measures} measures; L~^2/d = {best.cost:.6g}"
              f" (d = {best.dof}), relevance {best.relevance:.4g}, threshold "
              f"{best.threshold:.4g}, {best.samples} sample(s)"]
     if best.status not in ("estimated", "null"):
         lines.append(f"  refinement: {best.status}")
-    width = max(len(k) for k in best.params)
-    for (name, value), sd in zip(best.params.items(), _std(best.covariance), strict=True):
-        lines.append(f"  {name:<{width}} = {value: .10g}  ± {sd:.3g}")
-    for name, d in best.derived.items():
-        value = np.asarray(d.value)
-        if value.ndim == 0:
-            lines.append(f"  {name} = {float(value): .10g}  ± {float(d.std):.3g}")
-        else:
-            lines.append(f"  {name} =\n" + _indent(np.array2string(value, precision=6)))
-            lines.append(f"  {name} std =\n" + _indent(np.array2string(d.std, precision=3)))
+    lines += estimate_lines(best.params, best.slacks, _std(best.covariance), best.derived)
     return "\n".join(lines)
-
-
-def _indent(text: str, prefix: str = "    ") -> str:
-    return "\n".join(prefix + line for line in text.splitlines())
 
 
 def _write_json(obj, json_out: str | None) -> None:
@@ -373,7 +362,9 @@ def estimator_to_json(est, chosen: str | None) -> dict:
     std = _std(best.covariance)
     out.update({
         "params": dict(best.params),
-        "std": dict(zip(best.params, std.tolist(), strict=True)),
+        "std": dict(zip(best.params, std.tolist(), strict=False)),
+        "slacks": dict(best.slacks),
+        "components": [*best.params, *best.slacks],  # rows of covariance and info
         "covariance": np.asarray(best.covariance),
         "info": np.asarray(best.info),
         "cost": best.cost,
@@ -398,7 +389,9 @@ def result_to_json(res) -> dict:
     return {
         "model": res.model,
         "params": res.params,
-        "std": dict(zip(res.params, arr(res.std), strict=True)),
+        "std": dict(zip(res.params, arr(res.std), strict=False)),
+        "slacks": res.slacks,
+        "components": [*res.params, *res.slacks],  # rows of covariance and info
         "covariance": arr(res.covariance),
         "info": arr(res.info),
         "cost": res.cost,

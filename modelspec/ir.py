@@ -74,9 +74,15 @@ class Family:
     null_model: str
     source: str
     sha256: str
+    slack: tuple[str, ...] = ()  # parameter components added for inequalities (appendix F)
+    slack_relations: tuple[tuple[str, sp.Expr], ...] = ()  # (kind, c) per slack, same order
+    slack_owner: tuple[str, ...] = ()  # the model each slack belongs to, same order
+    #: per model, its clauses made of inequalities only (slack indices): one must hold each
+    slack_clauses: tuple[tuple[str, tuple[tuple[int, ...], ...]], ...] = ()
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
+        """Every component of q, slacks included (they come last)."""
         return tuple(name for name, _ in self.parameter)
 
     def channel(self, name: str) -> Channel:

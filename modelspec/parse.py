@@ -12,6 +12,7 @@ from pathlib import Path
 
 import sympy as sp
 
+from .constructs import compile_formula, is_formula, parse_formula, slack_start
 from .errors import SpecError
 from .expressions import CONSTANTS, FUNCTIONS, check_identifier, parse_expression
 from .ir import Alternative, Channel, Derived, Family, Model, sha256_text, symbol
@@ -193,11 +194,13 @@ class _Builder:
         )
         by_channel = {c.name: c for c in channels}
         models_spec = self.mapping(top["models"], "models", "models", empty_ok=False)
+        self.slacks, self.clauses = {}, {}
         models = tuple(
             self.model(mname, spec, base, by_channel, models_spec, declare)
             for mname, spec in models_spec.items()
         )
         self.check_acyclic(models)
+        parameter, models = self.add_slacks(parameter, constants, models)
         derived = tuple(
             self.derived(dname, spec, base, declare)
             for dname, spec in self.mapping(top.get("derived"), "derived", "derived").items()
@@ -207,6 +210,10 @@ class _Builder:
             raise self.error(f"null_model {null_model!r} is not a declared model", "null_model")
         return Family(
             name=name,
+            slack=getattr(self, "slack_names", ()),
+            slack_relations=getattr(self, "slack_relations", ()),
+            slack_owner=getattr(self, "slack_owner", ()),
+            slack_clauses=getattr(self, "slack_clauses", ()),
             parameter=parameter,
             constants=constants,
             channels=channels,
@@ -253,7 +260,8 @@ class _Builder:
         name = declare(name, "model", *path)
         spec = self.mapping(spec, f"model {name!r}", *path)
         self.keys(spec, _MODEL_KEYS, f"model {name!r}", *path)
-        constraints = self.equations(spec.get("constraints"), base, *path, "constraints")
+        constraints, slacks = self.constraints(name, spec.get("constraints"), base, declare,
+                                               *path, "constraints")
         overrides = []
         for cname, eqs in self.mapping(spec.get("equations"), "equations", *path,
                                        "equations").items():
@@ -267,8 +275,39 @@ class _Builder:
                                  *path, "equations", cname)
         order = list(channels)
         overrides.sort(key=lambda item: order.index(item[0]))
+        self.slacks[name] = slacks
         return Model(name, constraints, tuple(overrides),
                      self.alternatives(spec.get("alternatives"), all_models, name, *path))
+
+    def constraints(self, model, value, base, declare, *path):
+        """Constraint equations of a model, formulas compiled (appendix F), and their slacks.
+
+        A list labels its items ``<model><i>``; a mapping names them (slacks ``s_<name>``).
+        """
+        if isinstance(value, Mapping):
+            items = [(str(k), v, path + (k,)) for k, v in value.items()]
+        else:
+            items = [(f"{model}{i + 1}", v, path + (i,))
+                     for i, v in enumerate(self.sequence(value, "constraints", *path))]
+        equations, slacks, clauses = [], [], []
+        for label, text, where in items:
+            if is_formula(text):
+                line = self.src.line(*where)
+                formula = (text if isinstance(text, sp.Basic)
+                           else parse_formula(text, base, self.src.source, line))
+                compiled = compile_formula(formula, label, self.src.source, line)
+                for slack in compiled.slacks:
+                    declare(slack.name, "slack component", *where)
+                # an equation an earlier constraint already states is dropped (a repeated
+                # equation only makes the constraint Jacobian rank-deficient)
+                equations.extend(e for e in compiled.equations
+                                 if not any(sp.expand(e - f) == 0 for f in equations))
+                clauses.extend(tuple(len(slacks) + i for i in c) for c in compiled.clauses)
+                slacks.extend(compiled.slacks)
+            else:
+                equations.append(self.expression(text, base, *where))
+        self.clauses[model] = tuple(clauses)
+        return tuple(equations), tuple(slacks)
 
     def alternatives(self, value, all_models, owner, *path) -> tuple[Alternative, ...]:
         path = path + ("alternatives",)
@@ -308,6 +347,32 @@ class _Builder:
             "or 'exp:kappa')",
             *path,
         )
+
+    def add_slacks(self, parameter, constants, models):
+        """Slack components join the parameter (after the declared ones), starting from the
+        spec's default point; a model that does not use a slack pins it (``s − s0 = 0``), so
+        each slack adds one component and one equation to every model and ``d`` is right."""
+        values = {symbol(n): v for n, v in parameter + constants}
+        starts = [(sl.name, slack_start(sl, values))
+                  for m in models for sl in self.slacks[m.name]]
+        if not starts:
+            return parameter, models
+        pinned = []
+        for m in models:
+            own = {sl.name for sl in self.slacks[m.name]}
+            pins = tuple(symbol(n) - v for n, v in starts if n not in own)
+            pinned.append(Model(m.name, m.constraints + pins, m.equations, m.alternatives))
+        self.slack_names = tuple(n for n, _ in starts)
+        self.slack_relations = tuple((sl.kind, sl.measure) for m in models
+                                     for sl in self.slacks[m.name])
+        self.slack_owner = tuple(m.name for m in models for _ in self.slacks[m.name])
+        offsets, total = {}, 0
+        for m in models:
+            offsets[m.name], total = total, total + len(self.slacks[m.name])
+        self.slack_clauses = tuple(
+            (m.name, tuple(tuple(offsets[m.name] + i for i in c) for c in self.clauses[m.name]))
+            for m in models if self.clauses[m.name])
+        return parameter + tuple(starts), tuple(pinned)
 
     def check_acyclic(self, models):
         edges = {m.name: [a.model for a in m.alternatives] for m in models}

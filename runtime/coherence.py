@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -13,7 +13,7 @@ from .family import ModelFamily
 from .fit import make_problem
 from .inputs import parameter_vector
 from .projector import Problem, project_measures, quadratic
-from .sqrt import EPS, reduced_solve, reduced_sqrt
+from .sqrt import EPS, reduced_sqrt
 
 
 def coherence(fam: ModelFamily, model: str, q, data: Mapping, info: Mapping | None = None,
@@ -87,6 +87,11 @@ def minimal_solve(fam: ModelFamily, model: str, data: Mapping, q_start=None, con
     return solve_minimal(problem, target, max_iter, xtol, eps)
 
 
+_FREE_STEPS = 3  # full steps allowed to raise the violation before the line search
+_WATCHDOG = 1e8  # ... by at most this factor over the best violation so far
+_SLOW = 4  # line-search steps in a row that lower the violation by less than a tenth
+
+
 def solve_minimal(problem: Problem, target: np.ndarray, max_iter: int = 50,
                   xtol: float = 1e-12, eps: float = EPS) -> MinimalSolution:
     """:func:`minimal_solve` on a validated problem (its measures are the sample)."""
@@ -103,40 +108,91 @@ def solve_minimal(problem: Problem, target: np.ndarray, max_iter: int = 50,
     q, rank = target.copy(), 0
     with np.errstate(all="ignore"):
         c, J = equations(q)
+        # each equation in units of the parameter: rows scaled by their gradient's norm at
+        # the start (the measures' equations are in pixels², a slack's in its own units)
+        norms = np.linalg.norm(J, axis=1)
+        w = np.where(np.isfinite(norms) & (norms > 0), 1.0 / norms, 1.0)
+        c, J = w * c, w[:, None] * J
         delta = float(np.max(np.abs(c), initial=0.0))
+        best, free, slow = (delta, q, c, J), _FREE_STEPS, 0
         for it in range(1, max_iter + 1):
-            L, kept = reduced_sqrt(J @ J.T, eps)
+            # q + step: the point closest to the target on the linearised equations, from
+            # the SVD of J (not J Jᵀ, whose condition number is squared)
+            try:
+                U, S, Vt = np.linalg.svd(J, full_matrices=False)
+            except np.linalg.LinAlgError:
+                return MinimalSolution(q, False, rank, it, delta)
+            kept = S > np.sqrt(eps) * S[0] if S.size and S[0] > 0 else np.zeros(S.size, bool)
             rank = int(kept.sum())
-            d = J @ q - c
-            lam = reduced_solve(L, kept, reduced_solve(L, kept, J @ target - d), transpose=True)
-            step = target - J.T @ lam - q
+            V = Vt[kept].T
+            r = target - q
+            step = r - V @ (V.T @ r + (U[:, kept].T @ c) / S[kept])
             if not np.all(np.isfinite(step)):
                 return MinimalSolution(q, False, rank, it, delta)
-            alpha = 1.0
-            while alpha > 2.0**-30:
-                trial = q + alpha * step
-                c_new, J_new = equations(trial)
-                d_new = float(np.max(np.abs(c_new), initial=0.0))
-                if np.isfinite(d_new) and d_new < delta + 1e-12 * (1 + delta):
-                    break
-                alpha /= 2
+            trial = q + step
+            c_new, J_new = equations(trial)
+            c_new, J_new = w * c_new, w[:, None] * J_new
+            d_new = float(np.max(np.abs(c_new), initial=0.0))
+            if free > 0 and np.isfinite(d_new) and d_new < _WATCHDOG * (1 + best[0]):
+                # watchdog (Chamberlain et al. 1982): full steps may raise the violation a
+                # few times — far from the solution a curved equation (a slack's, the unit
+                # norm from a start nearly orthogonal to the solution) needs it
+                free -= d_new >= delta
+                moved = np.max(np.abs(step), initial=0.0)
             else:
-                return MinimalSolution(q, _solved(delta, q), rank, it, delta)
-            moved = np.max(np.abs(alpha * step), initial=0.0)
+                if delta > best[0]:  # the watchdog's steps did not pay: back to the best
+                    delta, q, c, J = best
+                    free = 0
+                    continue
+                free = 0
+                alpha = 1.0
+                while alpha > 2.0**-30:
+                    trial = q + alpha * step
+                    c_new, J_new = equations(trial)
+                    c_new, J_new = w * c_new, w[:, None] * J_new
+                    d_new = float(np.max(np.abs(c_new), initial=0.0))
+                    if np.isfinite(d_new) and d_new < delta + 1e-12 * (1 + delta):
+                        break
+                    alpha /= 2
+                else:
+                    return MinimalSolution(q, _solved(delta, q), rank, it, delta)
+                moved = np.max(np.abs(alpha * step), initial=0.0)
+            slow = slow + 1 if free == 0 and d_new > 0.9 * delta else 0
             q, c, J, delta = trial, c_new, J_new, d_new
-            if moved <= xtol * (1 + np.max(np.abs(q))):
+            if delta < best[0]:
+                best = (delta, q, c, J)
+            if slow >= _SLOW:  # no solution near (a sample the model cannot pass through)
+                return MinimalSolution(q, _solved(delta, q), rank, it, delta)
+            if moved <= xtol * (1 + np.max(np.abs(q))) or _solved(delta, q) and \
+                    moved <= 1e-8 * (1 + np.max(np.abs(q))):
                 return MinimalSolution(q, _solved(delta, q), rank, it, delta)
     return MinimalSolution(q, _solved(delta, q), rank, max_iter, delta)
 
 
 def _solved(delta: float, q: np.ndarray) -> bool:
+    """Equations (scaled to parameter units) hold to rounding-level accuracy."""
     return bool(np.isfinite(delta) and delta <= 1e-8 * (1 + np.max(np.abs(q))))
 
 
-def free_dof(C0: np.ndarray, n: int) -> int:
-    """``n − p``: the parameter's degrees of freedom left free by constraints with Jacobian
-    ``C0`` (``p`` its rank, as the reduced square root keeps it)."""
-    return n - (int(reduced_sqrt(C0 @ C0.T)[1].sum()) if C0.shape[0] else 0)
+def free_dof(jacobian: Callable[[np.ndarray], np.ndarray], q: np.ndarray) -> int:
+    """``n − p``: the parameter's degrees of freedom left free by the constraints, whose
+    Jacobian at a point is ``jacobian(q)`` (``p`` its rank, as the reduced square root keeps
+    it).
+
+    ``p`` is the generic rank: the largest of the ranks at ``q`` and at two fixed
+    perturbations of it. At a special point a constraint's gradient may vanish (the slack
+    equation ``s²(AC − B²) − 1`` of an ellipse at a line, ``A = B = C = 0``) while the
+    constraint still removes a degree of freedom everywhere it can hold.
+    """
+    q = np.asarray(q, dtype=float)
+    rng = np.random.default_rng(0)  # fixed: the same answer on every call
+    rank = 0
+    with np.errstate(all="ignore"):
+        for point in (q, *(q + rng.standard_normal((2, q.size)) * (0.1 + np.abs(q)))):
+            C0 = np.asarray(jacobian(point), dtype=float)
+            if C0.shape[0] and np.all(np.isfinite(C0)):
+                rank = max(rank, int(reduced_sqrt(C0 @ C0.T)[1].sum()))
+    return q.size - rank
 
 
 def minimal_sample_size(fam: ModelFamily, model: str, channel: str, q=None,
@@ -145,7 +201,6 @@ def minimal_sample_size(fam: ModelFamily, model: str, channel: str, q=None,
     freedom of ``model`` (p: rank of the constraints at ``q``, default the spec's q0)."""
     k = fam.constant_vector(constants)
     q = parameter_vector(fam, q, "q")
-    _, C0 = fam.c0(model, q, k)
     width = len(fam.channel(channel).components)
     c, _, _ = fam.measurement(model, channel, q, np.zeros((0, width)), k)
-    return math.ceil(free_dof(C0, fam.n) / c.shape[1])
+    return math.ceil(free_dof(lambda x: fam.c0(model, x, k)[1], q) / c.shape[1])

@@ -28,6 +28,7 @@ from .scoring import scorer as get_scorer
 
 _RESUME_FRACTION = 10  # a re-queued model draws a tenth of a fresh search's samples
 _SUPPORT = 0.95  # a general model must keep this fraction of its parent's relevance
+_SAME_FIT = 1e-6  # relative cost difference below which two fits are the same fit
 _MORE_SUPPORT = 1.2  # ... and wins outright when it explains this much more
 
 
@@ -51,6 +52,7 @@ class ModelState:
     accepted: bool  # it beat its parent by the cost factor Φ (the null model: always)
     derived: dict[str, DerivedValue] = field(default_factory=dict)
     status: str = "estimated"
+    slacks: dict[str, float] = field(default_factory=dict)  # appendix F's added components
 
     @property
     def estimated(self) -> bool:
@@ -256,6 +258,7 @@ class Estimator:
     def _restart(self) -> None:
         self._rng = np.random.default_rng(self.seed)
         self._states: dict[str, ModelState] = {}
+        self._declared_by: dict[str, str] = {}  # model -> the model whose edge queued it
         # (model, parent, estimate to resume from or None)
         self._root = self.model or self.fam.null_model
         self._queue: list[tuple[str, str | None, np.ndarray | None]] = [
@@ -361,8 +364,7 @@ class Estimator:
         return False
 
     def _free(self, model: str, q: np.ndarray) -> int:
-        _, C0 = self.fam.c0(model, q, self._constants)
-        return free_dof(C0, self.fam.n)
+        return free_dof(lambda x: self.fam.c0(model, x, self._constants)[1], q)
 
     def _conclude(self, model: str, parent: str | None, search: ModelSearch) -> None:
         estimate = search.finish(self.q0, self.Q0, self.window)
@@ -376,10 +378,16 @@ class Estimator:
             if best is state:
                 for cb in self._on_model:
                     cb(state)
-            known = {m for m, _, _ in self._queue}
-            for alt, _ in ([] if self.model else self.fam.model(model).alternatives):
-                if alt not in known and alt not in self._states:
-                    self._queue.append((alt, model, None))
+        # the more general models next, against this one if it was accepted, else against
+        # its parent: a rejected model does not hide a more general one (a hyperbola is
+        # neither a circle nor an ellipse, but it is a conic)
+        against = model if state.accepted else parent
+        known = {m for m, _, _ in self._queue}
+        for alt, _ in ([] if self.model or against is None
+                       else self.fam.model(model).alternatives):
+            if alt not in known and alt not in self._states:
+                self._queue.append((alt, against, None))
+                self._declared_by[alt] = model  # the edge whose Φ decides
 
     def _state(self, model, parent, est: RobustEstimate, ids) -> ModelState:
         names = list(est.inliers)
@@ -395,7 +403,8 @@ class Estimator:
         return ModelState(model, parent, est.params, est.q, est.fit.info, est.fit.covariance,
                           np.sort(inliers), np.sort(outliers), cost, est.fit.dof,
                           est.relevance, est.samples, est.threshold, accepted,
-                          est.fit.derived, "estimated" if est.fit.success else est.fit.message)
+                          est.fit.derived, "estimated" if est.fit.success else est.fit.message,
+                          est.fit.slacks)
 
     def _beats(self, parent: str, p: ModelState, model: str, est: RobustEstimate) -> bool:
         """Does the general model replace its parent? (report eq. 46, made comparable)
@@ -423,12 +432,15 @@ class Estimator:
         if not (np.isfinite(specific.normalized_cost) and np.isfinite(general.normalized_cost)):
             return False
         factor = self._phi(parent, model)(specific.dof, general.dof)
-        return bool(general.normalized_cost < factor * specific.normalized_cost)
+        # strictly better, beyond rounding: a model that only drops an inequality (ellipse
+        # -> conic, same d) reaches the very same fit when the inequality is not active
+        return bool(general.normalized_cost < factor * specific.normalized_cost
+                    * (1 - _SAME_FIT))
 
     def _phi(self, parent: str, model: str):
         if self.phi is not None:
             return get_phi(self.phi)
-        for alt, choice in self.fam.model(parent).alternatives:
+        for alt, choice in self.fam.model(self._declared_by.get(model, parent)).alternatives:
             if alt == model:
                 return get_phi(choice)
         return get_phi(1.0)

@@ -70,6 +70,8 @@ class ModelFamily:
         }
         self.derived_shapes = {k: tuple(v) for k, v in meta["derived"].items()}
         self.null_model: str = meta["null_model"]
+        #: Components added for inequalities (appendix F), last in q; not "the parameter".
+        self.slack_names = tuple(meta.get("slack", ()))
         self.use_generated_kernels = use_generated_kernels
 
     def __repr__(self) -> str:
@@ -103,8 +105,57 @@ class ModelFamily:
             values[key] = value
         return np.array([values[n] for n in self.constant_names], dtype=float)
 
-    def params_dict(self, q: np.ndarray) -> dict[str, float]:
-        return {n: float(v) for n, v in zip(self.parameter_names, q, strict=True)}
+    def params_dict(self, q: np.ndarray, slack: bool = False) -> dict[str, float]:
+        """The parameter by component name; slack components only with ``slack=True``."""
+        return {n: float(v) for n, v in zip(self.parameter_names, q, strict=True)
+                if slack or n not in self.slack_names}
+
+    def with_slacks(self, q, constants=None, model: str | None = None) -> np.ndarray:
+        """``q`` with its slack components (appendix F) completed or refreshed.
+
+        ``q`` may omit the slacks. The slacks of ``model`` are set from their relations at
+        ``q``: ``s = √c`` for ``c >= 0``, ``1/√c`` for ``c > 0``, ``1/c`` for ``c != 0`` where
+        the relation holds, else a non-zero value of the same magnitude (the iteration then
+        moves the parameter until it holds). The other slacks (pinned in ``model``) take the
+        spec's values; without ``model``, every slack does.
+        """
+        q = np.asarray(q, dtype=float)
+        if not self.slack_names:
+            return q
+        n_user = self.n - len(self.slack_names)
+        full = np.r_[q[:n_user], self._q0[n_user:]]
+        owners = self.module.FAMILY.get("slack_owner", [])
+        own = [i for i, m in enumerate(owners) if m == model]
+        if not own:
+            return full
+        with np.errstate(all="ignore"):
+            c = self.module.SLACK_MEASURES(full, self._k(constants))
+        kinds = self.module.FAMILY["slack_kinds"]
+        for i in own:
+            ci = c[i] if np.isfinite(c[i]) and c[i] != 0 else 1.0
+            a = abs(ci)
+            full[n_user + i] = (np.sqrt(a) if kinds[i] == ">=" else 1 / np.sqrt(a)
+                                if kinds[i] == ">" else 1 / ci)
+        return full
+
+    def relations_hold(self, model: str, q, constants=None) -> bool:
+        """Whether ``model``'s inequality relations (appendix F) hold at ``q``: in each of
+        its clauses made of inequalities only, at least one (the clauses with an equation
+        are the projector's business)."""
+        clauses = self.module.FAMILY.get("slack_clauses", {}).get(model)
+        if not clauses:
+            return True
+        kinds = self.module.FAMILY["slack_kinds"]
+        with np.errstate(all="ignore"):
+            c = self.module.SLACK_MEASURES(np.asarray(q, dtype=float), self._k(constants))
+        holds = [bool(c[i] >= 0 if kind == ">=" else c[i] > 0 if kind == ">" else
+                      np.isfinite(c[i]) and c[i] != 0) for i, kind in enumerate(kinds)]
+        return all(any(holds[i] for i in clause) for clause in clauses)
+
+    def slack_dict(self, q: np.ndarray) -> dict[str, float]:
+        """The slack components by name."""
+        return {n: float(v) for n, v in zip(self.parameter_names, q, strict=True)
+                if n in self.slack_names}
 
     def model(self, name: str) -> ModelInfo:
         try:

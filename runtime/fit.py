@@ -35,6 +35,7 @@ def make_problem(fam: ModelFamily, model: str, data: Mapping, info: Mapping | No
         Q0=prior_information(Q0, fam.n),
         k=k,
         eps=eps,
+        relations=(lambda q: fam.relations_hold(model, q, k)) if fam.slack_names else None,
     )
 
 
@@ -96,6 +97,7 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
         problem = replace(problem, q0=problem.q0 if q0 is None else q0,
                           Q0=problem.Q0 if Q0 is None else Q0)
     start = problem.q0 if q_start is None else np.asarray(q_start, dtype=float)
+    start = fam.with_slacks(start, problem.k, model)  # its slacks consistent with the start
     out = iterate(problem, start, max_iter=max_iter, xtol=xtol)
     x, lin, proj = out.point, out.lin, out.proj
     if lin is None or lin.x is not x:  # the outputs are taken at the returned point
@@ -135,6 +137,7 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
         message=out.message,
         ranks={ch.name: r for ch, r in zip(problem.channels, ranks, strict=True)},
         derived=derived_values(fam, x.q, covariance, problem.k),
+        slacks=fam.slack_dict(x.q),
     )
 
 

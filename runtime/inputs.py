@@ -143,8 +143,13 @@ def parameter_vector(fam: ModelFamily, q, what: str = "q0") -> np.ndarray:
             out[fam.parameter_names.index(key)] = float(value)
     else:
         out = np.array(q, dtype=float)
-        if out.shape != (fam.n,):
-            raise ValueError(f"{what} has shape {out.shape}; expected ({fam.n},)")
+        n_user = fam.n - len(fam.slack_names)
+        if fam.slack_names and out.shape == (n_user,):
+            out = fam.with_slacks(out)  # slack components follow from the parameter
+        elif out.shape != (fam.n,):
+            expected = f"({fam.n},)" + (f" or ({n_user},) without the slack components"
+                                        if fam.slack_names else "")
+            raise ValueError(f"{what} has shape {out.shape}; expected {expected}")
     _finite(out, what)
     return out
 

@@ -21,6 +21,10 @@ cost while δ stays below a hundredth of its starting value. Far from feasibilit
 eq. 18 (a Newton-like step that lowers the violation is taken even if the cost grows); once
 feasible, the projector step is a descent direction of the cost to first order.
 
+Inequalities (ours, appendix F): once an iterate satisfies the model's inequality relations
+(``c > 0`` of an ``ellipse`` model, say), a trial point that breaks them is refused, so the
+iteration approaches the boundary instead of jumping across it.
+
 Stopping (ours): when the step stops shrinking at the rounding level while the cost stays
 put, the iteration stops as "stalled" (the precision limit) instead of wandering.
 
@@ -119,8 +123,9 @@ def _acceptable(trial: Point, x: Point, eps_delta: float, delta_cap: float) -> b
     * lowers the violation δ (eq. 18's aim), or
     * does not raise the cost and does not raise δ (eq. 18's rule plus our cost guard), or
     * clearly lowers the cost while δ stays below ``delta_cap`` (a hundredth of the starting
-      violation): near feasibility, a long step raises δ by second-order terms that the next
-      projection removes, and eq. 18 alone would refuse every such step.
+      violation, measures restored: what the constraints start with): near feasibility, a
+      long step raises δ by second-order terms that the next projection removes, and eq. 18
+      alone would refuse every such step — but a feasible start stays feasible.
     """
     if not trial.finite:
         return False
@@ -149,7 +154,8 @@ def _iterate(problem: Problem, q_start: np.ndarray, max_iter: int, xtol: float) 
     restored = _restored(problem, q_start, x.mt)
     if restored.finite and restored.delta <= x.delta:
         x = restored
-    delta_cap = 1e-2 * delta0
+    # what the measures cannot absorb at the start (restored): the parameter constraints
+    delta_cap = 1e-2 * x.delta
     lin = proj = None
     mu = 0.0  # Levenberg–Marquardt damping, raised only when the plain step is refused
     best = (np.inf, np.inf)
@@ -183,7 +189,9 @@ def _iterate(problem: Problem, q_start: np.ndarray, max_iter: int, xtol: float) 
             since_best += 1
             if since_best >= _STAGNATION:
                 return outcome(x, it, STALLED, lin, proj)
-        trial = _line_search(problem, lin, proj, x, mu, eps_delta, delta_cap)
+        guard = problem.relations if problem.relations is not None and \
+            problem.relations(x.q) else None
+        trial = _line_search(problem, lin, proj, x, mu, eps_delta, delta_cap, guard)
         if trial is None:
             return outcome(x, it, STALLED, lin, proj)
         trial, mu_used, alpha = trial
@@ -195,7 +203,7 @@ def _iterate(problem: Problem, q_start: np.ndarray, max_iter: int, xtol: float) 
     return outcome(x, max_iter, MAX_ITER, lin, proj)
 
 
-def _line_search(problem, lin, proj, x, mu, eps_delta, delta_cap):
+def _line_search(problem, lin, proj, x, mu, eps_delta, delta_cap, guard=None):
     """Find an acceptable point: the report's step (or the damped one the last iteration
     needed), halved back towards ``x`` a few times as eq. 18 does; if still refused, damp
     more (Levenberg–Marquardt, tenfold, up to ``_MU_MAX``) and halve again — at the last
@@ -207,7 +215,8 @@ def _line_search(problem, lin, proj, x, mu, eps_delta, delta_cap):
             q = x.q + alpha * (target.q - x.q)
             mt = tuple(a + alpha * (b - a) for a, b in zip(x.mt, target.mt, strict=True))
             trial = _restored(problem, q, mt)
-            if _acceptable(trial, x, eps_delta, delta_cap):
+            # once the model's inequalities hold, they hold at every later iterate
+            if (guard is None or guard(q)) and _acceptable(trial, x, eps_delta, delta_cap):
                 return trial, mu, alpha
             alpha /= 2
         if mu >= _MU_MAX:

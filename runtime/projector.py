@@ -31,6 +31,7 @@ class Problem:
     Q0: np.ndarray
     k: np.ndarray
     eps: float = EPS
+    relations: Callable | None = None  # q -> whether the model's inequalities hold (app. F)
 
 
     def subset(self, rows) -> Problem:

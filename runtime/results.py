@@ -72,8 +72,9 @@ class FitResult:
     ----------
     model : str
     params : dict[str, float]
-        Estimated parameter by component name.
+        Estimated parameter by component name (without slack components).
     q : ndarray (n,)
+        Every component, slacks last (their values also in ``slacks``).
     measures : dict[str, ndarray]
         Corrected measures per channel, all columns (exact ones unchanged).
     info : ndarray (n, n)
@@ -109,6 +110,7 @@ class FitResult:
     message: str
     ranks: dict[str, np.ndarray] = field(default_factory=dict)
     derived: dict[str, DerivedValue] = field(default_factory=dict)
+    slacks: dict[str, float] = field(default_factory=dict)  # appendix F's added components
 
     @property
     def std(self) -> np.ndarray:
@@ -123,12 +125,30 @@ class FitResult:
         lines = [f"model {self.model!r}: {self.message} after {self.iterations} iteration(s)",
                  f"  cost L~^2 = {self.cost:.6g}, d = {self.dof}, L~^2/d = "
                  f"{self.normalized_cost:.6g}, residual E^2 = {self.residual:.3g}"]
-        width = max(len(k) for k in self.params)
-        for (name, value), sd in zip(self.params.items(), self.std, strict=True):
-            lines.append(f"  {name:<{width}} = {value: .10g}  ± {sd:.3g}")
-        for name, d in self.derived.items():
-            if d.value.ndim == 0:
-                lines.append(f"  {name} = {float(d.value): .10g}  ± {float(d.std):.3g}")
-            else:
-                lines.append(f"  {name} = {np.array2string(d.value, precision=6)}")
+        lines += estimate_lines(self.params, self.slacks, self.std, self.derived)
         return "\n".join(lines)
+
+
+def estimate_lines(params: dict, slacks: dict, std, derived: dict) -> list[str]:
+    """Lines ``name = value ± std`` for the parameter, then its slack components (appendix
+    F; ``std`` covers both, slacks last), then the derived quantities."""
+    std = np.asarray(std, dtype=float)
+    values = {**params, **slacks}
+    width = max((len(k) for k in values), default=0)
+    lines = []
+    for i, (name, value) in enumerate(values.items()):
+        tag = "  (slack)" if name in slacks else ""
+        lines.append(f"  {name:<{width}} = {value: .10g}  ± {std[i]:.3g}{tag}")
+    for name, d in derived.items():
+        value = np.asarray(d.value)
+        if value.ndim == 0:
+            lines.append(f"  {name} = {float(value): .10g}  ± {float(d.std):.3g}")
+        else:
+            lines.append(f"  {name} =\n" + _indent(np.array2string(value, precision=6)))
+            lines.append(f"  {name} std =\n" + _indent(np.array2string(np.asarray(d.std),
+                                                                          precision=3)))
+    return lines
+
+
+def _indent(text: str, prefix: str = "    ") -> str:
+    return "\n".join(prefix + line for line in text.splitlines())

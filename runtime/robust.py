@@ -25,6 +25,8 @@ from .results import FitResult
 from .scoring import samples_for_confidence
 from .scoring import scorer as get_scorer
 
+_REFINE_ROUNDS = 6  # threshold-and-refine rounds at most (they stop when the inliers do)
+
 
 def outlier_threshold(errors: np.ndarray, scale: float, window: float = 0.35) -> float:
     """Threshold between inliers and outliers from the histogram of the errors (report §4).
@@ -135,7 +137,7 @@ class ModelSearch:
         self.model = model
         self.problem = problem
         self.channel = channel
-        self.start = np.asarray(start, dtype=float)
+        self.start = fam.with_slacks(np.asarray(start, dtype=float), problem.k, model)
         self.rng = rng
         self.scale = float(scale)
         self.score_fn = get_scorer(scorer)
@@ -159,8 +161,8 @@ class ModelSearch:
 
     def free_dof(self, q: np.ndarray | None = None) -> int:
         """``n − p``: the parameter's degrees of freedom left free by the constraints."""
-        _, C0 = self.problem.c0(self.start if q is None else q, self.problem.k)
-        return free_dof(C0, self.fam.n)
+        return free_dof(lambda x: self.problem.c0(x, self.problem.k)[1],
+                        self.start if q is None else q)
 
     def _equations_per_measure(self) -> int:
         width = len(self.fam.channel(self.problem.channels[self.channel].name).components)
@@ -208,15 +210,37 @@ class ModelSearch:
                     score = self.score_fn(np.concatenate(errors), self.scale)
                     if score > self.best_score:
                         self.best_q, self.best_score, self.best_errors = sol.q, score, errors
+                        self._local_optimisation()
                         improved = True
         except (np.linalg.LinAlgError, ValueError, FloatingPointError, ZeroDivisionError):
             self.degenerate += 1
         self.history.append((self.samples, self.best_score))
         return improved
 
+    def _local_optimisation(self, max_iter: int = 10) -> None:
+        """LO-RANSAC (Chum, Matas & Kittler 2003): a sample that beats the best is refined
+        at once on the measures it explains, and the refined estimate kept if it scores
+        better. A minimal sample of nearby measures extrapolates badly; without this the
+        search keeps a partial structure whenever its budget held few spread samples."""
+        errors = np.concatenate(self.best_errors)
+        threshold = outlier_threshold(errors, self.scale)
+        rows = tuple(np.flatnonzero(e < threshold) for e in self.best_errors)
+        if sum(r.size for r in rows) <= self.sample_size + self.base_size:
+            return
+        fit = fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=self.best_q,
+                          max_iter=max_iter)
+        if not np.all(np.isfinite(fit.q)):
+            return
+        refined = coherence_errors(self.problem, fit.q, iterations=1)
+        score = self.score_fn(np.concatenate(refined), self.scale)
+        if score > self.best_score:
+            self.best_q, self.best_score, self.best_errors = fit.q, score, refined
+
     def finish(self, q0: np.ndarray, Q0: np.ndarray, window: float = 0.35,
                max_iter: int = 100) -> RobustEstimate | None:
-        """Threshold, refine on the inliers, threshold once more, refine again (report §4).
+        """Threshold, refine on the inliers, threshold again, ... (report §4), until the
+        inliers stop changing (at most ``_REFINE_ROUNDS`` refinements): the reported
+        estimate (its cost, d, Q̃) is the fit on the reported inliers.
 
         Returns None when no sample gave an estimate.
         """
@@ -224,20 +248,21 @@ class ModelSearch:
             return None
         q, errors = self.best_q, self.best_errors
         threshold = outlier_threshold(np.concatenate(errors), self.scale, window)
+        rows = tuple(np.flatnonzero(e < threshold) for e in errors)
         result = None
-        for _ in range(2):
-            rows = tuple(np.flatnonzero(e < threshold) for e in errors)
-            sub = self.problem.subset(rows)
-            result = fit_problem(self.fam, self.model, sub, q_start=q, q0=q0, Q0=Q0,
-                                 max_iter=max_iter)
+        for _ in range(_REFINE_ROUNDS):
+            result = fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=q,
+                                 q0=q0, Q0=Q0, max_iter=max_iter)
             if not np.all(np.isfinite(result.q)):
                 break
             q = result.q
             errors = coherence_errors(self.problem, q)
             threshold = outlier_threshold(np.concatenate(errors), self.scale, window)
-        rows = tuple(np.flatnonzero(e < threshold) for e in errors)
-        if result is not None and np.all(np.isfinite(result.q)):
-            # the reported estimate (its cost, d, Q̃) is the fit on the reported inliers
+            new = tuple(np.flatnonzero(e < threshold) for e in errors)
+            if all(np.array_equal(a, b) for a, b in zip(new, rows, strict=True)):
+                break  # stable: the fit is on the reported inliers
+            rows = new
+        else:
             result = fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=q,
                                  q0=q0, Q0=Q0, max_iter=max_iter)
         names = [ch.name for ch in self.problem.channels]

@@ -71,7 +71,7 @@ def test_fit_help_explains_the_robust_search(run):
 def test_robust_fit_chooses_the_circle_and_writes_json(run, circle_csv, tmp_path):
     path, truth = circle_csv
     out_json = tmp_path / "res.json"
-    out = run("fit", LATTICE, path, "--sigma", "1", "--json", out_json)
+    out = run("fit", LATTICE, path, "--sigma", "1", "--scale", "4", "--json", out_json)
     assert out.exit_code == 0, out.output
     text = out.output
     assert "* circle" in text and "chosen model 'circle'" in text and "±" in text
@@ -86,7 +86,9 @@ def test_robust_fit_chooses_the_circle_and_writes_json(run, circle_csv, tmp_path
         assert {"dof", "cost", "relevance", "inliers", "samples", "accepted"} <= set(row)
     assert list(res["params"]) == ["A", "B", "C", "D", "E", "F"]
     assert set(res["std"]) == set(res["params"])
-    assert np.array(res["covariance"]).shape == (6, 6) == np.array(res["info"]).shape
+    assert res["slacks"] == {"s_ellipse": pytest.approx(res["slacks"]["s_ellipse"])}
+    assert res["components"] == ["A", "B", "C", "D", "E", "F", "s_ellipse"]
+    assert np.array(res["covariance"]).shape == (7, 7) == np.array(res["info"]).shape
     q = np.array(list(res["params"].values()))
     assert np.linalg.norm(q) == pytest.approx(1.0)
     assert res["params"]["A"] == pytest.approx(res["params"]["C"])  # a circle

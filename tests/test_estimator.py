@@ -6,7 +6,7 @@ import threading
 
 import numpy as np
 import pytest
-from scenes import arc
+from scenes import LATTICE_MODEL, arc
 
 import kanagen
 
@@ -16,14 +16,14 @@ def lattice():
     return kanagen.load("conic_lattice")
 
 
-@pytest.mark.parametrize("kind", ["line", "circle", "conic"])
+@pytest.mark.parametrize("kind", list(LATTICE_MODEL))
 @pytest.mark.parametrize("seed", [0, 1])
 def test_the_lattice_names_the_right_model(lattice, kind, seed):
     xy, truth = arc(kind, seed)
     est = kanagen.Estimator(lattice, scale=4.0, seed=seed)
     est.add_measures("point", xy, info=1.0)
     best = est.run(max_samples=3000)
-    assert best.model == kind, [(s.model, s.cost, s.accepted) for s in est.states()]
+    assert best.model == LATTICE_MODEL[kind], [(s.model, s.cost, s.accepted) for s in est.states()]
     found = np.isin(np.arange(len(xy)), best.inliers)
     assert np.count_nonzero(found & truth) >= 0.9 * np.count_nonzero(truth)
     assert est.status == "done"
@@ -54,7 +54,7 @@ def test_same_seed_same_calls_same_results(lattice):
 
 
 def test_step_loop_callbacks_and_history(lattice):
-    xy, _ = arc("conic", 2)
+    xy, _ = arc("ellipse", 2)
     est = kanagen.Estimator(lattice, scale=4.0, seed=2)
     est.add_measures("point", xy)
     better, done = [], []
@@ -68,11 +68,11 @@ def test_step_loop_callbacks_and_history(lattice):
     assert done == [est.best()]
     curve = [r for _, r in est.history]
     assert curve == sorted(curve)  # the best-relevance curve never goes down
-    assert {s.model for s in est.states()} == {"line", "circle", "conic"}
+    assert {s.model for s in est.states()} == {"line", "circle", "ellipse", "conic"}
 
 
 def test_suspend_resume_stop_from_another_thread(lattice):
-    xy, _ = arc("conic", 4)
+    xy, _ = arc("ellipse", 4)
     est = kanagen.Estimator(lattice, scale=4.0, seed=4, samples_per_model=400)
     est.add_measures("point", xy)
     est.suspend()
@@ -146,7 +146,7 @@ def test_find_structures_takes_out_each_structure(lattice):
 
 
 def test_run_stopping_rules(lattice):
-    xy, _ = arc("conic", 8)
+    xy, _ = arc("ellipse", 8)
     est = kanagen.Estimator(lattice, scale=4.0, seed=8)
     est.add_measures("point", xy)
     est.run(max_samples=25)
