@@ -14,11 +14,17 @@ Run: ``python benchmarks/ellipse_floor.py [--arcs N]`` (default 1000).
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-import kanagen
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+
+from scenes import kasa_circle  # noqa: E402
+
+import kanagen  # noqa: E402
 
 
 def noisy_arc(rng: np.random.Generator) -> np.ndarray:
@@ -40,14 +46,6 @@ def noisy_arc(rng: np.random.Generator) -> np.ndarray:
     return xy + rng.normal(0, sigma, xy.shape)
 
 
-def kasa_circle(xy: np.ndarray, f0: float = 100.0) -> np.ndarray:
-    """Kåsa's algebraic circle, x² + y² + a x + b y + c = 0, as a unit conic vector."""
-    x, y = xy.T
-    a, b, c = np.linalg.lstsq(np.c_[x, y, np.ones_like(x)], -(x * x + y * y), rcond=None)[0]
-    q = np.array([1.0, 0.0, 1.0, a / (2 * f0), b / (2 * f0), c / f0**2, 1.0])
-    return q / np.linalg.norm(q[:6]) * np.r_[np.ones(6), np.linalg.norm(q[:6])]
-
-
 def discriminant(q: np.ndarray) -> float:
     A, B, C = q[:3]
     return float(A * C - B * B)
@@ -66,7 +64,7 @@ def main() -> None:
     for _ in range(args.arcs):
         xy = noisy_arc(rng)
         data = {"point": xy}
-        circle = kanagen.fit(fam, "circle", data=data, q0=kasa_circle(xy)[:6])
+        circle = kanagen.fit(fam, "circle", data=data, q0=kasa_circle(xy))
         conic = kanagen.fit(fam, "conic", data=data, q0=circle.q)
         hyperbolic_conic += conic.success and discriminant(conic.q) <= 0
         res = kanagen.fit(fam, "ellipse", data=data, q0=circle.q)

@@ -205,18 +205,24 @@ def _equation(kind, c, label, slacks) -> tuple[sp.Expr, int | None]:
     return c * s - 1, i
 
 
+def slack_value(kind: str, c: float) -> float:
+    """The slack solving its relation's equation at ``c``: ``√c`` for ``c >= 0``, ``1/√c`` for
+    ``c > 0``, ``1/c`` for ``c != 0`` where the relation holds; otherwise a non-zero value of
+    the right magnitude (the equation's gradient in ``s`` must not vanish), and the iteration
+    moves the parameter until the relation holds. Plain floats: the runtime uses it too."""
+    if not math.isfinite(c) or c == 0.0:
+        c = 1.0
+    if kind == ">=":
+        return math.sqrt(abs(c))
+    if kind == ">":
+        return 1.0 / math.sqrt(abs(c))
+    return 1.0 / c
+
+
 def slack_start(slack: Slack, values: Mapping[sp.Symbol, float]) -> float:
-    """The slack's value at the spec's default point: exact where the relation holds there;
-    otherwise a non-zero value of the right magnitude (the equation's gradient in ``s`` must
-    not vanish), and the iteration moves the parameter until the relation holds."""
+    """The slack's value at the spec's default point (:func:`slack_value`)."""
     try:
         c = float(sp.sympify(slack.measure.xreplace(values)).evalf())  # a SymPy object
     except (TypeError, ValueError, AttributeError):
         c = 1.0
-    if not math.isfinite(c) or c == 0.0:
-        c = 1.0
-    if slack.kind == ">=":
-        return math.sqrt(abs(c))
-    if slack.kind == ">":
-        return 1.0 / math.sqrt(abs(c))
-    return 1.0 / c
+    return slack_value(slack.kind, c)

@@ -200,7 +200,7 @@ class _Builder:
             for mname, spec in models_spec.items()
         )
         self.check_acyclic(models)
-        parameter, models = self.add_slacks(parameter, constants, models)
+        parameter, models, slack_fields = self.add_slacks(parameter, constants, models)
         derived = tuple(
             self.derived(dname, spec, base, declare)
             for dname, spec in self.mapping(top.get("derived"), "derived", "derived").items()
@@ -210,10 +210,7 @@ class _Builder:
             raise self.error(f"null_model {null_model!r} is not a declared model", "null_model")
         return Family(
             name=name,
-            slack=getattr(self, "slack_names", ()),
-            slack_relations=getattr(self, "slack_relations", ()),
-            slack_owner=getattr(self, "slack_owner", ()),
-            slack_clauses=getattr(self, "slack_clauses", ()),
+            **slack_fields,
             parameter=parameter,
             constants=constants,
             channels=channels,
@@ -351,28 +348,34 @@ class _Builder:
     def add_slacks(self, parameter, constants, models):
         """Slack components join the parameter (after the declared ones), starting from the
         spec's default point; a model that does not use a slack pins it (``s − s0 = 0``), so
-        each slack adds one component and one equation to every model and ``d`` is right."""
+        each slack adds one component and one equation to every model and ``d`` is right.
+
+        Returns the parameter, the models and the :class:`Family` fields of the slacks.
+        """
         values = {symbol(n): v for n, v in parameter + constants}
-        starts = [(sl.name, slack_start(sl, values))
-                  for m in models for sl in self.slacks[m.name]]
-        if not starts:
-            return parameter, models
+        owned = [(m.name, sl) for m in models for sl in self.slacks[m.name]]
+        if not owned:
+            return parameter, models, {}
+        starts = tuple((sl.name, slack_start(sl, values)) for _, sl in owned)
         pinned = []
         for m in models:
-            own = {sl.name for sl in self.slacks[m.name]}
-            pins = tuple(symbol(n) - v for n, v in starts if n not in own)
+            pins = tuple(symbol(sl.name) - v for (owner, sl), (_, v) in zip(owned, starts,
+                                                                           strict=True)
+                         if owner != m.name)
             pinned.append(Model(m.name, m.constraints + pins, m.equations, m.alternatives))
-        self.slack_names = tuple(n for n, _ in starts)
-        self.slack_relations = tuple((sl.kind, sl.measure) for m in models
-                                     for sl in self.slacks[m.name])
-        self.slack_owner = tuple(m.name for m in models for _ in self.slacks[m.name])
         offsets, total = {}, 0
         for m in models:
             offsets[m.name], total = total, total + len(self.slacks[m.name])
-        self.slack_clauses = tuple(
-            (m.name, tuple(tuple(offsets[m.name] + i for i in c) for c in self.clauses[m.name]))
-            for m in models if self.clauses[m.name])
-        return parameter + tuple(starts), tuple(pinned)
+        fields = {
+            "slack": tuple(sl.name for _, sl in owned),
+            "slack_relations": tuple((sl.kind, sl.measure) for _, sl in owned),
+            "slack_owner": tuple(owner for owner, _ in owned),
+            "slack_clauses": tuple(
+                (m.name, tuple(tuple(offsets[m.name] + i for i in c)
+                               for c in self.clauses[m.name]))
+                for m in models if self.clauses[m.name]),
+        }
+        return parameter + starts, tuple(pinned), fields
 
     def check_acyclic(self, models):
         edges = {m.name: [a.model for a in m.alternatives] for m in models}

@@ -105,15 +105,18 @@ def solve_minimal(problem: Problem, target: np.ndarray, max_iter: int = 50,
             Js.append(C.reshape(-1, q.size))
         return np.concatenate(cs), np.concatenate(Js)
 
+    def scaled(q, raw=None):
+        c, J = equations(q) if raw is None else raw
+        return w * c, w[:, None] * J, float(np.max(np.abs(w * c), initial=0.0))
+
     q, rank = target.copy(), 0
     with np.errstate(all="ignore"):
-        c, J = equations(q)
         # each equation in units of the parameter: rows scaled by their gradient's norm at
         # the start (the measures' equations are in pixels², a slack's in its own units)
-        norms = np.linalg.norm(J, axis=1)
+        raw = equations(q)
+        norms = np.linalg.norm(raw[1], axis=1)
         w = np.where(np.isfinite(norms) & (norms > 0), 1.0 / norms, 1.0)
-        c, J = w * c, w[:, None] * J
-        delta = float(np.max(np.abs(c), initial=0.0))
+        c, J, delta = scaled(q, raw)
         best, free, slow = (delta, q, c, J), _FREE_STEPS, 0
         for it in range(1, max_iter + 1):
             # q + step: the point closest to the target on the linearised equations, from
@@ -130,9 +133,7 @@ def solve_minimal(problem: Problem, target: np.ndarray, max_iter: int = 50,
             if not np.all(np.isfinite(step)):
                 return MinimalSolution(q, False, rank, it, delta)
             trial = q + step
-            c_new, J_new = equations(trial)
-            c_new, J_new = w * c_new, w[:, None] * J_new
-            d_new = float(np.max(np.abs(c_new), initial=0.0))
+            c_new, J_new, d_new = scaled(trial)
             if free > 0 and np.isfinite(d_new) and d_new < _WATCHDOG * (1 + best[0]):
                 # watchdog (Chamberlain et al. 1982): full steps may raise the violation a
                 # few times — far from the solution a curved equation (a slack's, the unit
@@ -148,9 +149,7 @@ def solve_minimal(problem: Problem, target: np.ndarray, max_iter: int = 50,
                 alpha = 1.0
                 while alpha > 2.0**-30:
                     trial = q + alpha * step
-                    c_new, J_new = equations(trial)
-                    c_new, J_new = w * c_new, w[:, None] * J_new
-                    d_new = float(np.max(np.abs(c_new), initial=0.0))
+                    c_new, J_new, d_new = scaled(trial)
                     if np.isfinite(d_new) and d_new < delta + 1e-12 * (1 + delta):
                         break
                     alpha /= 2

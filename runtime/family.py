@@ -14,6 +14,7 @@ from types import ModuleType
 
 import numpy as np
 
+from ..modelspec.constructs import slack_value
 from . import kernels as generic_kernels
 
 
@@ -116,7 +117,8 @@ class ModelFamily:
         ``q`` may omit the slacks. The slacks of ``model`` are set from their relations at
         ``q``: ``s = √c`` for ``c >= 0``, ``1/√c`` for ``c > 0``, ``1/c`` for ``c != 0`` where
         the relation holds, else a non-zero value of the same magnitude (the iteration then
-        moves the parameter until it holds). The other slacks (pinned in ``model``) take the
+        moves the parameter until it holds; :func:`~kanagen.modelspec.constructs.slack_value`).
+        The other slacks (pinned in ``model``) take the
         spec's values; without ``model``, every slack does.
         """
         q = np.asarray(q, dtype=float)
@@ -132,10 +134,7 @@ class ModelFamily:
             c = self.module.SLACK_MEASURES(full, self._k(constants))
         kinds = self.module.FAMILY["slack_kinds"]
         for i in own:
-            ci = c[i] if np.isfinite(c[i]) and c[i] != 0 else 1.0
-            a = abs(ci)
-            full[n_user + i] = (np.sqrt(a) if kinds[i] == ">=" else 1 / np.sqrt(a)
-                                if kinds[i] == ">" else 1 / ci)
+            full[n_user + i] = slack_value(kinds[i], float(c[i]))
         return full
 
     def relations_hold(self, model: str, q, constants=None) -> bool:

@@ -36,3 +36,12 @@ def arc(kind: str, seed: int, n: int = 150, outliers: float = 0.3, sigma: float 
     truth = np.r_[np.ones(n, bool), np.zeros(k, bool)]
     order = rng.permutation(len(pts))
     return pts[order], truth[order]
+
+
+def kasa_circle(xy: np.ndarray, f0: float = 100.0) -> np.ndarray:
+    """Kåsa's algebraic circle ``x² + y² + a x + b y + c = 0`` as a unit conic vector
+    (A, B, C, D, E, F) of the conic specs (scale ``f0``): a start for circle fits."""
+    x, y = xy.T
+    a, b, c = np.linalg.lstsq(np.c_[x, y, np.ones_like(x)], -(x * x + y * y), rcond=None)[0]
+    q = np.array([1.0, 0.0, 1.0, a / (2 * f0), b / (2 * f0), c / f0**2])
+    return q / np.linalg.norm(q)

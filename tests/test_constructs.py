@@ -10,6 +10,7 @@ import pytest
 import sympy as sp
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scenes import kasa_circle
 
 import kanagen
 from kanagen.modelspec import SpecError, parse_spec
@@ -214,14 +215,6 @@ def test_spec_errors_name_the_line(tmp_path):
 
 
 # -- the ellipse model of the conic lattice ------------------------------------------------
-def _kasa(xy, f0=100.0):
-    x_, y_ = xy.T
-    a, b, c = np.linalg.lstsq(np.c_[x_, y_, np.ones_like(x_)], -(x_ * x_ + y_ * y_),
-                              rcond=None)[0]
-    q = np.array([1.0, 0.0, 1.0, a / (2 * f0), b / (2 * f0), c / f0**2])
-    return q / np.linalg.norm(q)
-
-
 def test_ellipse_model_never_returns_a_non_ellipse():
     fam = kanagen.load("conic_lattice")
     rng = np.random.default_rng(3)
@@ -230,7 +223,7 @@ def test_ellipse_model_never_returns_a_non_ellipse():
         t = rng.uniform(-0.8, 0.8, 20)
         a, b = rng.uniform(60, 150, 2)
         xy = np.c_[320 + a * np.cosh(t), 240 + b * np.sinh(t)] + rng.normal(0, 1, (20, 2))
-        circle = kanagen.fit(fam, "circle", data={"point": xy}, q0=_kasa(xy))
+        circle = kanagen.fit(fam, "circle", data={"point": xy}, q0=kasa_circle(xy))
         conic = kanagen.fit(fam, "conic", data={"point": xy}, q0=circle.q)
         ellipse = kanagen.fit(fam, "ellipse", data={"point": xy}, q0=circle.q)
         hyperbolic += conic.q[0] * conic.q[2] - conic.q[1] ** 2 <= 0
