@@ -151,6 +151,20 @@ class ModelFamily:
                       np.isfinite(c[i]) and c[i] != 0) for i, kind in enumerate(kinds)]
         return all(any(holds[i] for i in clause) for clause in clauses)
 
+    def strict_slacks(self, model: str) -> tuple[tuple[int, int], ...]:
+        """The slacks of ``model``'s strict relations, which diverge when the optimum lies on
+        the boundary: ``(index in q, p)`` with the relation ``c = 1/s^p`` on its equation
+        (``c·s² − 1``: p = 2; ``c·s − 1`` for ``c != 0``: p = 1)."""
+        if not self.slack_names:
+            return ()
+        n_user = self.n - len(self.slack_names)
+        kinds = self.module.FAMILY["slack_kinds"]
+        owners = self.module.FAMILY["slack_owner"]
+        power = {">": 2, "!=": 1}
+        return tuple((n_user + i, power[kind])
+                     for i, (kind, owner) in enumerate(zip(kinds, owners, strict=True))
+                     if owner == model and kind in power)
+
     def slack_dict(self, q: np.ndarray) -> dict[str, float]:
         """The slack components by name."""
         return {n: float(v) for n, v in zip(self.parameter_names, q, strict=True)

@@ -36,6 +36,7 @@ def make_problem(fam: ModelFamily, model: str, data: Mapping, info: Mapping | No
         k=k,
         eps=eps,
         relations=(lambda q: fam.relations_hold(model, q, k)) if fam.slack_names else None,
+        strict_slacks=fam.strict_slacks(model),
     )
 
 
