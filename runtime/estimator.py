@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .coherence import free_dof
-from .compare import general_wins, support
+from .compare import general_wins
 from .family import ModelFamily
 from .fit import fit_problem
 from .initializers import model_initializers
@@ -29,7 +29,7 @@ from .scoring import samples_for_confidence
 from .scoring import scorer as get_scorer
 
 _RESUME_FRACTION = 10  # a re-queued model draws a tenth of a fresh search's samples
-_SUPPORT = 0.95  # a general model must keep this fraction of its parent's support
+_SUPPORT = 0.95  # a general model must keep this fraction of its parent's relevance
 _MORE_SUPPORT = 1.2  # ... and wins outright when it explains this much more
 _RELEVANT = 0.1  # a parent explaining fewer measures than this fraction is not a base
 _RANK_SAMPLE = 60  # corrected inliers of a parent used to count what they fix of a child
@@ -57,9 +57,6 @@ class ModelState:
     derived: dict[str, DerivedValue] = field(default_factory=dict)
     status: str = "estimated"
     slacks: dict[str, float] = field(default_factory=dict)  # appendix F's added components
-    #: relevance over that of a perfect inlier population of the model's equations: about
-    #: the fraction of the measures it explains, comparable between models
-    support: float = float("nan")
 
     @property
     def estimated(self) -> bool:
@@ -439,7 +436,7 @@ class Estimator:
         self._shape[model] = (max(search.ranks[search.channel], 1), search.free_dof(estimate.q))
         self._corrected[model] = estimate.fit.measures
         _, _, ids = self._channels()
-        state = self._state(model, parent, estimate, ids, self._shape[model][0])
+        state = self._state(model, parent, estimate, ids)
         self._states[model] = state
         self._skipped.pop(model, None)
         if state.accepted:
@@ -500,7 +497,7 @@ class Estimator:
             self._queue.append((alt, chosen.model, None))
             self._declared_by[alt] = anchors[chosen.model]  # the edge whose Φ decides
 
-    def _state(self, model, parent, est: RobustEstimate, ids, rank: int) -> ModelState:
+    def _state(self, model, parent, est: RobustEstimate, ids) -> ModelState:
         names = list(est.inliers)
         channel_ids = dict(zip(self._channels()[0], ids, strict=True))
         inliers = np.concatenate([channel_ids[n][est.inliers[n]] for n in names])
@@ -510,8 +507,7 @@ class Estimator:
                            est.fit.dof, est.relevance, est.samples, est.threshold, True,
                            est.fit.derived,
                            "estimated" if est.fit.success else est.fit.message,
-                           est.fit.slacks,
-                           support(est.relevance, get_scorer(self.scorer), self.scale, rank))
+                           est.fit.slacks)
         if parent is not None:
             p = self._states.get(parent)
             if p is not None and p.samples and np.isfinite(p.cost):
@@ -521,58 +517,75 @@ class Estimator:
     def _beats(self, p: ModelState, state: ModelState) -> bool:
         """Does the general model replace its parent? (report eq. 36, made comparable)
 
-        A general model that explains clearly more measures (support up by a fifth) wins
+        A general model that explains clearly more measures (relevance up by a fifth) wins
         outright; one that explains fewer loses (a general model fitted to a few measures
         has a small cost for free). Otherwise :meth:`_replaces` decides on the measures both
-        take as inliers.
+        take as inliers. Between models with different numbers of equations per measure
+        (a homography's two, a fundamental matrix's one) see :meth:`_explains_more`.
         """
-        if state.support >= _MORE_SUPPORT * p.support:
+        if self._ranks_differ(p, state):
+            return self._explains_more(state, p)
+        if state.relevance >= _MORE_SUPPORT * p.relevance:
             return True
-        if state.support < _SUPPORT * p.support:
+        if state.relevance < _SUPPORT * p.relevance:
             return False
         return self._replaces(p, state)
 
+    def _ranks_differ(self, a: ModelState, b: ModelState) -> bool:
+        return a.model in self._shape and b.model in self._shape and \
+            self._shape[a.model][0] != self._shape[b.model][0]
+
+    @staticmethod
+    def _explains_more(general: ModelState, specific: ModelState) -> bool:
+        """The more general of two models with different numbers of equations per measure
+        wins only by explaining clearly more measures (a fifth more inliers). Its errors do
+        not compare with the other's (``χ²₁`` against ``χ²₂/2``), and the other's inliers are
+        a singular configuration for it (no motion, or a plane, for a fundamental matrix:
+        report §5), where its fit is degenerate and its cost low for free — the cost test on
+        common inliers would be no test."""
+        return general.inliers.size >= _MORE_SUPPORT * specific.inliers.size
+
     def _replaces(self, specific: ModelState, general: ModelState) -> bool:
         """Both refitted on the measures both take as inliers, ``L̃'²/d' < Φ(d, d') L̃²/d``
-        (:func:`~kanagen.runtime.compare.general_wins`): on common measures ``d' − d``
-        counts only the extra freedom, as the F-test of appendix B presumes."""
+        (:func:`~kanagen.runtime.compare.general_wins`)."""
         _, _, ids = self._channels()
         common = np.intersect1d(specific.inliers, general.inliers)
         rows = tuple(np.flatnonzero(np.isin(ch_ids, common)) for ch_ids in ids)
         fits = [fit_problem(self.fam, s.model, self._problem_for(s.model)[0].subset(rows),
                             q_start=s.q) for s in (specific, general)]
-        free = (self._shape[specific.model][1], self._shape[general.model][1])
-        return general_wins(fits[0], fits[1], self._phi(specific.model, general.model), free)
+        return general_wins(fits[0], fits[1], self._phi(specific.model, general.model))
 
     def _phi(self, parent: str, model: str):
         """The factor of the edge that queued ``model``; between models with no edge (two
-        children of one parent), the extra-sum-of-squares test."""
+        children of one parent), the F-test factor."""
         if self.phi is not None:
             return get_phi(self.phi)
         for alt, choice in self.fam.model(self._declared_by.get(model, parent)).alternatives:
             if alt == model:
                 return get_phi(choice)
-        return get_phi("ess")
+        return get_phi("ftest")
 
     def _select(self, states: list[ModelState]) -> ModelState:
-        """The best of several accepted models: those not clearly out-supported (by a
-        fifth), then from the most specific (most equations per measure, fewest free
-        degrees of freedom) a more general one replaces it only if it passes
-        :meth:`_replaces` — the report's "most specific model of optimal cost"."""
+        """The best of several accepted models: those not clearly out-supported (a fifth
+        more inliers), then from the most specific (most equations per measure, fewest free
+        degrees of freedom) a more general one replaces it only if it passes the test of
+        :meth:`_beats` without its shortcuts — the report's "most specific model of optimal
+        cost"."""
         if len(states) == 1:
             return states[0]
         key = tuple((s.model, s.samples, s.cost, s.relevance) for s in states)
         if key in self._selected:
             return self._selected[key]
-        supports = [s.support if np.isfinite(s.support) else -np.inf for s in states]
-        top = max(supports)
-        floor = top / _MORE_SUPPORT if top > 0 else top * _MORE_SUPPORT
-        cands = [s for s, v in zip(states, supports, strict=True) if v >= floor] or states
+        top = max(s.inliers.size for s in states)
+        cands = [s for s in states if s.inliers.size * _MORE_SUPPORT >= top] or states
         cands.sort(key=lambda s: (-self._shape.get(s.model, (1, 0))[0],
                                   self._shape.get(s.model, (1, 0))[1], s.cost))
         current = cands[0]
         for other in cands[1:]:
-            if current.samples and other.samples and self._replaces(current, other):
+            if not (current.samples and other.samples):
+                continue
+            if self._explains_more(other, current) if self._ranks_differ(current, other) \
+                    else self._replaces(current, other):
                 current = other
         self._selected[key] = current
         return current
