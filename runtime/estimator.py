@@ -15,8 +15,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from . import lattice
 from .coherence import free_dof
-from .compare import general_wins
 from .family import ModelFamily
 from .fit import fit_problem
 from .initializers import model_initializers
@@ -29,11 +29,6 @@ from .scoring import samples_for_confidence
 from .scoring import scorer as get_scorer
 
 _RESUME_FRACTION = 10  # a re-queued model draws a tenth of a fresh search's samples
-_SUPPORT = 0.95  # a general model must keep this fraction of its parent's relevance
-_MORE_SUPPORT = 1.2  # ... and wins outright when it explains this much more
-_RELEVANT = 0.1  # a parent explaining fewer measures than this fraction is not a base
-_RANK_SAMPLE = 60  # corrected inliers of a parent used to count what they fix of a child
-_RANK_TOL = 1e-6  # relative singular value below which a direction is not fixed
 
 
 @dataclass(frozen=True)
@@ -62,17 +57,6 @@ class ModelState:
     def estimated(self) -> bool:
         """False for the placeholder of the first moment (the null model at ``q0``)."""
         return self.samples > 0
-
-
-def _rank(rows: np.ndarray) -> int | None:
-    """Rank of a matrix of equations' gradients, each row scaled to unit norm (None when not
-    finite)."""
-    norms = np.linalg.norm(rows, axis=1)
-    rows = rows[norms > 0] / norms[norms > 0, None]
-    if not np.all(np.isfinite(rows)):
-        return None
-    sv = np.linalg.svd(rows, compute_uv=False)
-    return int(np.count_nonzero(sv > _RANK_TOL * sv[0])) if sv.size else 0
 
 
 class Estimator:
@@ -301,7 +285,8 @@ class Estimator:
         self._shape: dict[str, tuple[int, int]] = {}  # equations per measure, free dof
         self._corrected: dict[str, dict[str, np.ndarray]] = {}  # inliers, corrected
         self._selected: dict[tuple, ModelState] = {}
-        self._reachable = self._lattice_from(self._root)
+        self._reachable = {self._root} if self.model else lattice.reachable(self.fam,
+                                                                             self._root)
 
     def _restart_if_idle(self) -> None:
         if self._done or self._search is None:
@@ -381,14 +366,17 @@ class Estimator:
             start = parent_state.q if parent_state is not None else self.q0
             pool = base = parent_free = None
             if parent_state is not None and parent_state.samples and \
-                    parent_state.inliers.size >= _RELEVANT * sum(len(i) for i in ids):
+                    parent_state.inliers.size >= lattice.RELEVANT * sum(len(i) for i in ids):
                 # the extra measures among those not coherent with the parent (report §5),
                 # the rest of the sample among the parent's inliers (a parent that explains
                 # next to nothing is no base: the child is searched afresh)
                 ch_ids = ids[channel]
                 pool = np.flatnonzero(np.isin(ch_ids, parent_state.outliers))
                 base = np.flatnonzero(np.isin(ch_ids, parent_state.inliers))
-                parent_free = self._fixed_by(parent_state, model, problem.channels[channel])
+                name = problem.channels[channel].name
+                parent_free = lattice.fixed_by(
+                    self.fam, parent_state, self._free(parent, parent_state.q), model, name,
+                    self._corrected.get(parent, {}).get(name), self._constants)
             search = ModelSearch(self.fam, model, problem, channel, start, self._rng,
                                  self.scale, self.scorer, pool=pool, parent_free=parent_free,
                                  base=base, initializer=self.initializers.get(model))
@@ -407,25 +395,6 @@ class Estimator:
 
     def _free(self, model: str, q: np.ndarray) -> int:
         return free_dof(lambda x: self.fam.c0(model, x, self._constants)[1], q)
-
-    def _fixed_by(self, parent: ModelState, model: str, channel) -> int:
-        """How many of ``model``'s free degrees of freedom the parent's inliers fix: at most
-        the parent's own, and at most the rank of ``model``'s equations at the parent's
-        estimate over its inliers corrected onto the parent (report §5's singular
-        configurations: matches on a plane fix 5 of a fundamental matrix's 7, not the 8 of
-        their homography, so the general model needs 2 matches off the plane, not 1)."""
-        free_parent = self._free(parent.model, parent.q)
-        corrected = self._corrected.get(parent.model, {}).get(channel.name)
-        if corrected is None or not len(corrected):
-            return free_parent
-        with np.errstate(all="ignore"):
-            _, C, _ = self.fam.measurement(model, channel.name, parent.q,
-                                           corrected[:_RANK_SAMPLE], self._constants)
-            C0 = self.fam.c0(model, parent.q, self._constants)[1]
-        both, alone = _rank(np.r_[C0, C.reshape(-1, self.fam.n)]), _rank(C0)
-        if both is None or alone is None:
-            return free_parent
-        return min(free_parent, max(both - alone, 0))
 
     def _conclude(self, model: str, parent: str | None, search: ModelSearch) -> None:
         estimate = search.finish(self.q0, self.Q0, self.window)
@@ -447,32 +416,6 @@ class Estimator:
         self._queue_alternatives(model)
 
     # -- the lattice ---------------------------------------------------------------------------
-    def _lattice_from(self, root: str) -> set[str]:
-        seen, todo = {root}, [root]
-        while todo and not self.model:
-            for alt, _ in self.fam.model(todo.pop()).alternatives:
-                if alt not in seen:
-                    seen.add(alt)
-                    todo.append(alt)
-        return seen
-
-    def _lattice_parents(self, model: str) -> list[str]:
-        return [m for m in self.fam.models if m in self._reachable
-                and any(alt == model for alt, _ in self.fam.model(m).alternatives)]
-
-    def _anchor(self, model: str | None) -> str | None:
-        """The model itself if accepted, else the nearest accepted model it was compared
-        with: a rejected model does not hide a more general one (a hyperbola is neither a
-        circle nor an ellipse, but it is a conic)."""
-        seen = set()
-        while model is not None and model not in seen:
-            seen.add(model)
-            state = self._states.get(model)
-            if state is not None and state.accepted:
-                return model
-            model = state.parent if state is not None else self._skipped.get(model)
-        return None
-
     def _queue_alternatives(self, model: str) -> None:
         """Queue each more general model once all its parents in the lattice are settled
         (report §5: a model is not estimated before its parents), against the best of their
@@ -483,12 +426,12 @@ class Estimator:
         for alt, _ in self.fam.model(model).alternatives:
             if alt in known or alt in self._states or alt in self._skipped:
                 continue
-            parents = self._lattice_parents(alt)
+            parents = lattice.lattice_parents(self.fam, alt, self._reachable)
             if not all(p in self._states or p in self._skipped for p in parents):
                 continue  # the others will queue it
             anchors: dict[str, str] = {}
             for p in parents:
-                anchor = self._anchor(p)
+                anchor = lattice.anchor(self._states, self._skipped, p)
                 if anchor is not None:
                     anchors.setdefault(anchor, p)
             if not anchors:
@@ -511,49 +454,19 @@ class Estimator:
         if parent is not None:
             p = self._states.get(parent)
             if p is not None and p.samples and np.isfinite(p.cost):
-                state = replace(state, accepted=self._beats(p, state))
+                state = replace(state, accepted=lattice.beats(p, state, self._shape,
+                                                              self._replaces))
         return state
-
-    def _beats(self, p: ModelState, state: ModelState) -> bool:
-        """Does the general model replace its parent? (report eq. 36, made comparable)
-
-        A general model that explains clearly more measures (relevance up by a fifth) wins
-        outright; one that explains fewer loses (a general model fitted to a few measures
-        has a small cost for free). Otherwise :meth:`_replaces` decides on the measures both
-        take as inliers. Between models with different numbers of equations per measure
-        (a homography's two, a fundamental matrix's one) see :meth:`_explains_more`.
-        """
-        if self._ranks_differ(p, state):
-            return self._explains_more(state, p)
-        if state.relevance >= _MORE_SUPPORT * p.relevance:
-            return True
-        if state.relevance < _SUPPORT * p.relevance:
-            return False
-        return self._replaces(p, state)
-
-    def _ranks_differ(self, a: ModelState, b: ModelState) -> bool:
-        return a.model in self._shape and b.model in self._shape and \
-            self._shape[a.model][0] != self._shape[b.model][0]
-
-    @staticmethod
-    def _explains_more(general: ModelState, specific: ModelState) -> bool:
-        """The more general of two models with different numbers of equations per measure
-        wins only by explaining clearly more measures (a fifth more inliers). Its errors do
-        not compare with the other's (``χ²₁`` against ``χ²₂/2``), and the other's inliers are
-        a singular configuration for it (no motion, or a plane, for a fundamental matrix:
-        report §5), where its fit is degenerate and its cost low for free — the cost test on
-        common inliers would be no test."""
-        return general.inliers.size >= _MORE_SUPPORT * specific.inliers.size
 
     def _replaces(self, specific: ModelState, general: ModelState) -> bool:
         """Both refitted on the measures both take as inliers, ``L̃'²/d' < Φ(d, d') L̃²/d``
-        (:func:`~kanagen.runtime.compare.general_wins`)."""
+        (:func:`~kanagen.runtime.lattice.general_wins`)."""
         _, _, ids = self._channels()
         common = np.intersect1d(specific.inliers, general.inliers)
         rows = tuple(np.flatnonzero(np.isin(ch_ids, common)) for ch_ids in ids)
         fits = [fit_problem(self.fam, s.model, self._problem_for(s.model)[0].subset(rows),
                             q_start=s.q) for s in (specific, general)]
-        return general_wins(fits[0], fits[1], self._phi(specific.model, general.model))
+        return lattice.general_wins(fits[0], fits[1], self._phi(specific.model, general.model))
 
     def _phi(self, parent: str, model: str):
         """The factor of the edge that queued ``model``; between models with no edge (two
@@ -566,29 +479,11 @@ class Estimator:
         return get_phi("ftest")
 
     def _select(self, states: list[ModelState]) -> ModelState:
-        """The best of several accepted models: those not clearly out-supported (a fifth
-        more inliers), then from the most specific (most equations per measure, fewest free
-        degrees of freedom) a more general one replaces it only if it passes the test of
-        :meth:`_beats` without its shortcuts — the report's "most specific model of optimal
-        cost"."""
-        if len(states) == 1:
-            return states[0]
+        """:func:`~kanagen.runtime.lattice.select`, remembered (its cost tests refit)."""
         key = tuple((s.model, s.samples, s.cost, s.relevance) for s in states)
-        if key in self._selected:
-            return self._selected[key]
-        top = max(s.inliers.size for s in states)
-        cands = [s for s in states if s.inliers.size * _MORE_SUPPORT >= top] or states
-        cands.sort(key=lambda s: (-self._shape.get(s.model, (1, 0))[0],
-                                  self._shape.get(s.model, (1, 0))[1], s.cost))
-        current = cands[0]
-        for other in cands[1:]:
-            if not (current.samples and other.samples):
-                continue
-            if self._explains_more(other, current) if self._ranks_differ(current, other) \
-                    else self._replaces(current, other):
-                current = other
-        self._selected[key] = current
-        return current
+        if key not in self._selected:
+            self._selected[key] = lattice.select(states, self._shape, self._replaces)
+        return self._selected[key]
 
     def _best_state(self) -> ModelState | None:
         """The best accepted model that no accepted, more general model replaced."""
