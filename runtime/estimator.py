@@ -325,11 +325,25 @@ class Estimator:
             raise ValueError(f"channel= is required: measures in {names}")
         return problem, ids, names.index(channel)
 
-    def _budget(self, search: ModelSearch) -> int:
+    def _budget(self, search: ModelSearch, parent: ModelState | None) -> int:
+        """Samples for the search: eq. 25 (``inlier_ratio``, or ``samples_per_model``).
+
+        A child with fewer equations per measure than its parent wins only by explaining a
+        fifth more measures (:func:`~kanagen.runtime.lattice.explains_more`): its extra
+        measures must then be at least that share of the parent's outliers it samples, and
+        eq. 25 is taken at that inlier ratio when it is higher — enough samples to find any
+        estimate that could win.
+        """
         if search.free_dof() == 0:
             return 1  # nothing to sample: the model's parameter is fixed
         if self.samples_per_model is not None:
             return self.samples_per_model
+        if parent is not None and search.base is not None and parent.model in self._shape \
+                and self._shape[parent.model][0] != max(search.ranks[search.channel], 1):
+            needed = (lattice.MORE_SUPPORT - 1) * parent.inliers.size / max(search.pool.size, 1)
+            return samples_for_confidence(self.confidence,
+                                          min(1.0, max(needed, self.inlier_ratio)),
+                                          search.sample_size)
         return samples_for_confidence(self.confidence, self.inlier_ratio,
                                       search.sample_size + search.base_size)
 
@@ -384,7 +398,7 @@ class Estimator:
                 self._skipped[model] = parent
                 self._queue_alternatives(model)
                 continue
-            budget = self._budget(search)
+            budget = self._budget(search, parent_state)
             if resume is not None:  # re-queued: resume from its estimate, a few more samples
                 search.seed_estimate(resume)
                 budget = max(1, budget // _RESUME_FRACTION)

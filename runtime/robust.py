@@ -244,11 +244,12 @@ class ModelSearch:
         self.history.append((self.samples, self.best_score))
         return improved
 
-    def _starts(self, rows: np.ndarray, fallback: bool = True) -> list[np.ndarray]:
-        """Starting values of solves on ``rows``: the initializer's candidates, else (with
-        ``fallback``) the parent's estimate."""
+    def _starts(self, rows: np.ndarray) -> list[np.ndarray]:
+        """Starting values of solves on ``rows``: the initializer's candidates (none: no
+        parameter of the model passes through the sample, which is skipped), else the
+        parent's estimate."""
         if self.initializer is None:
-            return [self.start] if fallback else []
+            return [self.start]
         ch = self.problem.channels[self.channel]
         constants = dict(zip(self.fam.constant_names, self.problem.k.tolist(), strict=True))
         starts = []
@@ -256,7 +257,7 @@ class ModelSearch:
             q = start_from(self.fam, cand, self.start)
             if q is not None:
                 starts.append(self.fam.with_slacks(q, self.problem.k, self.model))
-        return starts or ([self.start] if fallback else [])
+        return starts
 
     def _solutions(self, sample: Problem, rows: np.ndarray) -> list[np.ndarray]:
         """The sample's estimates that pass: minimal solves (eq. 21) of full rank from each
@@ -310,8 +311,8 @@ class ModelSearch:
         rows = tuple(np.flatnonzero(e < threshold) for e in errors)
         result = None
         for round_ in range(_REFINE_ROUNDS):
-            starts = [q] + (self._starts(rows[self.channel], fallback=False) if round_ == 0
-                            else [])
+            starts = [q] + (self._starts(rows[self.channel])
+                            if round_ == 0 and self.initializer is not None else [])
             fits = [fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=start,
                                 q0=q0, Q0=Q0, max_iter=max_iter) for start in starts]
             result = min(fits, key=lambda f: f.cost if np.isfinite(f.cost) else np.inf)
