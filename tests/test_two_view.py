@@ -43,6 +43,8 @@ def test_family_shape(fam):
     assert edges == {"none": {"zoom", "rotation", "translation"}, "zoom": {"planar"},
                      "rotation": {"planar"}, "translation": {"general"},
                      "planar": {"general"}, "general": set()}
+    assert {m: kanagen.minimal_sample_size(fam, m, "match") for m in fam.models} == {
+        "none": 0, "zoom": 1, "rotation": 2, "translation": 2, "planar": 4, "general": 7}
     assert {"F"} <= set(fam.model("general").derived) and "H" not in fam.model("general").derived
     assert {"H"} <= set(fam.model("planar").derived) and "F" not in fam.model("planar").derived
 
