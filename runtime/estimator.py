@@ -53,6 +53,9 @@ class ModelState:
     derived: dict[str, DerivedValue] = field(default_factory=dict)
     status: str = "estimated"
     slacks: dict[str, float] = field(default_factory=dict)  # appendix F's added components
+    # every measure's error at the estimate (eq. 24), aligned with the ascending measure ids
+    measure_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def estimated(self) -> bool:
@@ -394,6 +397,9 @@ class Estimator:
         channel_ids = dict(zip(self._channels()[0], ids, strict=True))
         inliers = np.concatenate([channel_ids[n][est.inliers[n]] for n in names])
         outliers = np.concatenate([channel_ids[n][est.outliers[n]] for n in names])
+        scored = np.concatenate([channel_ids[n] for n in names])
+        errors = np.concatenate([est.errors[n] for n in names])
+        order = np.argsort(scored, kind="stable")
         cost = est.fit.normalized_cost
         accepted = True
         if parent is not None:
@@ -404,7 +410,7 @@ class Estimator:
                           np.sort(inliers), np.sort(outliers), cost, est.fit.dof,
                           est.relevance, est.samples, est.threshold, accepted,
                           est.fit.derived, "estimated" if est.fit.success else est.fit.message,
-                          est.fit.slacks)
+                          est.fit.slacks, scored[order], errors[order])
 
     def _beats(self, parent: str, p: ModelState, model: str, est: RobustEstimate) -> bool:
         """Does the general model replace its parent? (report eq. 46, made comparable)
