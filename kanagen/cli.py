@@ -288,6 +288,46 @@ def batch(spec, data_glob, channel, db, workers, scheduler, retry_errors, **opti
     sys.exit(1 if summary.errors else 0)
 
 
+@main.command()
+@click.argument("result", required=False, type=click.Path(exists=True, dir_okay=False))
+@click.option("--db", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="A results database of kanagen batch (with --dataset).")
+@click.option("--dataset", default=None, help="The dataset of --db to report.")
+@click.option("-o", "--out", required=True, type=click.Path(dir_okay=False),
+              help="The HTML file to write.")
+@click.option("--data", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="The dataset's measures (default: the file the result names, if there).")
+@click.option("--images", nargs=2, type=click.Path(exists=True, dir_okay=False),
+              default=None, metavar="FIRST SECOND",
+              help="Two-view data: the two images, to draw the matches on.")
+def report(result, db, dataset, out, data, images):
+    """Write one self-contained HTML page of a result, with its pictures.
+
+    RESULT is the JSON of `kanagen fit --json`; or give --db and --dataset for a dataset of
+    a batch run. The page shows the chosen model and its estimate, the error histogram with
+    the inlier threshold (report Fig. 5), the best relevance against samples (Fig. 9), the
+    lattice of models with d and cost, the chosen one highlighted (Fig. 13–14), the
+    residuals, the measures of a planar channel, and for two-view data (x, y, x', y') with
+    --images the matches on both images, inliers and outliers coloured. Figures are SVG
+    drawn by matplotlib, inlined: the page needs no other file.
+
+    \b
+    Examples:
+      kanagen fit examples/conic_lattice.yaml examples/data/ellipse_outliers.csv \\
+          --scale 4 --json result.json && kanagen report result.json -o report.html
+      kanagen report --db results.sqlite --dataset scenes/s001.csv -o s001.html
+    """
+    from .report import write_report
+
+    try:
+        path = write_report(out, result, db=db, dataset=dataset, data=data, images=images)
+    except ImportError as exc:
+        _fail(f"kanagen report needs matplotlib ({exc}): pip install 'kanagen[report]'")
+    except (ValueError, OSError) as exc:
+        _fail(str(exc))
+    click.echo(f"wrote {path}")
+
+
 def _parse_constants(items) -> dict[str, float]:
     constants = {}
     for item in items:

@@ -224,17 +224,16 @@ def _decode(rec: dict) -> dict:
     return rec
 
 
-def read_record(db: str | Path, dataset: str) -> dict:
-    """The JSON record of ``dataset`` (the last finished if several runs recorded it);
-    ValueError when there is none (or the dataset failed: its error is in the message)."""
+def read_record(db: str | Path, dataset: str) -> tuple[dict, dict]:
+    """The JSON record of ``dataset`` and its row (the last run that recorded it); ValueError
+    when there is none, or when the dataset failed (its error in the message)."""
     rows = read_results(db, dataset, with_record=True)
     if not rows:
-        known = sorted({r["dataset"] for r in read_results(db)})
-        hint = f" (datasets: {', '.join(known[:5])}{' ...' if len(known) > 5 else ''})" \
-            if known else " (it is empty)"
+        names = sorted({r["dataset"] for r in read_results(db)})
+        hint = f"; it has {', '.join(names[:5])}{' ...' if len(names) > 5 else ''}" \
+            if names else "; it is empty"
         raise ValueError(f"{db}: no dataset {dataset!r}{hint}")
     row = rows[-1]
     if row["record"] is None:
         raise ValueError(f"{db}: dataset {dataset!r} failed: {row['message']}")
-    return row["record"]
-
+    return row.pop("record"), row

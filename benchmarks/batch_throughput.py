@@ -1,0 +1,142 @@
+"""Batch floors (issue: many datasets at once).
+
+* Throughput: 2 local workers give at least 1.7× the datasets per second of 1, on 1,000
+  generated datasets. The datasets are split into rounds; each round is estimated with 1 and
+  with 2 workers (alternating which goes first, a fresh local cluster each time), so both
+  see the same datasets under the same load; the figure is the median of the per-round
+  ratios. Throughput is counted in steady state (first to last dataset finished; cluster
+  start-up apart) and end to end.
+* SIGKILL: a batch killed with SIGKILL halfway and started again ends with every dataset
+  done once, none lost, none duplicated, the database intact.
+
+Datasets: conic arcs (line, circle, ellipse, hyperbola; 30–60 points, 30 % outliers) with
+the conic lattice.
+
+Run: ``python benchmarks/batch_throughput.py [--datasets 1000] [--rounds 10]
+[--max-samples 200]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sqlite3
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+
+from killrun import kill_halfway  # noqa: E402
+from scenes import arc  # noqa: E402
+
+import kanagen  # noqa: E402
+
+KINDS = ("line", "circle", "ellipse", "hyperbola")
+
+
+def conic_datasets(folder: Path, count: int, seed: int = 2026) -> tuple[str, list[str], dict]:
+    """``count`` conic arcs of 30–60 points with 30 % outliers as CSV files."""
+    rng = np.random.default_rng(seed)
+    paths = []
+    for k in range(count):
+        xy, _ = arc(KINDS[k % 4], seed + k, n=int(rng.integers(30, 61)),
+                    radius=float(rng.uniform(50, 200)))
+        path = folder / f"conic{k:05d}.csv"
+        np.savetxt(path, xy, delimiter=",", header="x,y", comments="", fmt="%.5f")
+        paths.append(str(path))
+    return str(ROOT / "examples" / "conic_lattice.yaml"), paths, {"scale": 4.0}
+
+
+def timed_batch(spec, paths, db, workers, options) -> tuple[float, float, int]:
+    """(steady-state datasets/s, end-to-end datasets/s, errors) of one batch run."""
+    stamps = []
+    started = time.perf_counter()
+    summary = kanagen.batch(spec, paths, db=db, workers=workers,
+                            progress=lambda _: stamps.append(time.perf_counter()), **options)
+    total = time.perf_counter() - started
+    steady = (len(stamps) - 1) / (stamps[-1] - stamps[0]) if len(stamps) > 2 else 0.0
+    return steady, len(paths) / total, summary.errors
+
+
+def throughput(spec, paths, options, rounds: int, tmp: Path) -> float:
+    chunks = np.array_split(np.array(paths), rounds)
+    print(f"{'round':>5}{'datasets':>9}{'1 worker/s':>12}{'2 workers/s':>12}{'ratio':>7}"
+          f"{'ratio e2e':>10}{'load':>6}")
+    ratios, ratios_e2e = [], []
+    for r, chunk in enumerate(chunks):
+        results = {}
+        for workers in ((1, 2) if r % 2 == 0 else (2, 1)):
+            results[workers] = timed_batch(spec, list(chunk), tmp / f"r{r}w{workers}.sqlite",
+                                           workers, options)
+        (s1, e1, x1), (s2, e2, x2) = results[1], results[2]
+        ratios.append(s2 / s1)
+        ratios_e2e.append(e2 / e1)
+        print(f"{r:>5}{len(chunk):>9}{s1:>12.2f}{s2:>12.2f}{s2 / s1:>7.2f}{e2 / e1:>10.2f}"
+              f"{os.getloadavg()[0]:>6.1f}" + (f"  errors {x1}/{x2}" if x1 or x2 else ""))
+    ratio = float(np.median(ratios))
+    print(f"{'PASS' if ratio >= 1.7 else 'FAIL'}  2 workers / 1 worker, steady state: median "
+          f"{ratio:.2f} (min {min(ratios):.2f}, max {max(ratios):.2f}) over {len(paths)} "
+          f"datasets (floor 1.7); end to end {np.median(ratios_e2e):.2f}")
+    return ratio
+
+
+def sigkill(spec, paths, options, tmp: Path) -> bool:
+    db = tmp / "killed.sqlite"
+    command = [sys.executable, "-m", "kanagen", "batch", spec,
+               str(Path(paths[0]).parent / "*.csv"), "--db", str(db), "--workers", "2",
+               *_flags(options)]
+    at_kill = kill_halfway(command, db, len(paths))
+    with sqlite3.connect(db) as con:
+        intact = con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+        before = dict(con.execute("SELECT dataset, finished FROM results"))
+    again = subprocess.run(command, capture_output=True, text=True)
+    with sqlite3.connect(db) as con:
+        after = con.execute("SELECT dataset, finished FROM results").fetchall()
+    names = [d for d, _ in after]
+    once = sorted(names) == sorted(paths) and len(names) == len(set(names))
+    kept = all(dict(after).get(d) == f for d, f in before.items())
+    ok = intact and once and kept and again.returncode in (0, 1)
+    print(f"{'PASS' if ok else 'FAIL'}  SIGKILL at {at_kill}/{len(paths)} datasets, restarted: "
+          f"{len(after)} rows, {len(set(names))} datasets, each once: {once}; finished rows "
+          f"kept: {kept}; integrity: {intact}")
+    return ok
+
+
+def _flags(options: dict) -> list[str]:
+    return [f for k, v in options.items() for f in (f"--{k.replace('_', '-')}", str(v))]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--datasets", type=int, default=1000)
+    parser.add_argument("--rounds", type=int, default=10)
+    parser.add_argument("--max-samples", type=int, default=200)
+    parser.add_argument("--kill-datasets", type=int, default=200,
+                        help="datasets of the SIGKILL run (a prefix of the generated ones)")
+    args = parser.parse_args()
+    print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        (tmp / "data").mkdir()
+        spec, paths, options = conic_datasets(tmp / "data", args.datasets)
+        options = {**options, "max_samples": args.max_samples}
+        print(f"{len(paths)} datasets, spec {Path(spec).name}, options {options}")
+        throughput(spec, paths, options, args.rounds, tmp)
+        kill_dir = tmp / "kill"
+        kill_dir.mkdir()
+        subset = []
+        for p in paths[:args.kill_datasets]:
+            target = kill_dir / Path(p).name
+            target.write_bytes(Path(p).read_bytes())
+            subset.append(str(target))
+        sigkill(spec, subset, options, tmp)
+
+
+if __name__ == "__main__":
+    main()
