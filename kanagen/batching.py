@@ -5,7 +5,8 @@ The parent process reads each dataset, sends the spec's text and the measures to
 database as it arrives — one writer, one transaction per dataset (:mod:`kanagen.resultsdb`).
 A few datasets per worker are in flight at a time, so a killed run loses at most those.
 Workers are local processes by default (nothing to start) or those of a
-``dask.distributed`` scheduler.
+``dask.distributed`` scheduler; each runs one dataset at a time with single-threaded BLAS
+(Dask's nanny sets ``OMP_NUM_THREADS=1`` and the like), so a worker is a core.
 """
 
 from __future__ import annotations

@@ -30,6 +30,8 @@ def main():
       kanagen build examples/conic.yaml -o generated
       kanagen fit examples/conic_lattice.yaml points.csv --scale 4   # robust, lattice
       kanagen fit examples/conic.yaml examples/data/ellipse_arc.csv --model conic --local
+      kanagen batch examples/conic_lattice.yaml 'scenes/*.csv' --db results.sqlite --scale 4
+      kanagen report result.json -o report.html       # a page with the pictures
     """
 
 

@@ -4,7 +4,8 @@ One process writes (the batch's parent), each row in its own transaction; the da
 WAL mode with full synchronisation, so a run killed at any moment (SIGKILL included) keeps
 every row it committed and nothing half-written. A row is keyed on the dataset, the spec's
 hash and the options (:meth:`kanagen.fitjob.FitOptions.key`): a re-run of the same command
-skips what is done, and a row is never duplicated.
+skips what is done, and a row is never duplicated. (WAL needs a local file system, as SQLite
+says: keep the database off network shares.)
 """
 
 from __future__ import annotations

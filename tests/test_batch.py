@@ -50,6 +50,18 @@ def rows(db) -> list[dict]:
     return kanagen.read_results(db, with_record=True)
 
 
+def test_batch_takes_the_options_of_fit():
+    def names(command):
+        return {p.name for p in main.commands[command].params}
+
+    assert names("fit") - {"spec", "data", "json_out"} == \
+        names("batch") - {"spec", "data_glob", "db", "workers", "scheduler", "retry_errors"}
+    out = CliRunner().invoke(main, ["batch", "--help"])
+    for word in ("--scale", "--max-samples", "--workers", "--scheduler", "--db", "resume",
+                 "Exit status"):
+        assert word in out.output
+
+
 def test_batch_records_every_dataset_with_its_error_and_resumes(tmp_path, scheduler):
     paths = write_scenes(tmp_path / "data", 4)
     bad = tmp_path / "data" / "scene900.csv"  # read by the parent: fails before any worker
