@@ -9,11 +9,12 @@
 * SIGKILL: a batch killed with SIGKILL halfway and started again ends with every dataset
   done once, none lost, none duplicated, the database intact.
 
-Datasets: conic arcs (line, circle, ellipse, hyperbola; 30–60 points, 30 % outliers) with
-the conic lattice.
+Datasets (``--family``): two-view scenes of the six motion classes (60 matches in
+640×480 images, σ = 0.5 px, 30 % outliers) with ``two_view`` (the default), or conic arcs
+(line, circle, ellipse, hyperbola; 30–60 points, 30 % outliers) with ``conic_lattice``.
 
-Run: ``python benchmarks/batch_throughput.py [--datasets 1000] [--rounds 10]
-[--max-samples 200]``.
+Run: ``python benchmarks/batch_throughput.py [--family two_view|conic] [--datasets 1000]
+[--rounds 10] [--max-samples 100]``.
 """
 
 from __future__ import annotations
@@ -51,6 +52,22 @@ def conic_datasets(folder: Path, count: int, seed: int = 2026) -> tuple[str, lis
         np.savetxt(path, xy, delimiter=",", header="x,y", comments="", fmt="%.5f")
         paths.append(str(path))
     return str(ROOT / "examples" / "conic_lattice.yaml"), paths, {"scale": 4.0}
+
+
+def two_view_datasets(folder: Path, count: int, seed: int = 2026):
+    """``count`` two-view scenes, the motion classes in turn, as CSV files."""
+    from kanagen.scenes import MOTIONS, two_view_scene
+
+    paths = []
+    for k in range(count):
+        scene = two_view_scene(MOTIONS[k % len(MOTIONS)], n=60, outliers=0.3, sigma=0.5,
+                               seed=seed + k)
+        path = folder / f"views{k:05d}.csv"
+        np.savetxt(path, scene.data, delimiter=",", header="u,v,u2,v2", comments="",
+                   fmt="%.5f")
+        paths.append(str(path))
+    # the family's default constants are those of 640×480 images
+    return str(ROOT / "examples" / "two_view.yaml"), paths, {"scale": 4.0, "sigma": 0.5}
 
 
 def timed_batch(spec, paths, db, workers, options) -> tuple[float, float, int]:
@@ -116,7 +133,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--datasets", type=int, default=1000)
     parser.add_argument("--rounds", type=int, default=10)
-    parser.add_argument("--max-samples", type=int, default=200)
+    parser.add_argument("--family", choices=["two_view", "conic"], default="two_view")
+    parser.add_argument("--max-samples", type=int, default=100)
     parser.add_argument("--kill-datasets", type=int, default=200,
                         help="datasets of the SIGKILL run (a prefix of the generated ones)")
     args = parser.parse_args()
@@ -124,9 +142,10 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         (tmp / "data").mkdir()
-        spec, paths, options = conic_datasets(tmp / "data", args.datasets)
+        make = two_view_datasets if args.family == "two_view" else conic_datasets
+        spec, paths, options = make(tmp / "data", args.datasets)
         options = {**options, "max_samples": args.max_samples}
-        print(f"{len(paths)} datasets, spec {Path(spec).name}, options {options}")
+        print(f"{len(paths)} {args.family} datasets, spec {Path(spec).name}, options {options}")
         throughput(spec, paths, options, args.rounds, tmp)
         kill_dir = tmp / "kill"
         kill_dir.mkdir()

@@ -93,25 +93,10 @@ def lattice_graph(edges, states: list[dict], chosen: str | None, null_model: str
     from matplotlib.patches import FancyArrowPatch
 
     by_name = {s["model"]: s for s in states}
-    names = list(dict.fromkeys([null_model or (states[0]["model"] if states else None),
-                                *(m for e in edges for m in e[:2]), *by_name]))
-    names = [n for n in names if n is not None]
-    children = defaultdict(list)
-    for e in edges:
-        children[e[0]].append(e[1])
-    level = {names[0]: 0} if names else {}
-    queue = list(level)
-    while queue:  # breadth first from the null model: a model's row is its distance
-        m = queue.pop(0)
-        for c in children[m]:
-            if c not in level:
-                level[c] = level[m] + 1
-                queue.append(c)
-    for n in names:
-        level.setdefault(n, max(level.values(), default=-1) + 1)
+    level = lattice_levels(edges, [s["model"] for s in states], null_model)
     rows = defaultdict(list)
-    for n in names:
-        rows[level[n]].append(n)
+    for n, lvl in level.items():
+        rows[lvl].append(n)
     width = max((len(r) for r in rows.values()), default=1)
     fig = _figure((max(4.0, 2.6 * width), 1.1 * max(len(rows), 1) + 0.3))
     ax = fig.subplots()
@@ -145,6 +130,26 @@ def lattice_graph(edges, states: list[dict], chosen: str | None, null_model: str
     ax.set_xlim(0, width)
     ax.set_ylim(-max(level.values(), default=0) - 0.6, 0.6)
     return _svg(fig, "lattice")
+
+
+def lattice_levels(edges, models=(), null_model: str | None = None) -> dict[str, int]:
+    """The row of each model in the lattice drawing: the longest path to it from the null
+    model (the lattice is a DAG: the spec refuses cycles); models out of its reach go below.
+
+    Examples
+    --------
+    >>> lattice_levels([["none", "rotation"], ["rotation", "planar"], ["none", "planar"]])
+    {'none': 0, 'rotation': 1, 'planar': 2}
+    """
+    names = list(dict.fromkeys([*([null_model] if null_model else []),
+                                *(m for e in edges for m in e[:2]), *models]))
+    level = dict.fromkeys(names[:1], 0)
+    for _ in names:
+        for e in edges:
+            if e[0] in level and level.get(e[1], -1) < level[e[0]] + 1:
+                level[e[1]] = level[e[0]] + 1
+    bottom = max(level.values(), default=-1) + 1
+    return {n: level.get(n, bottom) for n in names}
 
 
 def _num(value) -> str:

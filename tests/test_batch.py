@@ -182,3 +182,23 @@ def test_sigkill_halfway_then_resume_does_every_dataset_once(tmp_path):
     assert all(r["status"] != "error" for r in after)
     by_name = {r["dataset"]: r for r in after}
     assert all(by_name[name] == row for name, row in before.items())  # none lost or redone
+
+
+def test_fit_options_are_validated_and_keyed_canonically():
+    import doctest
+
+    import kanagen.fitjob as fitjob
+
+    assert doctest.testmod(fitjob).failed == 0
+    a = kanagen.FitOptions(scale=4, phi="0.5", constants={"f0": 100, "a": 1})
+    b = kanagen.FitOptions(scale=4.0, phi=0.5, constants=[("a", 1.0), ("f0", 100.0)])
+    assert a == b and a.key("point") == b.key("point") != a.key("line")
+    assert a.key("point") != kanagen.FitOptions(scale=4, phi=0.5, seed=1).key("point")
+    for bad, message in (({"scorer": "best"}, "unknown scorer"),
+                         ({"max_samples": 0}, "max_samples must be an integer >= 1"),
+                         ({"seed": 1.5}, "seed must be an integer"),
+                         ({"sigma": float("inf")}, "sigma must be positive"),
+                         ({"phi": "exp:x"}, "phi: "),
+                         ({"constants": {"f0": "wide"}}, "constants must map names")):
+        with pytest.raises(ValueError, match=message):
+            kanagen.FitOptions(**bad)

@@ -226,3 +226,17 @@ def test_report_renders_in_headless_chromium(kind, request, tmp_path):
 
     # the figures are drawn: inliers, outliers and the threshold, the chosen model's box
     assert count(INLIER) > 500 and count(OUTLIER) > 200 and count(CHOSEN) > 100
+
+
+def test_lattice_rows_are_longest_paths_from_the_null_model():
+    import doctest
+
+    import kanagen.figures as figures
+
+    assert doctest.testmod(figures).failed == 0
+    edges = [["none", m] for m in ("zoom", "rotation", "translation")] + \
+        [["zoom", "planar"], ["rotation", "planar"], ["translation", "general"],
+         ["planar", "general"]]
+    assert figures.lattice_levels(edges, ["none", "zoom"], "none") == {
+        "none": 0, "zoom": 1, "rotation": 1, "translation": 1, "planar": 2, "general": 3}
+    assert figures.lattice_levels([], ["circle"], "line") == {"line": 0, "circle": 1}
