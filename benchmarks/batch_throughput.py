@@ -58,10 +58,16 @@ def two_view_datasets(folder: Path, count: int, seed: int = 2026):
     """``count`` two-view scenes, the motion classes in turn, as CSV files."""
     from kanagen.scenes import MOTIONS, two_view_scene
 
-    paths = []
+    paths, draw = [], seed
     for k in range(count):
-        scene = two_view_scene(MOTIONS[k % len(MOTIONS)], n=60, outliers=0.3, sigma=0.5,
-                               seed=seed + k)
+        while True:  # a few random configurations cannot place the points: the next one
+            draw += 1
+            try:
+                scene = two_view_scene(MOTIONS[k % len(MOTIONS)], n=60, outliers=0.3,
+                                       sigma=0.5, seed=draw)
+                break
+            except ValueError:
+                continue
         path = folder / f"views{k:05d}.csv"
         np.savetxt(path, scene.data, delimiter=",", header="u,v,u2,v2", comments="",
                    fmt="%.5f")

@@ -126,6 +126,9 @@ def render_report(record: dict, *, measures: np.ndarray | None = None,
             add("matches", "Matches", figures.two_view_matches(measures, inliers, *images),
                 f"Matches from the first image ({components[0]}, {components[1]}) to the "
                 f"second ({components[2]}, {components[3]}); inliers in blue, outliers red.")
+    elif len(components) == 4 and record.get("model"):
+        notes.append("Two-view matches: give the two images (--images FIRST SECOND) to see "
+                     "them drawn, inliers and outliers coloured.")
     elif measures is None and len(components) == 2 and record.get("model"):
         notes.append("Measures not drawn: the data file was not found (give it with --data).")
     env = jinja2.Environment(loader=jinja2.PackageLoader("kanagen", "templates"),

@@ -157,6 +157,8 @@ def test_two_view_report_draws_the_matches(two_view_result, tmp_path):
     html = page.read_text()
     assert figures_of(html) == ["histogram", "relevance", "lattice", "residuals", "matches"]
     assert "data:image/png;base64," in html  # the images inside the page
+    assert run("report", result, "-o", page).exit_code == 0
+    assert "give the two images (--images" in page.read_text()
     # without the data file: said on the page, no traceback
     moved = data.rename(tmp_path / "elsewhere.csv")
     done = run("report", result, "--images", *images, "-o", page)
