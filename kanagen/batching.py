@@ -26,7 +26,7 @@ import numpy as np
 
 from .dataio import read_measures
 from .fitjob import FitOptions, resolve_channel, run_job
-from .resultsdb import ResultsDB, Row
+from .resultsdb import ResultsDB, Row, encode
 
 _IN_FLIGHT = 2  # datasets sent ahead per worker thread: busy workers, little lost on a kill
 
@@ -39,7 +39,8 @@ class Outcome:
     status: str  # "ok", "no model" or "error"
     model: str | None
     message: str
-    seconds: float | None
+    seconds: float | None  # estimation time (wall) on the worker
+    cpu_seconds: float | None = None  # CPU time of the worker's process for it
 
 
 @dataclass(frozen=True)
@@ -130,14 +131,15 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
         if on_start is not None:
             on_start(len(todo), len(paths) - len(todo))
 
-        def record(path: str, status: str, rec: dict | None, message: str,
-                   seconds: float | None) -> None:
-            store.write(Row(path, fam.sha256, key, fam.name, channel, status, rec, message,
-                            seconds))
+        def record(path: str, status: str, message: str, out: dict | None = None) -> None:
+            out = out or {}
+            encoded = out.get("encoded") or encode(None)
+            store.write(Row(path, fam.sha256, key, fam.name, channel, status, encoded,
+                            message, out.get("seconds")))
             counts[status] += 1
             if progress is not None:
-                progress(Outcome(path, status, rec.get("model") if rec else None, message,
-                                 seconds))
+                progress(Outcome(path, status, encoded.model, message, out.get("seconds"),
+                                 out.get("cpu")))
 
         def jobs() -> Iterator[tuple[str, np.ndarray]]:
             for path in todo:
@@ -146,7 +148,7 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
                     if X.ndim != 2 or X.shape[0] == 0:
                         raise ValueError(f"{path}: no measures for channel {channel!r}")
                 except ValueError as exc:
-                    record(path, "error", None, str(exc), None)
+                    record(path, "error", str(exc))
                     continue
                 yield path, X
 
@@ -154,11 +156,9 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
         with _client(workers, scheduler, bool(todo)) as (client, slots):
             for path, out in _run(client, slots, task, jobs()):
                 if "error" in out:
-                    record(path, "error", None, out["error"], out.get("seconds"))
+                    record(path, "error", out["error"], out)
                 else:
-                    rec = out["record"]
-                    record(path, "ok" if rec["found"] else "no model", rec,
-                           rec.get("stop_reason") or "", out["seconds"])
+                    record(path, "ok" if out["found"] else "no model", out["stop_reason"], out)
     return BatchSummary(len(paths), len(paths) - len(todo), counts["ok"], counts["no model"],
                         counts["error"], time.perf_counter() - started, slots, str(db))
 
@@ -248,16 +248,18 @@ def _run(client, slots: int, task: tuple, jobs: Iterator[tuple[str, np.ndarray]]
 
 def estimate_dataset(spec_text: str | None, source: str, channel: str, options: dict,
                      X: np.ndarray, dataset: str) -> dict:
-    """One dataset on a worker: ``{"record": ..., "seconds": ...}`` or ``{"error": ...,
-    "seconds": ...}``; never raises (a dataset's failure is its outcome)."""
-    started = time.perf_counter()
+    """One dataset on a worker: its record encoded for the database (``"encoded"``,
+    ``"found"``, ``"stop_reason"``) or ``"error"``, with ``"seconds"`` (wall) and ``"cpu"``
+    (the process's CPU time); never raises (a dataset's failure is its outcome)."""
+    started, cpu = time.perf_counter(), time.process_time()
     try:
         fam = _family(spec_text, source)
         rec = run_job(fam, X, channel, FitOptions(**options), spec=source, data=dataset)
-        return {"record": rec, "seconds": time.perf_counter() - started}
+        out = {"encoded": encode(rec), "found": rec["found"],
+               "stop_reason": rec.get("stop_reason") or ""}
     except Exception as exc:  # recorded as the dataset's error; the run goes on
-        return {"error": f"{type(exc).__name__}: {exc}",
-                "seconds": time.perf_counter() - started}
+        out = {"error": f"{type(exc).__name__}: {exc}"}
+    return {**out, "seconds": time.perf_counter() - started, "cpu": time.process_time() - cpu}
 
 
 @lru_cache(maxsize=8)

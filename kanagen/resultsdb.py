@@ -55,6 +55,38 @@ _JSON = ("estimate", "std", "info", "inliers")
 
 
 @dataclass(frozen=True)
+class Encoded:
+    """A record made ready for its row: the queryable columns and the record as JSON text
+    (made where the dataset was estimated, so the one writer only writes)."""
+
+    model: str | None = None
+    estimate: str | None = None
+    std: str | None = None
+    info: str | None = None
+    inliers: str | None = None
+    n_inliers: int | None = None
+    measures: int | None = None
+    cost: float | None = None
+    dof: int | None = None
+    record: str | None = None
+
+
+def encode(record: dict | None) -> Encoded:
+    """The columns of a JSON record (``kanagen fit --json``; None: a failed dataset)."""
+    if record is None:
+        return Encoded()
+    estimate = {**(record.get("params") or {}), **(record.get("slacks") or {})} or None
+    inliers = record.get("inliers")
+    if record.get("local") and record.get("success"):
+        inliers = list(range(_count(record)))  # the local fit takes every measure
+    return Encoded(record.get("model"), _dumps(estimate), _dumps(record.get("std")),
+                   _dumps(record.get("info")), _dumps(inliers),
+                   None if inliers is None else len(inliers), _count(record),
+                   record.get("normalized_cost" if record.get("local") else "cost"),
+                   record.get("dof"), _dumps(record))
+
+
+@dataclass(frozen=True)
 class Row:
     """One dataset's outcome, as written."""
 
@@ -64,24 +96,16 @@ class Row:
     family: str
     channel: str
     status: str
-    record: dict | None = None  # the JSON record (None on error)
+    encoded: Encoded = Encoded()  # :func:`encode` of its record (empty on error)
     message: str = ""
     seconds: float | None = None
 
     def values(self) -> tuple:
-        rec = self.record or {}
-        estimate = {**(rec.get("params") or {}), **(rec.get("slacks") or {})} or None
-        inliers = rec.get("inliers")
-        if rec.get("local") and rec.get("success"):
-            inliers = list(range(_count(rec)))  # the local fit takes every measure
-        cost = rec.get("cost") if not rec.get("local") else rec.get("normalized_cost")
+        e = self.encoded
         return (self.dataset, self.spec_sha256, self.options, self.family, self.channel,
-                self.status, rec.get("model") if self.status != "error" else None,
-                _dumps(estimate), _dumps(rec.get("std")), _dumps(rec.get("info")),
-                _dumps(inliers), None if inliers is None else len(inliers), _count(rec),
-                cost, rec.get("dof"), self.message, self.seconds,
-                datetime.now(UTC).isoformat(timespec="milliseconds"),
-                _dumps(self.record))
+                self.status, e.model, e.estimate, e.std, e.info, e.inliers, e.n_inliers,
+                e.measures, e.cost, e.dof, self.message, self.seconds,
+                datetime.now(UTC).isoformat(timespec="milliseconds"), e.record)
 
 
 def _count(rec: dict) -> int | None:

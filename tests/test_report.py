@@ -17,7 +17,7 @@ from scenes import arc
 from kanagen.cli import main
 from kanagen.figures import CHOSEN, INLIER, OUTLIER
 from kanagen.fitjob import FitOptions
-from kanagen.resultsdb import ResultsDB, Row
+from kanagen.resultsdb import ResultsDB, Row, encode
 
 pytest.importorskip("matplotlib")
 
@@ -116,10 +116,10 @@ def test_report_of_a_batch_dataset_and_bad_requests(conic_result, tmp_path):
     db = tmp_path / "r.sqlite"
     with ResultsDB(db) as store:
         key = FitOptions(scale=4, max_samples=60).key("point")
-        store.write(Row(str(data), rec["spec_sha256"], key, rec["family"], "point", "ok", rec,
-                        rec["stop_reason"], 0.5))
+        store.write(Row(str(data), rec["spec_sha256"], key, rec["family"], "point", "ok",
+                        encode(rec), rec["stop_reason"], 0.5))
         store.write(Row("broken.csv", rec["spec_sha256"], key, rec["family"], "point", "error",
-                        None, "broken.csv: not a row of numbers"))
+                        encode(None), "broken.csv: not a row of numbers"))
     page = tmp_path / "from_db.html"
     done = run("report", "--db", db, "--dataset", data, "-o", page)
     assert done.exit_code == 0, done.output
