@@ -261,16 +261,18 @@ def linearise(problem: Problem, x: Point) -> Linearisation:
     return Linearisation(x, info, H, rhs, tuple(whitened), tuple(ranks), residual)
 
 
-def solve(problem: Problem, lin: Linearisation, mu: float = 0.0) -> Projection:
+def solve(problem: Problem, lin: Linearisation, mu: float = 0.0,
+          weights: np.ndarray | None = None) -> Projection:
     """The projector's point from a linearisation (report eq. 12/43, Fig. 17).
 
-    ``mu > 0`` adds Levenberg–Marquardt damping ``μ diag(H)`` to the parameter block (our
-    globalisation for starts far from the solution); ``mu = 0`` is the report's projector.
+    ``mu > 0`` adds Levenberg–Marquardt damping ``μ diag(w)`` to the parameter block (our
+    globalisation for starts far from the solution), ``w`` the given ``weights`` or else
+    ``diag(H)``; ``mu = 0`` is the report's projector.
     """
     x = lin.x
     H = lin.H
     if mu > 0.0:
-        H = H + mu * np.diag(_equilibrium_weights(H))
+        H = H + mu * np.diag(_equilibrium_weights(H) if weights is None else weights)
     # A component that neither the data nor the constraints see (a slack in a factor of a
     # disjunction that does not hold: its column is rounding) holds only rounding in the
     # right-hand side, which the closest root would divide by ε: it does not move.

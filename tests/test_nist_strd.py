@@ -162,20 +162,8 @@ def test_generated_residual_reproduces_certified_rss(name: str) -> None:
     )
 
 
-# Hard starting points where kanagen's iteration (projector + LM damping + halving, no trust
-# region from the first step) ends at a plateau or a local point, while scipy's trf — whose
-# first trust radius is the size of the start — reaches the certified values. Strict: a fix
-# turns these into failures to remove from the list.
-KNOWN_HARD = {
-    ("BoxBOD", 0): "the first projector step jumps to the b2 -> inf plateau (RSS 9772)",
-    ("MGH10", 0): "stalls far from the solution (violation 7.4), reported as a failure",
-    ("MGH17", 0): "ends at a local point, RSS 1.1 vs 5.5e-5",
-}
-CASE_PARAMS = [
-    pytest.param(name, start, id=case_id, marks=pytest.mark.xfail(
-        strict=True, reason=KNOWN_HARD[(name, start)]) if (name, start) in KNOWN_HARD else ())
-    for (name, start), case_id in zip(CASES, CASE_IDS, strict=True)
-]
+CASE_PARAMS = [pytest.param(name, start, id=case_id)
+               for (name, start), case_id in zip(CASES, CASE_IDS, strict=True)]
 
 
 @needs_data
@@ -240,15 +228,6 @@ def _solved_counts() -> tuple[int, int, int]:
 
 
 @needs_data
-def test_kanagen_solves_all_but_the_known_hard_starts() -> None:
-    kanagen_solved, scipy_solved, total = _solved_counts()
-    assert kanagen_solved >= scipy_solved - len(KNOWN_HARD), (
-        f"kanagen solved {kanagen_solved}/{total}, scipy trf solved {scipy_solved}/{total}"
-    )
-
-
-@needs_data
-@pytest.mark.xfail(strict=True, reason="floor not met yet: the KNOWN_HARD starts")
 def test_kanagen_solves_at_least_as_many_as_scipy() -> None:
     kanagen_solved, scipy_solved, total = _solved_counts()
     assert kanagen_solved >= scipy_solved, (
