@@ -276,7 +276,7 @@ def solve(problem: Problem, lin: Linearisation, mu: float = 0.0,
     # A component that neither the data nor the constraints see (a slack in a factor of a
     # disjunction that does not hold: its column is rounding) holds only rounding in the
     # right-hand side, which the closest root would divide by ε: it does not move.
-    seen = _seen(lin.info, x.C0)
+    seen = _seen(lin.info, x.C0, x.q)
     dq = np.zeros(x.q.size)
     if not seen.all():
         H, rhs, C0 = H[np.ix_(seen, seen)], lin.rhs[seen], x.C0[:, seen]
@@ -323,14 +323,18 @@ def project(problem: Problem, x: Point) -> tuple[Linearisation, Projection]:
     return lin, solve(problem, lin)
 
 
-def _seen(info: np.ndarray, C0: np.ndarray) -> np.ndarray:
+def _seen(info: np.ndarray, C0: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Components the data or the constraints see: some information (however small: the
     scales of components may differ by many orders) or a constraint Jacobian entry above the
-    rounding level of its row."""
+    rounding level of its row — as it is, or as the change ``C0[r, j] q_j`` of a relative
+    move of the component (a slack near its boundary, ``s² (AC − B²) − 1`` with ``s`` large,
+    has a small but exact derivative ``2 s (AC − B²)``; a slack in a factor of a disjunction
+    that does not hold has rounding there, whatever its scale)."""
     seen = np.diagonal(info) != 0.0
     if C0.shape[0]:
-        rows = np.max(np.abs(C0), axis=1, keepdims=True)
-        seen |= np.any(np.abs(C0) > _ROUNDING * rows, axis=0)
+        for J in (np.abs(C0), np.abs(C0 * q)):
+            rows = np.max(J, axis=1, keepdims=True)
+            seen |= np.any(J > _ROUNDING * rows, axis=0)
     return seen
 
 
