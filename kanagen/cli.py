@@ -38,10 +38,18 @@ def main():
 @click.argument("specs", nargs=-1, type=click.Path(dir_okay=False))
 @click.option("-o", "--out", "out_dir", default="generated", show_default=True,
               type=click.Path(file_okay=False), help="Folder for the generated modules.")
+@click.option("--backend", "backends", multiple=True, type=click.Choice(["numpy", "casadi"]),
+              help="Module(s) to generate (repeatable): numpy (default), casadi (CasADi "
+                   "Functions, written beside the NumPy module). With --check, default: "
+                   "every backend whose file is in OUT.")
+@click.option("--compile", "compile_", is_flag=True,
+              help="Also compile the CasADi functions to C (CasADi's code generator and the "
+                   "C compiler $CC or cc) into the cache that kanagen.load(..., "
+                   "backend='compiled') uses. Without a compiler: a warning, not an error.")
 @click.option("--check", is_flag=True,
               help="Regenerate in memory and fail with a diff if a file in OUT differs "
                    "(default SPECS: examples/*.yaml).")
-def build(specs, out_dir, check):
+def build(specs, out_dir, backends, compile_, check):
     """Generate the estimation module of each SPEC (YAML) into OUT."""
     from .codegen import build as build_spec
     from .codegen import check as check_specs
@@ -54,19 +62,41 @@ def build(specs, out_dir, check):
             _fail("no spec given and no examples/*.yaml here")
     try:
         if check:
-            diffs = check_specs(list(specs), out_dir)
+            diffs = check_specs(list(specs), out_dir, backends or None)
             for diff in diffs:
                 click.echo(diff, nl=False)
             if diffs:
                 _fail(f"{len(diffs)} generated file(s) in {out_dir} differ from their spec; "
-                      f"run: kanagen build {' '.join(specs)} -o {out_dir}", 1)
+                      f"run: kanagen build {' '.join(specs)} -o {out_dir}"
+                      + "".join(f" --backend {b}" for b in backends), 1)
             click.echo(f"{len(specs)} spec(s): generated files in {out_dir} are up to date")
             return
+        names = ("numpy", *(b for b in backends if b != "numpy"))
         for spec in specs:
-            for path in build_spec(spec, out_dir):
+            for path in build_spec(spec, out_dir, names):
                 click.echo(f"{spec} -> {path}")
+            if compile_:
+                _compile(spec)
     except SpecError as exc:
         _fail(str(exc))
+
+
+def _compile(spec: str) -> None:
+    """Compile the CasADi functions of ``spec`` into the cache; a warning without compiler."""
+    from .codegen.compile import CompileError, compile_family
+    from .loader import _module_for
+    from .modelspec import load_spec
+    from .runtime.family import cache_dir
+
+    family = load_spec(spec)
+    try:
+        library = compile_family(_module_for(family, "casadi"), family.name, family.sha256,
+                                 cache_dir())
+    except CompileError as exc:
+        click.echo(f"warning: {spec}: not compiled: {exc}; kanagen.load(..., "
+                   "backend='compiled') will use the uncompiled CasADi backend", err=True)
+        return
+    click.echo(f"{spec} -> {library} (compiled)")
 
 
 @main.command()
