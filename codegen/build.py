@@ -93,7 +93,8 @@ def generator_fingerprint() -> str:
     """Hash of the generator itself (code and templates): keys the run-time build cache."""
     digest = hashlib.sha256(f"format {FORMAT}".encode())
     root = Path(__file__).parent
-    for path in sorted(list(root.glob("*.py")) + list(root.glob("templates/*/*.jinja"))):
+    for path in sorted(list(root.glob("*.py")) + list(root.glob("templates/*/*.jinja"))
+                       + list(root.glob("c/*.c"))):
         digest.update(str(path.relative_to(root)).encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()

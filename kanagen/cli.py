@@ -90,8 +90,8 @@ def _compile(spec: str) -> None:
 
     family = load_spec(spec)
     try:
-        library = compile_family(_module_for(family, "casadi"), family.name, family.sha256,
-                                 cache_dir())
+        library = compile_family(_module_for(family, "casadi"),
+                                 _module_for(family, "numpy").FAMILY, cache_dir())
     except CompileError as exc:
         click.echo(f"warning: {spec}: not compiled: {exc}; kanagen.load(..., "
                    "backend='compiled') will use the uncompiled CasADi backend", err=True)

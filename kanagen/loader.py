@@ -11,6 +11,7 @@ from .codegen.compile import CompileError, CompileWarning, compile_family, load_
 from .modelspec import Family, load_spec, parse_spec
 from .runtime.backends import CasadiFunctions
 from .runtime.family import ModelFamily, cache_dir, cache_key, import_file, shipped_module
+from .runtime.fastpath import FastPath
 
 #: The backends :func:`load` accepts.
 LOAD_BACKENDS = ("numpy", "casadi", "compiled")
@@ -28,9 +29,10 @@ def load(spec: str | Path | Family, *, backend: str = "numpy",
     backend : {"numpy", "casadi", "compiled"}
         What evaluates the equations: the generated NumPy module; the generated CasADi
         functions; or those compiled to C (CasADi's code generator and the system C
-        compiler, cached). Same estimates to rounding level. Without a C compiler,
-        "compiled" warns (:class:`~kanagen.codegen.compile.CompileWarning`) and uses
-        "casadi".
+        compiler, cached) together with the compiled estimator that :func:`kanagen.fit`
+        then runs (docs/fastpath.md). Same estimates to rounding level. Without a C
+        compiler, "compiled" warns (:class:`~kanagen.codegen.compile.CompileWarning`) and
+        uses "casadi".
     use_generated_kernels : bool
         Use the unrolled per-measure algebra of the generated module (default) or the
         generic runtime implementation.
@@ -65,21 +67,21 @@ def load(spec: str | Path | Family, *, backend: str = "numpy",
             module = _shipped_by_name(str(spec))
     if family is not None:
         module = _module_for(family, "numpy")
-    functions = None
+    functions = fastpath = None
     if backend != "numpy":
         casadi_module = _module_for(family, "casadi") if family is not None else \
             _shipped_by_name(f"{module.FAMILY['name']}_casadi")
         replace, name = None, "casadi"
         if backend == "compiled":
             try:
-                library = compile_family(casadi_module, module.FAMILY["name"],
-                                         module.SPEC_SHA256, cache_dir())
+                library = compile_family(casadi_module, module.FAMILY, cache_dir())
                 replace, name = load_compiled(casadi_module, library), "compiled"
+                fastpath = FastPath.load(library, module)
             except CompileError as exc:
                 warnings.warn(f"cannot compile family {module.FAMILY['name']!r}: {exc}; using "
                               "the uncompiled CasADi backend", CompileWarning, stacklevel=2)
         functions = CasadiFunctions(casadi_module, module.FAMILY["derived"], replace, name)
-    return ModelFamily(module, use_generated_kernels, functions, eliminate_linear)
+    return ModelFamily(module, use_generated_kernels, functions, eliminate_linear, fastpath)
 
 
 def load_text(text: str, source: str = "<spec>", **options) -> ModelFamily:

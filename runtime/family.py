@@ -64,12 +64,16 @@ class ModelFamily:
     evaluates the equations (default: the same NumPy module, :mod:`kanagen.runtime.backends`).
     ``use_generated_kernels=False`` switches the per-measure algebra to the generic runtime
     implementation (same results). ``eliminate_linear=True`` fits the models that have
-    linear constraints in their free components (:meth:`reduction`).
+    linear constraints in their free components (:meth:`reduction`). ``fastpath``: the
+    compiled estimator that :func:`kanagen.fit` uses where it applies
+    (:mod:`kanagen.runtime.fastpath`).
     """
 
     def __init__(self, module: ModuleType, use_generated_kernels: bool = True,
-                 functions=None, eliminate_linear: bool = False):
+                 functions=None, eliminate_linear: bool = False, fastpath=None):
         self.module = module
+        #: the compiled estimator (backend "compiled", docs/fastpath.md), or None
+        self.fastpath = fastpath
         self.functions = functions if functions is not None else NumpyFunctions(module)
         self.eliminate_linear = eliminate_linear
         meta = module.FAMILY

@@ -86,6 +86,11 @@ def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
     ... # doctest: +SKIP
     """
     model = model or fam.null_model
+    if fam.fastpath is not None:  # the compiled estimator, on simple inputs
+        res = fam.fastpath.fit(fam, model, data, info, q0, Q0, constants, q_start, max_iter,
+                               xtol, eps)
+        if res is not None:
+            return res
     problem = make_problem(fam, model, data or {}, info, q0, Q0, constants, eps)
     start = problem.q0 if q_start is None else parameter_vector(fam, q_start, "q_start")
     return fit_problem(fam, model, problem, q_start=start, max_iter=max_iter, xtol=xtol)
@@ -100,6 +105,10 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
     start = problem.q0 if q_start is None else np.asarray(q_start, dtype=float)
     start = fam.with_slacks(start, problem.k, model)  # its slacks consistent with the start
     red = fam.reduction(model)
+    if red is None and fam.fastpath is not None:  # the compiled estimator (same results)
+        res = fam.fastpath.fit_problem(fam, model, problem, start, max_iter, xtol)
+        if res is not None:
+            return res
     if red is None:
         out = iterate(problem, start, max_iter=max_iter, xtol=xtol)
         x, lin, proj = out.point, out.lin, out.proj

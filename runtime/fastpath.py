@@ -1,0 +1,370 @@
+"""The compiled fast path of the local estimator: ctypes glue to ``kg_fit`` (docs/fastpath.md).
+
+``codegen/c/kanagen_fast.c`` is a mechanical port of the NumPy runtime's fit (the iteration,
+the projector, the square roots, the outputs), compiled with a family's CasADi C into the
+library of ``kanagen.load(..., backend="compiled")``. :class:`FastPath` packs a problem into
+three flat arrays, calls ``kg_fit`` and unpacks a :class:`FitResult` — the one
+:func:`~kanagen.runtime.fit.fit_problem` would return, to rounding level.
+
+The port mirrors the Python functions listed in :data:`PORTED`; their syntax trees
+(docstrings and comments excluded) are fingerprinted in :data:`FINGERPRINTS`. When one of
+them changes, the fast path switches itself off (the NumPy path runs: right results, only
+slower) and tests/test_fastpath.py fails, naming the functions to port again. After porting
+and testing, print the new fingerprints with ``python -m kanagen.runtime.fastpath``.
+"""
+
+from __future__ import annotations
+
+import ast
+import ctypes
+import hashlib
+import importlib
+import inspect
+import math
+import textwrap
+import threading
+import warnings
+from functools import cache
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+
+from .inputs import inverse_root
+from .iterate import FAILED, MESSAGES
+from .results import DerivedValue, FitResult
+
+#: Python functions (and module constants) that codegen/c/kanagen_fast.c ports, by module.
+PORTED: dict[str, tuple[str, ...]] = {
+    "iterate": ("_iterate", "_line_search", "_acceptable", "_restored", "_negligible",
+                "_step_sizes", "iterate", "_MAX_HALVINGS", "_RESTORATION", "_STAGNATION",
+                "_MU_MIN", "_MU_MAX", "_HALVINGS_PER_DAMPING", "CONVERGED"),
+    "projector": ("evaluate", "point", "project_measures", "_halving", "linearise", "solve",
+                  "project", "_equilibrium_weights", "_augmentation", "quadratic",
+                  "_ROUNDING", "Point.finite"),
+    "sqrt": ("closest_sqrt", "reduced_sqrt", "reduced_solve", "triangular_solve",
+             "_equilibrium", "_closest_single", "_reduced_single", "_scale", "EPS", "_TINY",
+             "REDUNDANT"),
+    "kernels": ("whiten", "correct"),
+    "fit": ("fit_problem", "_feasible", "derived_values"),
+    "results": ("constrained_covariance", "propagate"),
+    "family": ("ModelFamily.relations_hold",),
+    "inputs": ("inverse_root", "ChannelData.scale", "ChannelData.with_corrected"),
+}
+
+#: Fingerprints of :data:`PORTED` when the C port was last brought in line with them.
+FINGERPRINTS: dict[str, str] = {
+    'iterate._iterate': 'bbfdd6012f18',
+    'iterate._line_search': 'd58cf2848732',
+    'iterate._acceptable': '72a663f4dc13',
+    'iterate._restored': '00bea08bc1ff',
+    'iterate._negligible': 'c7e796ee9baa',
+    'iterate._step_sizes': 'ec374cb32cdc',
+    'iterate.iterate': '3069efbd2551',
+    'iterate._MAX_HALVINGS': '421b988477a7',
+    'iterate._RESTORATION': 'af8e123bf441',
+    'iterate._STAGNATION': 'b9f041cad9fa',
+    'iterate._MU_MIN': '2b8e962b2b89',
+    'iterate._MU_MAX': '2b8e962b2b89',
+    'iterate._HALVINGS_PER_DAMPING': 'c8803575fa1a',
+    'iterate.CONVERGED': '4a98458a0ce1',
+    'projector.evaluate': 'b28081ad3158',
+    'projector.point': '7f8da2f44ac3',
+    'projector.project_measures': 'c3d1d84ea5b4',
+    'projector._halving': '788448d7ecbd',
+    'projector.linearise': '6220f21ce18a',
+    'projector.solve': 'ac3ee6e99d85',
+    'projector.project': '270ceff578d0',
+    'projector._equilibrium_weights': '2c104d65c08b',
+    'projector._augmentation': '5b7bc91fe778',
+    'projector.quadratic': 'ad2172806540',
+    'projector._ROUNDING': 'b19a1c4efef9',
+    'projector.Point.finite': 'edcf0b33db9c',
+    'sqrt.closest_sqrt': '40f5ade8a611',
+    'sqrt.reduced_sqrt': '81d2a95ecf3e',
+    'sqrt.reduced_solve': 'caecf64cc8c0',
+    'sqrt.triangular_solve': '4294eeeb6d0c',
+    'sqrt._equilibrium': 'dd8612e57ac3',
+    'sqrt._closest_single': '12aebbdf103d',
+    'sqrt._reduced_single': 'd5c2329a2e14',
+    'sqrt._scale': 'bdb7682c62c0',
+    'sqrt.EPS': 'cf90b756d02d',
+    'sqrt._TINY': '24623188d5ff',
+    'sqrt.REDUNDANT': 'a11958cb4ea6',
+    'kernels.whiten': 'ffc3e108b3d4',
+    'kernels.correct': '0e183f7e3c8f',
+    'fit.fit_problem': '77e07b929e79',
+    'fit._feasible': 'fc2209c8e66b',
+    'fit.derived_values': 'e91e4e52c8db',
+    'results.constrained_covariance': 'aa0bb4b479da',
+    'results.propagate': '34f15a8c16a7',
+    'family.ModelFamily.relations_hold': 'bf07113312e4',
+    'inputs.inverse_root': '051a001e58d2',
+    'inputs.ChannelData.scale': 'eb3f459fe079',
+    'inputs.ChannelData.with_corrected': 'f34815e6e497',
+}
+
+
+class FastPathWarning(UserWarning):
+    """The compiled fast path is off: the Python it ports has changed since."""
+
+
+def _node(module: ModuleType, name: str) -> ast.AST:
+    """The syntax tree of a function, method, property or module constant, docstring out."""
+    owner, _, attr = name.rpartition(".")
+    if owner:
+        cls = ast.parse(textwrap.dedent(inspect.getsource(getattr(module, owner))))
+        body = cls.body[0].body
+        node = next(n for n in body if getattr(n, "name", None) == attr)
+    elif inspect.isfunction(getattr(module, name)):
+        node = ast.parse(textwrap.dedent(inspect.getsource(getattr(module, name)))).body[0]
+    else:
+        tree = ast.parse(inspect.getsource(module))
+        node = next(n for n in tree.body if isinstance(n, ast.Assign | ast.AnnAssign)
+                    and name in {getattr(t, "id", None) for t in
+                                 (n.targets if isinstance(n, ast.Assign) else [n.target])}
+                    or isinstance(n, ast.Assign) and any(
+                        isinstance(t, ast.Tuple) and name in {e.id for e in t.elts}
+                        for t in n.targets))
+    if isinstance(node, ast.FunctionDef) and node.body and isinstance(node.body[0], ast.Expr) \
+            and isinstance(getattr(node.body[0], "value", None), ast.Constant):
+        node.body = node.body[1:]
+    return node
+
+
+@cache
+def fingerprints() -> dict[str, str]:
+    """The current fingerprints of :data:`PORTED`: ``{"module.name": hash}``."""
+    out = {}
+    for short, names in PORTED.items():
+        module = importlib.import_module(f"kanagen.runtime.{short}")
+        for name in names:
+            dump = ast.dump(_node(module, name), include_attributes=False)
+            out[f"{short}.{name}"] = hashlib.sha256(dump.encode()).hexdigest()[:12]
+    return out
+
+
+def changed() -> list[str]:
+    """The ported Python functions that differ from what the C port mirrors."""
+    now = fingerprints()
+    return sorted(k for k in now.keys() | FINGERPRINTS.keys()
+                  if now.get(k) != FINGERPRINTS.get(k))
+
+
+_SCALARS = 10  # cost, δ, E², start violation, status, iterations, rank0, success, dof, valid
+
+
+class FastPath:
+    """``kg_fit`` of a compiled family library, behind the interface of ``fit_problem``.
+
+    Parameters
+    ----------
+    library : path
+        The shared library built by :func:`kanagen.codegen.compile.compile_family`.
+    module : module
+        The family's generated NumPy module (its ``FAMILY`` metadata).
+    """
+
+    def __init__(self, library: Path, module: ModuleType):
+        lib = ctypes.CDLL(str(library))
+        self._fit = lib.kg_fit
+        self._fit.argtypes = [ctypes.c_void_p] * 3
+        self._fit.restype = ctypes.c_int
+        meta = module.FAMILY
+        self.n = len(meta["parameter"])
+        self.names = tuple(n for n, _ in meta["parameter"])
+        self.slack = frozenset(meta.get("slack", ()))
+        self.channel_ids = {name: i for i, name in enumerate(meta["channels"])}
+        self.channels = meta["channels"]
+        self.model_ids = {name: i for i, name in enumerate(meta["models"])}
+        self.derived = [(name, tuple(shape), math.prod(shape))
+                        for name, shape in meta["derived"].items()]
+        self._derived_size = sum(s + s * self.n + s * s for _, _, s in self.derived)
+        self._identity = {}
+        self._default_k = np.array([v for _, v in meta["constants"]], dtype=float)
+        self._local = threading.local()  # per thread: reused argument buffers
+        sizes = (ctypes.c_longlong * 6)()
+        lib.kg_sizes(sizes)
+        expected = [self.n, len(meta["constants"]), len(meta["channels"]), len(meta["models"]),
+                    len(self.derived), len(meta.get("slack", ()))]
+        if list(sizes) != expected:
+            raise RuntimeError(f"compiled library {library} does not match family "
+                               f"{meta['name']!r}: sizes {list(sizes)} vs {expected}")
+
+    @classmethod
+    def load(cls, library: Path, module: ModuleType) -> FastPath | None:
+        """The fast path of ``library``, or None (with a warning) when the Python it ports
+        has changed since the port (see :data:`FINGERPRINTS`)."""
+        stale = changed()
+        if stale:
+            warnings.warn("the compiled fast path of the estimator is off: the Python it "
+                          f"ports has changed ({', '.join(stale)}); fits run the NumPy "
+                          "iteration (see docs/fastpath.md)", FastPathWarning, stacklevel=3)
+            return None
+        return cls(library, module)
+
+    # -- entry points -------------------------------------------------------------------
+    def fit(self, fam, model: str, data, info, q0, Q0, constants, q_start, max_iter: int,
+            xtol: float, eps: float) -> FitResult | None:
+        """:func:`kanagen.fit` on simple inputs (float64 data arrays, scalar or no info, no
+        Q0, no reduction); None when the inputs are not that simple or not finite: the
+        caller then validates them and runs the general path."""
+        if Q0 is not None or model not in self.model_ids or type(data) is not dict \
+                or not data or fam.reduction(model) is not None:
+            return None
+        if info is not None and (type(info) is not dict or not info.keys() <= data.keys()):
+            return None
+        channels = []
+        for name, X in data.items():
+            ch = self.channels.get(name)
+            if ch is None or type(X) is not np.ndarray or X.dtype != np.float64 \
+                    or X.ndim != 2 or X.shape[1] != len(ch["components"]):
+                return None
+            value = None if info is None else info.get(name)
+            QG = self._scalar_information(len(ch["corrected"]), value)
+            if QG is None:
+                return None
+            channels.append((name, X, *QG))
+        q0 = self._vector(q0, fam)
+        start = q0 if q_start is None else self._vector(q_start, fam)
+        if q0 is None or start is None:
+            return None
+        k = self._default_k if constants is None else fam.constant_vector(constants)
+        start = fam.with_slacks(start, k, model)
+        return self._run(fam, model, channels, start, q0, np.zeros((self.n, self.n)), k,
+                         eps, max_iter, xtol)
+
+    def fit_problem(self, fam, model: str, problem, start, max_iter: int,
+                    xtol: float) -> FitResult | None:
+        """``fit_problem`` on a validated problem (start with its slacks completed)."""
+        channels = [(ch.name, ch.X, ch.Q, ch.G) for ch in problem.channels]
+        return self._run(fam, model, channels, np.asarray(start, dtype=float), problem.q0,
+                         problem.Q0, problem.k, problem.eps, max_iter, xtol)
+
+    # -- packing --------------------------------------------------------------------------
+    def _scalar_information(self, k: int, value):
+        """``(Q, G)`` for no info (identity) or a positive finite scalar, else None."""
+        if value is None:
+            value = 1.0
+        elif type(value) not in (float, int) or not 0 < value < math.inf:
+            return None
+        key = (k, float(value))
+        QG = self._identity.get(key)
+        if QG is None:
+            Q = float(value) * np.eye(k)
+            QG = self._identity[key] = (Q, inverse_root(Q))
+            if len(self._identity) > 64:
+                self._identity.pop(next(iter(self._identity)))
+        return QG
+
+    def _vector(self, q, fam):
+        if q is None:
+            return fam.q0
+        if type(q) is np.ndarray and q.dtype == np.float64 and q.shape == (self.n,):
+            return q
+        return None
+
+    def _buffers(self, size_in: int, size_out: int, size_flags: int):
+        """This thread's argument buffers (grown when too small) and their addresses."""
+        ws = getattr(self._local, "ws", None)
+        if ws is None or ws[0].size < size_in or ws[1].size < size_out or ws[2].size < size_flags:
+            inp = np.empty(max(size_in, 2 * (ws[0].size if ws else 0), 256))
+            out = np.empty(max(size_out, 2 * (ws[1].size if ws else 0), 512))
+            flags = np.empty(max(size_flags, 64), dtype=np.int64)
+            ws = self._local.ws = (inp, out, flags, inp.ctypes.data, out.ctypes.data,
+                                   flags.ctypes.data)
+        return ws
+
+    def _run(self, fam, model, channels, start, q0, Q0, k, eps, max_iter, xtol):
+        n = self.n
+        ints = [self.model_ids[model], len(channels), max_iter, 1 if self.slack else 0]
+        size_in = 2 + 2 * n + n * n + k.size
+        size_out = _SCALARS + 2 * n * n + n + self._derived_size
+        for name, X, Q, G in channels:
+            ints += [self.channel_ids[name], X.shape[0], int(Q.ndim == 3)]
+            size_in += X.size + Q.size + G.size
+            size_out += X.shape[0] * (len(self.channels[name]["corrected"]) + 1)
+        inp, out, flags, a_in, a_out, a_flags = self._buffers(size_in, size_out, len(ints))
+        inp[0] = eps
+        inp[1] = xtol
+        inp[2:2 + n] = start
+        inp[2 + n:2 + 2 * n] = q0
+        at = 2 + 2 * n + n * n
+        inp[2 + 2 * n:at] = Q0.reshape(-1)
+        inp[at:at + k.size] = k
+        at += k.size
+        for _, X, Q, G in channels:
+            for a in (X, Q, G):
+                inp[at:at + a.size] = a.reshape(-1)
+                at += a.size
+        flags[:len(ints)] = ints
+        if self._fit(a_in, a_out, a_flags) != 0:
+            return None
+        return self._result(model, channels, out[:size_out].copy())
+
+    def _result(self, model, channels, out) -> FitResult:
+        n = self.n
+        cost, delta, residual, _, status, iterations, _, success, dof, _ = out[:_SCALARS].tolist()
+        status, iterations = int(status), int(iterations)
+        at = _SCALARS
+        q = out[at:at + n]
+        info = out[at + n:at + n + n * n].reshape(n, n)
+        covariance = out[at + n + n * n:at + n + 2 * n * n].reshape(n, n)
+        at += n + 2 * n * n
+        derived = {}
+        for name, shape, s in self.derived:
+            derived[name] = DerivedValue(out[at:at + s].reshape(shape),
+                                         out[at + s + s * n:at + s + s * n + s * s].reshape(s, s),
+                                         out[at + s:at + s + s * n].reshape(shape + (n,)))
+            at += s + s * n + s * s
+        measures, ranks = {}, {}
+        for name, X, _, _ in channels:
+            ch = self.channels[name]
+            M, k = X.shape[0], len(ch["corrected"])
+            mt = out[at:at + M * k].reshape(M, k)
+            if k == X.shape[1]:
+                measures[name] = mt
+            else:
+                full = X.copy()
+                full[:, [ch["components"].index(c) for c in ch["corrected"]]] = mt
+                measures[name] = full
+            ranks[name] = out[at + M * k:at + M * k + M].astype(np.int64)
+            at += M * k + M
+        message = MESSAGES[status]
+        if status == FAILED:
+            message += " at the starting point" if iterations == 0 else " in the projector"
+        slack = self.slack
+        return FitResult(
+            model=model,
+            params={k: v for k, v in zip(self.names, q.tolist(), strict=True)
+                    if k not in slack} if slack else dict(zip(self.names, q.tolist(),
+                                                              strict=True)),
+            q=q,
+            measures=measures,
+            info=info,
+            covariance=covariance,
+            cost=cost,
+            dof=int(dof),
+            residual=residual,
+            constraint_violation=delta,
+            iterations=iterations,
+            success=bool(success),
+            status=status,
+            message=message,
+            ranks=ranks,
+            derived=derived,
+            slacks={k: v for k, v in zip(self.names, q.tolist(), strict=True) if k in slack},
+        )
+
+
+def main() -> None:
+    """Print :data:`FINGERPRINTS` as they should read now (after porting a change)."""
+    print("FINGERPRINTS: dict[str, str] = {")
+    for name, value in fingerprints().items():
+        print(f"    {name!r}: {value!r},")
+    print("}")
+
+
+if __name__ == "__main__":
+    main()
+

@@ -1,0 +1,240 @@
+"""The compiled fast path of the estimator (docs/fastpath.md) against the NumPy runtime.
+
+Every output of a fit to 1e-10 relative, the same status and iteration count, on problems
+that exercise its paths: several channels, exact components, per-measure information,
+priors, constraints of every kind, far starts (damping, halving), the iteration cap, NIST
+problems; fallbacks where it does not apply; and the fingerprints that keep the C port in
+step with the Python it ports.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+from scenarios import close
+
+import kanagen
+from kanagen.codegen.compile import CompileWarning
+from kanagen.runtime import fastpath
+
+SPEC = """\
+name: twochan
+constants: {s: 2.0}
+parameter: {a: 1.0, b: 0.5, c: 0.1}
+channels:
+  pts:
+    components: [x, y]
+    equations: [y - a*x**2 - b*x - c]
+  obs:
+    components: [t, u, v]
+    exact: [t]
+    equations: [u - a*t - b, v - s*c*t - exp(-b*t)]
+models:
+  free:
+    constraints: []
+    alternatives: [tied]
+  tied:
+    constraints: [a - 2*b]
+  sphere:
+    constraints: [a**2 + b**2 + c**2 - 1.61]
+  positive:
+    constraints: {norm: a**2 + b**2 + c**2 - 1.61, pos: c > 0}
+derived:
+  ab: [[a*b, b/c], [c, a + b]]
+  r: sqrt(a**2 + b**2)
+"""
+
+
+def compiled(spec, name="test.yaml", **options):
+    """The family on the compiled backend (skips without a C compiler)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CompileWarning)
+        try:
+            if isinstance(spec, str) and "\n" in spec:
+                return kanagen.load_text(spec, name, backend="compiled", **options)
+            return kanagen.load(spec, backend="compiled", **options)
+        except CompileWarning as exc:
+            pytest.skip(f"no compiled backend here: {exc}")
+
+
+def reference(spec, name="test.yaml", **options):
+    if isinstance(spec, str) and "\n" in spec:
+        return kanagen.load_text(spec, name, **options)
+    return kanagen.load(spec, **options)
+
+
+def same_fit(a, b):
+    """``b`` (compiled) is ``a`` (NumPy runtime) to 1e-10 relative. A failed fit (the
+    iteration cap on a run that wanders, a stall far from a solution) only has to fail the
+    same way: after a hundred iterations that do not converge, rounding has moved the point."""
+    assert (b.status, b.iterations, b.success) == (a.status, a.iterations, a.success), \
+        (a.message, b.message)
+    assert b.message == a.message and b.model == a.model
+    if not a.success:
+        return
+    assert b.dof == a.dof
+    close(b.q, a.q)
+    close(b.cost, a.cost, scale=1e-300)
+    # δ = ‖c‖∞ at a solution is rounding noise of the equations (of order |q|, the data)
+    close(b.constraint_violation, a.constraint_violation, scale=max(1.0, np.abs(a.q).max()))
+    close(b.residual, a.residual, scale=max(1.0, a.cost))
+    close(b.info, a.info)
+    sigma = float(np.max(np.abs(a.covariance[np.isfinite(a.covariance)]), initial=0.0))
+    close(b.covariance, a.covariance, scale=sigma)
+    assert a.params.keys() == b.params.keys() and a.slacks.keys() == b.slacks.keys()
+    for name in a.measures:
+        close(b.measures[name], a.measures[name])
+        np.testing.assert_array_equal(b.ranks[name], a.ranks[name])
+        assert b.ranks[name].dtype == a.ranks[name].dtype
+    for name, d in a.derived.items():
+        J = np.abs(d.jacobian.reshape(-1, a.q.size))
+        close(b.derived[name].value, d.value, scale=float(J.sum(axis=1).max()) * float(
+            np.abs(a.q).max()))
+        close(b.derived[name].jacobian, d.jacobian)
+        close(b.derived[name].covariance, d.covariance,
+              scale=float(J.sum(axis=1).max()) ** 2 * sigma)
+
+
+@pytest.fixture(scope="module")
+def families():
+    return reference(SPEC), compiled(SPEC)
+
+
+def _data(seed: int, M1: int, M2: int, noise: float = 0.05):
+    rng = np.random.default_rng(seed)
+    a, b, c = 0.8, 0.4, 0.9
+    x = rng.uniform(-2, 2, M1)
+    t = rng.uniform(0, 3, M2)
+    pts = np.c_[x, a * x**2 + b * x + c] + rng.normal(0, noise, (M1, 2))
+    obs = np.c_[t, a * t + b, 2.0 * c * t + np.exp(-b * t)]
+    obs[:, 1:] += rng.normal(0, noise, (M2, 2))
+    return {"pts": pts, "obs": obs}
+
+
+@pytest.mark.parametrize("model", ["free", "tied", "sphere", "positive"])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_fit_equals_the_numpy_runtime(families, model, seed):
+    ref, fast = families
+    data = _data(seed, 12 + 5 * seed, 7 + 3 * seed)
+    rng = np.random.default_rng(seed + 10)
+    starts = [None, np.array([0.8, 0.4, 0.9]) + rng.normal(0, 0.3, 3), np.array([3.0, -2.0, 4.0])]
+    infos = [None, {"pts": 4.0, "obs": 2.5}]
+    for start in starts:
+        for info in infos:
+            args = dict(data=data, info=info, q_start=start, max_iter=40)
+            same_fit(kanagen.fit(ref, model, **args), kanagen.fit(fast, model, **args))
+
+
+def test_general_inputs_go_through_the_validated_problem(families):
+    """Per-measure and matrix information, a prior, dict starts, constants: make_problem
+    validates, and the compiled iteration runs on the validated problem."""
+    ref, fast = families
+    data = _data(3, 15, 9)
+    rng = np.random.default_rng(4)
+    A = rng.normal(size=(9, 2, 2))
+    info = {"pts": rng.uniform(0.5, 3.0, 15), "obs": A @ np.swapaxes(A, 1, 2) + 0.2 * np.eye(2)}
+    for model in ("free", "tied", "sphere"):
+        for kwargs in ({"Q0": 0.5, "q0": [0.9, 0.3, 1.0]},
+                       {"q0": {"a": 0.7}, "constants": {"s": 2.1}},
+                       {"info": {"pts": [[2.0, 0.3], [0.3, 1.0]]}}):
+            args = {"data": data, "info": info, **kwargs}
+            same_fit(kanagen.fit(ref, model, **args), kanagen.fit(fast, model, **args))
+
+
+def test_iteration_cap_and_far_starts(families):
+    ref, fast = families
+    data = _data(5, 20, 10, noise=0.3)
+    for max_iter in (0, 1, 2, 5):
+        for start in (np.array([40.0, -30.0, 25.0]), np.array([0.0, 0.0, 1e-3])):
+            args = dict(data=data, q_start=start, max_iter=max_iter)
+            same_fit(kanagen.fit(ref, "sphere", **args), kanagen.fit(fast, "sphere", **args))
+
+
+def test_bad_inputs_raise_as_on_the_numpy_path(families):
+    _, fast = families
+    data = _data(0, 5, 3)
+    data["pts"][2, 1] = np.nan
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        kanagen.fit(fast, "free", data=data)
+    with pytest.raises(ValueError, match="shape"):
+        kanagen.fit(fast, "free", data={"pts": np.zeros((4, 3))})
+    with pytest.raises(ValueError, match="positive"):
+        kanagen.fit(fast, "free", data=_data(0, 5, 3), info={"pts": -1.0})
+    with pytest.raises(ValueError, match="unknown model"):
+        kanagen.fit(fast, "nope", data=_data(0, 5, 3))
+
+
+def test_robust_search_runs_the_compiled_refits():
+    """robust_fit's refinements (fit_problem on subsets) on the fast path: same answer."""
+    from scenes import arc, kasa_circle
+
+    xy, _ = arc("ellipse", 7, n=60, outliers=0.25)
+    start = kasa_circle(xy)
+    out = [kanagen.robust_fit(f, "conic", data={"point": xy}, scale=4.0, seed=3, q0=start,
+                              max_samples=60)
+           for f in (reference("conic"), compiled("conic"))]
+    assert out[0].samples == out[1].samples
+    for name in out[0].inliers:
+        np.testing.assert_array_equal(out[1].inliers[name], out[0].inliers[name])
+    same_fit(out[0].fit, out[1].fit)
+
+
+def test_eliminated_models_fall_back_to_the_numpy_iteration():
+    ref = reference("conic", eliminate_linear=True)
+    fast = compiled("conic", eliminate_linear=True)
+    xy = _ellipse(30)
+    calls = []
+    original = fast.fastpath._run
+    fast.fastpath._run = lambda *a, **k: calls.append(a) or original(*a, **k)
+    same_fit(kanagen.fit(ref, "circle", data={"point": xy}, q0=_circle_start(xy)),
+             kanagen.fit(fast, "circle", data={"point": xy}, q0=_circle_start(xy)))
+    assert not calls  # the circle's reduction: NumPy iteration
+    kanagen.fit(fast, "conic", data={"point": xy})
+    assert calls  # the conic has no linear constraint: compiled
+
+
+def _ellipse(M):
+    t = np.linspace(0.3, 2.9, M)
+    rng = np.random.default_rng(2)
+    return np.c_[120 * np.cos(t) + 300, 70 * np.sin(t) + 200] + rng.normal(0, 0.5, (M, 2))
+
+
+def _circle_start(xy):
+    from scenes import kasa_circle
+
+    return kasa_circle(xy)
+
+
+def test_the_port_is_current_with_the_python_it_mirrors():
+    stale = fastpath.changed()
+    assert not stale, (
+        "the Python that codegen/c/kanagen_fast.c ports has changed: "
+        + ", ".join(stale) + ". Port the change to the C (docs/fastpath.md), run "
+        "tests/test_fastpath.py, then paste the output of `python -m "
+        "kanagen.runtime.fastpath` into FINGERPRINTS in runtime/fastpath.py.")
+
+
+def test_a_stale_port_switches_itself_off(monkeypatch):
+    monkeypatch.setitem(fastpath.FINGERPRINTS, "iterate._iterate", "0" * 12)
+    with pytest.warns(fastpath.FastPathWarning, match="iterate._iterate"):
+        fam = compiled("line")
+    assert fam.fastpath is None and fam.backend == "compiled"
+    xy = np.array([[0.0, 1.0], [1.0, 2.9], [2.0, 5.1], [3.0, 7.0]])
+    same_fit(kanagen.fit(reference("line"), "line", data={"point": xy}),
+             kanagen.fit(fam, "line", data={"point": xy}))
+
+
+@pytest.mark.parametrize("name", ["Misra1a", "Thurber", "MGH09", "BoxBOD"])
+def test_nist_problems(name, data_dir):
+    """Hard starts: damping, long line searches, stalls — both starts of each problem."""
+    from benchmarks.nist_strd import CHANNEL, MODEL, kanagen_info, load_problem, spec_text
+
+    problem = load_problem(name)
+    text = spec_text(problem, 0)
+    ref, fast = reference(text, f"nist_{name}.yaml"), compiled(text, f"nist_{name}.yaml")
+    data, info = {CHANNEL: problem.data_array(False)}, {CHANNEL: kanagen_info(problem, False)}
+    for start in problem.starts:
+        args = dict(data=data, info=info, q0=np.asarray(start, dtype=float), max_iter=500)
+        same_fit(kanagen.fit(ref, MODEL, **args), kanagen.fit(fast, MODEL, **args))
