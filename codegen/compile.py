@@ -28,6 +28,9 @@ from types import ModuleType
 #: C flags: position-independent shared library, optimised, no fused multiply-adds (the
 #: rounding of the NumPy runtime, up to the order of sums).
 CFLAGS = ("-O3", "-ffp-contract=off", "-shared", "-fPIC")
+#: Tried first, dropped when the compiler refuses them: calls between the family's functions
+#: in the library need not go through the PLT (inlined, ~10 % of a fit).
+TUNING = ("-fno-semantic-interposition",)
 _FAST_C = Path(__file__).with_name("c") / "kanagen_fast.c"
 _SLACK_KINDS = {">=": 0, ">": 1, "!=": 2}
 _TIMEOUT = 300  # seconds
@@ -162,11 +165,15 @@ def compile_family(module: ModuleType, family: dict, cache: Path) -> Path:
     source = folder / f"{name}.c"
     source.write_text(c_source(module, family), encoding="utf-8")
     partial = folder / f"{name}.{os.getpid()}.so.tmp"
-    cmd = [*command, *CFLAGS, str(source), "-o", str(partial), "-lm"]
-    try:
-        done = subprocess.run(cmd, capture_output=True, text=True, timeout=_TIMEOUT)
-    except (OSError, subprocess.TimeoutExpired) as exc:
-        raise CompileError(f"cannot run the C compiler ({shlex.join(cmd)}): {exc}") from None
+    for tuning in (TUNING, ()):
+        cmd = [*command, *CFLAGS, *tuning, str(source), "-o", str(partial), "-lm"]
+        try:
+            done = subprocess.run(cmd, capture_output=True, text=True, timeout=_TIMEOUT)
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            raise CompileError(f"cannot run the C compiler ({shlex.join(cmd)}): {exc}") \
+                from None
+        if done.returncode == 0:
+            break
     if done.returncode != 0:
         tail = "\n".join(done.stderr.strip().splitlines()[-10:])
         raise CompileError(f"the C compiler failed ({shlex.join(cmd)}):\n{tail}")

@@ -168,20 +168,32 @@ class FastPath:
     def __init__(self, library: Path, module: ModuleType):
         lib = ctypes.CDLL(str(library))
         self._fit = lib.kg_fit
-        self._fit.argtypes = [ctypes.c_void_p] * 3
+        self._fit.argtypes = [ctypes.c_void_p] * 2
         self._fit.restype = ctypes.c_int
         meta = module.FAMILY
         self.n = len(meta["parameter"])
         self.names = tuple(n for n, _ in meta["parameter"])
         self.slack = frozenset(meta.get("slack", ()))
-        self.channel_ids = {name: i for i, name in enumerate(meta["channels"])}
-        self.channels = meta["channels"]
+        #: per channel: id, number of components, corrected ones and their columns
+        self.channels = {
+            name: (i, len(ch["components"]), len(ch["corrected"]),
+                   [ch["components"].index(c) for c in ch["corrected"]])
+            for i, (name, ch) in enumerate(meta["channels"].items())}
         self.model_ids = {name: i for i, name in enumerate(meta["models"])}
-        self.derived = [(name, tuple(shape), math.prod(shape))
-                        for name, shape in meta["derived"].items()]
-        self._derived_size = sum(s + s * self.n + s * s for _, _, s in self.derived)
-        self._identity = {}
+        n = self.n
+        #: per derived quantity: name, and where its value, covariance and Jacobian are in
+        #: the output, with their shapes
+        self.derived, at = [], _SCALARS + n + 2 * n * n
+        for name, shape in meta["derived"].items():
+            shape, s = tuple(shape), math.prod(shape)
+            self.derived.append((name, slice(at, at + s), shape,
+                                 slice(at + s + s * n, at + s + s * n + s * s), (s, s),
+                                 slice(at + s, at + s + s * n), shape + (n,)))
+            at += s + s * n + s * s
+        self._derived_size = at - (_SCALARS + n + 2 * n * n)
+        self._identity: dict = {}
         self._default_k = np.array([v for _, v in meta["constants"]], dtype=float)
+        self._zeros = np.zeros((self.n, self.n))
         self._local = threading.local()  # per thread: reused argument buffers
         sizes = (ctypes.c_longlong * 6)()
         lib.kg_sizes(sizes)
@@ -217,28 +229,33 @@ class FastPath:
         channels = []
         for name, X in data.items():
             ch = self.channels.get(name)
-            if ch is None or type(X) is not np.ndarray or X.dtype != np.float64 \
-                    or X.ndim != 2 or X.shape[1] != len(ch["components"]):
+            if ch is None or type(X) is not np.ndarray or X.ndim != 2 or X.shape[1] != ch[1] \
+                    or X.dtype.char != "d":
                 return None
-            value = None if info is None else info.get(name)
-            QG = self._scalar_information(len(ch["corrected"]), value)
+            QG = self._scalar_information(ch[2], None if info is None else info.get(name))
             if QG is None:
                 return None
             channels.append((name, X, *QG))
-        q0 = self._vector(q0, fam)
-        start = q0 if q_start is None else self._vector(q_start, fam)
-        if q0 is None or start is None:
+        if q0 is None:
+            q0 = fam._q0
+        elif not (type(q0) is np.ndarray and q0.shape == (self.n,) and q0.dtype.char == "d"):
             return None
+        start = q0
+        if q_start is not None:
+            if not (type(q_start) is np.ndarray and q_start.shape == (self.n,)
+                    and q_start.dtype.char == "d"):
+                return None
+            start = q_start
         k = self._default_k if constants is None else fam.constant_vector(constants)
-        start = fam.with_slacks(start, k, model)
-        return self._run(fam, model, channels, start, q0, np.zeros((self.n, self.n)), k,
-                         eps, max_iter, xtol)
+        if self.slack:
+            start = fam.with_slacks(start, k, model)
+        return self._run(model, channels, start, q0, self._zeros, k, eps, max_iter, xtol)
 
     def fit_problem(self, fam, model: str, problem, start, max_iter: int,
                     xtol: float) -> FitResult | None:
         """``fit_problem`` on a validated problem (start with its slacks completed)."""
         channels = [(ch.name, ch.X, ch.Q, ch.G) for ch in problem.channels]
-        return self._run(fam, model, channels, np.asarray(start, dtype=float), problem.q0,
+        return self._run(model, channels, np.asarray(start, dtype=float), problem.q0,
                          problem.Q0, problem.k, problem.eps, max_iter, xtol)
 
     # -- packing --------------------------------------------------------------------------
@@ -257,48 +274,39 @@ class FastPath:
                 self._identity.pop(next(iter(self._identity)))
         return QG
 
-    def _vector(self, q, fam):
-        if q is None:
-            return fam.q0
-        if type(q) is np.ndarray and q.dtype == np.float64 and q.shape == (self.n,):
-            return q
-        return None
-
-    def _buffers(self, size_in: int, size_out: int, size_flags: int):
+    def _buffers(self, size_in: int, size_out: int):
         """This thread's argument buffers (grown when too small) and their addresses."""
         ws = getattr(self._local, "ws", None)
-        if ws is None or ws[0].size < size_in or ws[1].size < size_out or ws[2].size < size_flags:
+        if ws is None or ws[0].size < size_in or ws[1].size < size_out:
             inp = np.empty(max(size_in, 2 * (ws[0].size if ws else 0), 256))
             out = np.empty(max(size_out, 2 * (ws[1].size if ws else 0), 512))
-            flags = np.empty(max(size_flags, 64), dtype=np.int64)
-            ws = self._local.ws = (inp, out, flags, inp.ctypes.data, out.ctypes.data,
-                                   flags.ctypes.data)
+            ws = self._local.ws = (inp, out, inp.ctypes.data, out.ctypes.data)
         return ws
 
-    def _run(self, fam, model, channels, start, q0, Q0, k, eps, max_iter, xtol):
-        n = self.n
-        ints = [self.model_ids[model], len(channels), max_iter, 1 if self.slack else 0]
-        size_in = 2 + 2 * n + n * n + k.size
+    def _run(self, model, channels, start, q0, Q0, k, eps, max_iter, xtol):
+        n, nch = self.n, len(channels)
+        head = [self.model_ids[model], nch, max_iter, 1 if self.slack else 0, eps, xtol]
+        size_in = 6 + 3 * nch + 2 * n + n * n + k.size
         size_out = _SCALARS + 2 * n * n + n + self._derived_size
         for name, X, Q, G in channels:
-            ints += [self.channel_ids[name], X.shape[0], int(Q.ndim == 3)]
+            M = X.shape[0]
+            head += [self.channels[name][0], M, Q.ndim == 3]
             size_in += X.size + Q.size + G.size
-            size_out += X.shape[0] * (len(self.channels[name]["corrected"]) + 1)
-        inp, out, flags, a_in, a_out, a_flags = self._buffers(size_in, size_out, len(ints))
-        inp[0] = eps
-        inp[1] = xtol
-        inp[2:2 + n] = start
-        inp[2 + n:2 + 2 * n] = q0
-        at = 2 + 2 * n + n * n
-        inp[2 + 2 * n:at] = Q0.reshape(-1)
+            size_out += M * (self.channels[name][2] + 1)
+        inp, out, a_in, a_out = self._buffers(size_in, size_out)
+        at = 6 + 3 * nch
+        inp[:at] = head
+        inp[at:at + n] = start
+        inp[at + n:at + 2 * n] = q0
+        inp[at + 2 * n:at + 2 * n + n * n] = Q0.reshape(-1)
+        at += 2 * n + n * n
         inp[at:at + k.size] = k
         at += k.size
         for _, X, Q, G in channels:
             for a in (X, Q, G):
                 inp[at:at + a.size] = a.reshape(-1)
                 at += a.size
-        flags[:len(ints)] = ints
-        if self._fit(a_in, a_out, a_flags) != 0:
+        if self._fit(a_in, a_out) != 0:
             return None
         return self._result(model, channels, out[:size_out].copy())
 
@@ -310,35 +318,33 @@ class FastPath:
         q = out[at:at + n]
         info = out[at + n:at + n + n * n].reshape(n, n)
         covariance = out[at + n + n * n:at + n + 2 * n * n].reshape(n, n)
-        at += n + 2 * n * n
-        derived = {}
-        for name, shape, s in self.derived:
-            derived[name] = DerivedValue(out[at:at + s].reshape(shape),
-                                         out[at + s + s * n:at + s + s * n + s * s].reshape(s, s),
-                                         out[at + s:at + s + s * n].reshape(shape + (n,)))
-            at += s + s * n + s * s
+        derived = {name: DerivedValue(out[v].reshape(vs), out[c].reshape(cs), out[j].reshape(js))
+                   for name, v, vs, c, cs, j, js in self.derived}
+        at += n + 2 * n * n + self._derived_size
         measures, ranks = {}, {}
         for name, X, _, _ in channels:
-            ch = self.channels[name]
-            M, k = X.shape[0], len(ch["corrected"])
+            _, width, k, index = self.channels[name]
+            M = X.shape[0]
             mt = out[at:at + M * k].reshape(M, k)
-            if k == X.shape[1]:
+            if k == width:
                 measures[name] = mt
             else:
                 full = X.copy()
-                full[:, [ch["components"].index(c) for c in ch["corrected"]]] = mt
+                full[:, index] = mt
                 measures[name] = full
             ranks[name] = out[at + M * k:at + M * k + M].astype(np.int64)
             at += M * k + M
         message = MESSAGES[status]
         if status == FAILED:
             message += " at the starting point" if iterations == 0 else " in the projector"
-        slack = self.slack
-        return FitResult(
+        slack, values = self.slack, q.tolist()
+        # FitResult without its generated __init__: the same fields, without 18 frozen
+        # setattr calls (a tenth of a conic fit)
+        result = object.__new__(FitResult)
+        result.__dict__.update(
             model=model,
-            params={k: v for k, v in zip(self.names, q.tolist(), strict=True)
-                    if k not in slack} if slack else dict(zip(self.names, q.tolist(),
-                                                              strict=True)),
+            params={k: v for k, v in zip(self.names, values, strict=True) if k not in slack}
+            if slack else dict(zip(self.names, values, strict=True)),
             q=q,
             measures=measures,
             info=info,
@@ -353,8 +359,10 @@ class FastPath:
             message=message,
             ranks=ranks,
             derived=derived,
-            slacks={k: v for k, v in zip(self.names, q.tolist(), strict=True) if k in slack},
+            slacks={k: v for k, v in zip(self.names, values, strict=True) if k in slack}
+            if slack else {},
         )
+        return result
 
 
 def main() -> None:

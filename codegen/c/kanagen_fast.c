@@ -812,7 +812,12 @@ static int kg_iterate(kg_state *st, const double *q_start, int max_iter, double 
 
 /* ---------------------------------------------------------------- runtime/results.py */
 
-/* cyclic Jacobi: eigenvalues w and eigenvectors V (columns, row-major) of symmetric K */
+/* eigh: eigenvalues w and eigenvectors V (columns, row-major) of the symmetric K (N × N,
+ * overwritten), by cyclic Jacobi rotations: the small eigenvalues of the bordered
+ * information keep their relative accuracy (Householder + QL loses it on ill-conditioned
+ * families: the covariance of an ellipse with its slack came out 1e-8 off where LAPACK is
+ * 1e-11 from the exact inverse). The order is not sorted (the covariance does not depend
+ * on it). */
 static void kg_eigh(int N, double *K, double *w, double *V)
 {
     memset(V, 0, sizeof(double) * N * N);
@@ -1045,30 +1050,31 @@ static int kg_feasible(const kg_problem *pb, const kg_point *x, double start_vio
     return x->delta <= 1e-6 * start_violation;
 }
 
-/* kg_fit: fit_problem on one model, on packed arguments:
- *   ints: model, nch, max_iter, guard, then per channel its id, M, per_measure
- *   in:   eps, xtol, q_start (n), q0 (n), Q0 (n × n), k (constants), then per channel
- *         X (M × w), Q and G (k × k, or M × k × k when per_measure)
- *   out:  cost, δ, residual E², start violation, status, iterations, rank0, success, dof,
- *         outputs valid (10 numbers), q (n), info (n × n), covariance (n × n), per derived
- *         quantity its value, Jacobian (size × n) and covariance (size × size), then per
- *         channel the corrected measures (M × k) and the ranks (M)
+/* kg_fit: fit_problem on one model, on packed arguments (integers as doubles):
+ *   in:  model, nch, max_iter, guard, eps, xtol, then per channel its id, M, per_measure;
+ *        q_start (n), q0 (n), Q0 (n × n), k (constants), then per channel X (M × w), Q and G
+ *        (k × k, or M × k × k when per_measure)
+ *   out: cost, δ, residual E², start violation, status, iterations, rank0, success, dof,
+ *        outputs valid (10 numbers), q (n), info (n × n), covariance (n × n), per derived
+ *        quantity its value, Jacobian (size × n) and covariance (size × size), then per
+ *        channel the corrected measures (M × k) and the ranks (M)
  * Returns 0; 1 when an input is not finite (the caller validates and reports); 2 when out
  * of memory. */
-int kg_fit(const double *in, double *out, const long long *ints)
+int kg_fit(const double *in, double *out)
 {
     kg_problem pb;
-    int nch = (int)ints[1], n = KG_N;
+    int nch = (int)in[1], n = KG_N;
     kg_channel channels[nch > 0 ? nch : 1];
-    pb.model = (int)ints[0];
+    pb.model = (int)in[0];
     pb.n = n;
     pb.p0 = kg_p0[pb.model];
     pb.nch = nch;
     pb.ch = channels;
-    pb.guard = (int)ints[3];
-    pb.eps = in[0];
-    double xtol = in[1];
-    const double *q_start = in + 2, *at = in + 2 + n;
+    pb.guard = (int)in[3];
+    pb.eps = in[4];
+    int max_iter = (int)in[2];
+    double xtol = in[5];
+    const double *head = in + 6, *q_start = in + 6 + 3 * nch, *at = q_start + n;
     pb.q0 = at;
     pb.Q0 = at + n;
     pb.k = at + n + n * n;
@@ -1077,9 +1083,9 @@ int kg_fit(const double *in, double *out, const long long *ints)
         if (!isfinite(q_start[u]) || !isfinite(pb.q0[u])) return 1;
     for (int c = 0; c < nch; ++c) {
         kg_channel *ch = &channels[c];
-        ch->id = (int)ints[4 + 3 * c];
-        ch->M = (long)ints[5 + 3 * c];
-        ch->per_measure = (int)ints[6 + 3 * c];
+        ch->id = (int)head[3 * c];
+        ch->M = (long)head[3 * c + 1];
+        ch->per_measure = (int)head[3 * c + 2];
         ch->w = kg_width[ch->id];
         ch->k = kg_ncorr[ch->id];
         ch->p = kg_p[pb.model * (KG_NCH > 0 ? KG_NCH : 1) + ch->id];
@@ -1118,7 +1124,7 @@ int kg_fit(const double *in, double *out, const long long *ints)
     kg_state st = {&pb, {&pts[0], &pts[1]}, &lin, &prs[0], &prs[1], 0.0, 0.0};
     int iterations, lin_at_point;
     double start_violation;
-    int status = kg_iterate(&st, q_start, (int)ints[2], xtol, &iterations, &start_violation,
+    int status = kg_iterate(&st, q_start, max_iter, xtol, &iterations, &start_violation,
                             &lin_at_point);
     kg_point *x = st.pts[0];
     if (status == KG_FAILED && iterations == 0) start_violation = 0.0;
