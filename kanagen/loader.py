@@ -9,7 +9,7 @@ from pathlib import Path
 from .codegen import BACKENDS, FORMAT, generator_fingerprint, render_spec
 from .codegen.compile import CompileError, CompileWarning, compile_family, load_compiled
 from .modelspec import Family, load_spec, parse_spec
-from .runtime.backends import CasadiFunctions
+from .runtime.backends import CasadiFunctions, CompiledFunctions
 from .runtime.family import ModelFamily, cache_dir, cache_key, import_file, shipped_module
 from .runtime.fastpath import FastPath
 
@@ -71,16 +71,19 @@ def load(spec: str | Path | Family, *, backend: str = "numpy",
     if backend != "numpy":
         casadi_module = _module_for(family, "casadi") if family is not None else \
             _shipped_by_name(f"{module.FAMILY['name']}_casadi")
-        replace, name = None, "casadi"
+        functions = None
         if backend == "compiled":
             try:
                 library = compile_family(casadi_module, module.FAMILY, cache_dir())
-                replace, name = load_compiled(casadi_module, library), "compiled"
+                functions = CompiledFunctions(casadi_module, module.FAMILY["derived"],
+                                              load_compiled(casadi_module, library), library,
+                                              module.FAMILY)
                 fastpath = FastPath.load(library, module)
             except CompileError as exc:
                 warnings.warn(f"cannot compile family {module.FAMILY['name']!r}: {exc}; using "
                               "the uncompiled CasADi backend", CompileWarning, stacklevel=2)
-        functions = CasadiFunctions(casadi_module, module.FAMILY["derived"], replace, name)
+        if functions is None:
+            functions = CasadiFunctions(casadi_module, module.FAMILY["derived"])
     return ModelFamily(module, use_generated_kernels, functions, eliminate_linear, fastpath)
 
 

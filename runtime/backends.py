@@ -13,13 +13,18 @@ constraints eliminated at build time, :mod:`kanagen.codegen.eliminate`).
 :class:`NumpyFunctions` reads the generated NumPy module. :class:`CasadiFunctions` wraps
 CasADi ``Function``s — from the generated CasADi module, or compiled and loaded with
 ``casadi.external`` (:mod:`kanagen.codegen.compile`) — mapping the per-measure functions
-over the measures of a channel with ``Function.map``.
+over the measures of a channel with ``Function.map``. :class:`CompiledFunctions` is the
+latter with the constraints and equations evaluated by the same compiled library through
+its batch entry point (one ctypes call instead of a CasADi call from Python, ~50 µs).
 """
 
 from __future__ import annotations
 
+import ctypes
+import threading
 from collections import OrderedDict
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from types import ModuleType
 
 import numpy as np
@@ -129,3 +134,82 @@ class CasadiFunctions:
 
     def _slack(self, q, k) -> np.ndarray:
         return self.function(self.module.SLACK_MEASURES)(q, k).full().ravel()
+
+
+class CompiledFunctions(CasadiFunctions):
+    """The compiled library's functions: ``casadi.external`` ones (``replace``), with
+    ``c0`` and the measurement equations evaluated through the library's ``kg_eval`` (the
+    same compiled code, one call per evaluation over all the measures).
+
+    Parameters
+    ----------
+    module, derived_shapes, replace
+        As :class:`CasadiFunctions`.
+    library : path
+        The compiled library (:func:`kanagen.codegen.compile.compile_family`).
+    family : dict
+        The NumPy module's ``FAMILY`` (model and channel order, sizes).
+    """
+
+    def __init__(self, module: ModuleType, derived_shapes: Mapping[str, tuple[int, ...]],
+                 replace: Mapping, library: Path, family: Mapping):
+        super().__init__(module, derived_shapes, replace, "compiled")
+        lib = ctypes.CDLL(str(library))
+        self._eval = lib.kg_eval
+        self._eval.argtypes = [ctypes.c_void_p] * 2
+        self._eval.restype = ctypes.c_int
+        self._models = {name: i for i, name in enumerate(family["models"])}
+        self._channels = {name: (i, len(ch["corrected"]))
+                          for i, (name, ch) in enumerate(family["channels"].items())}
+        self._n = len(family["parameter"])
+        self._p = {(m, c): lib.kg_equations(i, j) for m, i in self._models.items()
+                   for c, (j, _) in [(None, (-1, 0)), *self._channels.items()]}
+        self._local = threading.local()
+
+    def _buffers(self, size_in: int, size_out: int):
+        ws = getattr(self._local, "ws", None)
+        if ws is None or ws[0].size < size_in or ws[1].size < size_out:
+            inp = np.empty(max(size_in, 2 * (ws[0].size if ws else 0), 256))
+            out = np.empty(max(size_out, 2 * (ws[1].size if ws else 0), 256))
+            ws = self._local.ws = (inp, out, inp.ctypes.data, out.ctypes.data)
+        return ws
+
+    def _call(self, head, q, k, X, size_out):
+        n = self._n
+        size_in = 4 + n + k.size + (X.size if X is not None else 0)
+        inp, out, a_in, a_out = self._buffers(size_in, size_out)
+        inp[:4] = head
+        inp[4:4 + n] = q
+        inp[4 + n:4 + n + k.size] = k
+        if X is not None:
+            inp[4 + n + k.size:size_in] = X.reshape(-1)
+        self._eval(a_in, a_out)
+        return out[:size_out].copy()
+
+    def c0(self, model: str, reduced: bool = False) -> Callable:
+        if reduced:
+            return super().c0(model, reduced)
+        m, p, n = self._models[model], self._p[(model, None)], self._n
+
+        def c0(q, k):
+            q, k = np.asarray(q, dtype=float), np.asarray(k, dtype=float)
+            out = self._call((0, m, 0, 0), q, k, None, p + p * n)
+            return out[:p], out[p:].reshape(p, n)
+
+        return c0
+
+    def measure(self, model: str, channel: str, reduced: bool = False) -> Callable:
+        if reduced:
+            return super().measure(model, channel, reduced)
+        m, (j, kc) = self._models[model], self._channels[channel]
+        p, n = self._p[(model, channel)], self._n
+
+        def measure(q, X, k):
+            X = np.ascontiguousarray(X, dtype=float)
+            M = X.shape[0]
+            out = self._call((1, m, j, M), np.asarray(q, dtype=float),
+                             np.asarray(k, dtype=float), X, M * p * (1 + n + kc))
+            return (out[:M * p].reshape(M, p), out[M * p:M * p * (1 + n)].reshape(M, p, n),
+                    out[M * p * (1 + n):].reshape(M, p, kc))
+
+        return measure

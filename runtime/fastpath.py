@@ -83,7 +83,7 @@ FINGERPRINTS: dict[str, str] = {
     'sqrt.closest_sqrt': '40f5ade8a611',
     'sqrt.reduced_sqrt': '81d2a95ecf3e',
     'sqrt.reduced_solve': 'caecf64cc8c0',
-    'sqrt.triangular_solve': '4294eeeb6d0c',
+    'sqrt.triangular_solve': '01c0fd119e19',
     'sqrt._equilibrium': 'dd8612e57ac3',
     'sqrt._closest_single': '12aebbdf103d',
     'sqrt._reduced_single': 'd5c2329a2e14',

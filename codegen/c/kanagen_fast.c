@@ -1202,3 +1202,28 @@ void kg_sizes(long long *out)
     out[4] = KG_NDERIVED;
     out[5] = KG_NSLACK;
 }
+
+/* The number of equations of a model's channel (channel -1: its constraints). */
+int kg_equations(int model, int channel)
+{
+    return channel < 0 ? kg_p0[model] : kg_p[model * (KG_NCH > 0 ? KG_NCH : 1) + channel];
+}
+
+/* kg_eval: the family's functions on NumPy's layouts, for the runtime's own calls.
+ *   in:  what (0: c0(q), 1: a channel's equations), model, channel, M, q (n), k, X (M × w)
+ *   out: c0 (p0) and C0 (p0 × n); or c (M × p), C (M × p × n), D (M × p × k) */
+int kg_eval(const double *in, double *out)
+{
+    int what = (int)in[0], model = (int)in[1], channel = (int)in[2];
+    long M = (long)in[3];
+    const double *q = in + 4, *k = q + KG_N, *X = k + KG_NK;
+    if (what == 0) {
+        kg_c0(model, q, k, out, out + kg_p0[model]);
+        return 0;
+    }
+    int p = kg_equations(model, channel), w = kg_width[channel], kc = kg_ncorr[channel];
+    double *c = out, *C = c + M * p, *D = C + M * p * KG_N;
+    for (long i = 0; i < M; ++i)
+        kg_measure(model, channel, q, X + i * w, k, c + i * p, C + i * p * KG_N, D + i * p * kc);
+    return 0;
+}
