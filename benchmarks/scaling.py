@@ -14,9 +14,11 @@ outliers in a 640 × 480 image.
   29). Steps that improve the best estimate also refine it (LO-RANSAC); the median over
   the steps is the plain sample.
 
-Every figure is the median of repeated runs in this process, per backend. The table prints
-the time, the time per measure and the growth factor from the previous M (10 for linear
-growth; large fixed costs make it smaller at small M).
+Every figure is the median, over blocks of runs in this process, of the time per run: wall
+time and user CPU time (the process's own work; the kernel's time, mostly page faults on
+the fresh memory of large arrays, is the difference, and it is large in some virtual
+machines). The table prints the time per measure and the growth factor from the previous M
+(10 for linear growth; fixed costs make it smaller at small M).
 
 Run ``python benchmarks/scaling.py`` (``--sizes 100 1000`` for a quick run); the table in
 docs/performance.md comes from it.
@@ -25,6 +27,7 @@ docs/performance.md comes from it.
 from __future__ import annotations
 
 import argparse
+import resource
 import statistics
 import sys
 import time
@@ -58,23 +61,31 @@ def ellipse_vector(f0: float = 100.0) -> np.ndarray:
     return q / np.linalg.norm(q)
 
 
-def median_time(fn: Callable[[], object], repeats: int) -> float:
-    """Median seconds of ``repeats`` calls (after one warm-up)."""
+def median_time(fn: Callable[[], object], repeats: int, block: float = 0.1
+                ) -> tuple[float, float]:
+    """Median seconds per call, wall and user CPU, over ``repeats`` blocks of calls lasting
+    at least ``block`` seconds each (after one warm-up)."""
     fn()
-    times = []
+    t0 = time.perf_counter()
+    fn()
+    per_block = max(1, int(block / max(time.perf_counter() - t0, 1e-9)))
+    walls, users = [], []
     for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+        u0, t0 = resource.getrusage(resource.RUSAGE_SELF).ru_utime, time.perf_counter()
+        for _ in range(per_block):
+            fn()
+        walls.append((time.perf_counter() - t0) / per_block)
+        users.append((resource.getrusage(resource.RUSAGE_SELF).ru_utime - u0) / per_block)
+    return statistics.median(walls), statistics.median(users)
 
 
-def projector_iteration(fam: kanagen.ModelFamily, xy: np.ndarray, repeats: int) -> float:
+def projector_iteration(fam: kanagen.ModelFamily, xy: np.ndarray, repeats: int
+                        ) -> tuple[float, float]:
     """Seconds of one projector iteration at the ellipse (see the module docstring)."""
     q = ellipse_vector()
-    if fam.fastpath is not None:
+    if fam.fastpath is not None:  # the compiled estimator: evaluate, restore, project once
         return median_time(lambda: kanagen.fit(fam, "conic", data={"point": xy}, q0=q,
-                                               max_iter=1), repeats)
+                                               max_iter=0), repeats)
     problem = make_problem(fam, "conic", {"point": xy}, None, q0=q)
 
     def step():
@@ -85,7 +96,8 @@ def projector_iteration(fam: kanagen.ModelFamily, xy: np.ndarray, repeats: int) 
         return median_time(step, repeats)
 
 
-def robust_sample(fam: kanagen.ModelFamily, xy: np.ndarray, repeats: int) -> float:
+def robust_sample(fam: kanagen.ModelFamily, xy: np.ndarray, repeats: int
+                  ) -> tuple[float, float]:
     """Median seconds of one step of the random search on the conic model."""
     problem = make_problem(fam, "conic", {"point": xy}, None)
     search = ModelSearch(fam, "conic", problem, 0, ellipse_vector(), np.random.default_rng(0),
@@ -98,31 +110,28 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--sizes", type=int, nargs="+", default=list(SIZES))
     parser.add_argument("--backends", nargs="+", default=["numpy", "compiled"],
                         choices=["numpy", "casadi", "compiled"])
-    parser.add_argument("--repeats", type=int, default=15)
+    parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args(argv)
     rows = []
     for backend in args.backends:
         fam = kanagen.load("conic", backend=backend)
-        previous = {}
         for M in args.sizes:
             xy = scene(M)
-            repeats = max(3, args.repeats if M <= 10_000 else args.repeats // 3)
-            times = {"iteration": projector_iteration(fam, xy, repeats),
-                     "sample": robust_sample(fam, xy, repeats)}
-            row = [fam.backend, M]
-            for name, t in times.items():
-                growth = t / previous[name] if name in previous else float("nan")
-                row += [t * 1e3, t / M * 1e6, growth]
-                previous[name] = t
-            rows.append(row)
-    head = (f"{'backend':>9} {'M':>7} | {'iteration ms':>12} {'us/measure':>10} {'growth':>6}"
-            f" | {'sample ms':>10} {'us/measure':>10} {'growth':>6}")
+            rows.append((fam.backend, M, projector_iteration(fam, xy, args.repeats),
+                         robust_sample(fam, xy, args.repeats)))
+    head = (f"{'backend':>9} {'M':>7} | {'iteration: wall us/m':>20} {'user us/m':>9} "
+            f"{'growth':>6} | {'sample: wall us/m':>17} {'user us/m':>9} {'growth':>6}")
     print(head)
     print("-" * len(head))
-    for b, M, ti, pi, gi, ts, ps, gs in rows:
-        print(f"{b:>9} {M:>7} | {ti:>12.3f} {pi:>10.3f} {gi:>6.2f} | {ts:>10.3f} {ps:>10.3f}"
-              f" {gs:>6.2f}")
-    print("growth: time over the previous M's (10x more measures: 10 when linear)")
+    previous: dict = {}
+    for backend, M, (wi, ui), (ws, us) in rows:
+        gi = ui / previous[backend][0] if backend in previous else float("nan")
+        gs = us / previous[backend][1] if backend in previous else float("nan")
+        previous[backend] = (ui, us)
+        print(f"{backend:>9} {M:>7} | {wi / M * 1e6:>20.4f} {ui / M * 1e6:>9.4f} {gi:>6.2f} | "
+              f"{ws / M * 1e6:>17.4f} {us / M * 1e6:>9.4f} {gs:>6.2f}")
+    print("us/m: microseconds per measure; growth: user time over the previous M's "
+          "(10 when linear)")
     return 0
 
 

@@ -218,3 +218,14 @@ def test_build_compile_without_compiler_warns(run, tmp_path, monkeypatch):
     assert out.exit_code == 0
     assert "not compiled: no C compiler" in out.output
     assert "uncompiled CasADi backend" in out.output
+
+
+@pytest.mark.skipif(tuple(map(int, version("click").split(".")[:2])) < (8, 2),
+                    reason="CliRunner separates stdout from stderr from click 8.2")
+def test_fit_on_the_compiled_backend_gives_the_same_answer(run, circle_csv):
+    path, _ = circle_csv
+    args = ("fit", LATTICE, path, "--scale", 4, "--max-samples", 200, "--json", "-")
+    outs = [json.loads(run(*args, "--backend", b).stdout) for b in ("numpy", "compiled")]
+    assert outs[0]["model"] == outs[1]["model"] and outs[0]["inliers"] == outs[1]["inliers"]
+    np.testing.assert_allclose(list(outs[1]["params"].values()),
+                               list(outs[0]["params"].values()), rtol=1e-8, atol=1e-12)
