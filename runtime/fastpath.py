@@ -145,8 +145,12 @@ def fingerprints() -> dict[str, str]:
 
 
 def changed() -> list[str]:
-    """The ported Python functions that differ from what the C port mirrors."""
-    now = fingerprints()
+    """The ported Python functions that differ from what the C port mirrors (all of them
+    when their source cannot be read, e.g. an installation without .py files)."""
+    try:
+        now = fingerprints()
+    except (OSError, TypeError):
+        return ["<the runtime's source is not available>"]
     return sorted(k for k in now.keys() | FINGERPRINTS.keys()
                   if now.get(k) != FINGERPRINTS.get(k))
 
