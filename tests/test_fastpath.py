@@ -238,3 +238,17 @@ def test_nist_problems(name, data_dir):
     for start in problem.starts:
         args = dict(data=data, info=info, q0=np.asarray(start, dtype=float), max_iter=500)
         same_fit(kanagen.fit(ref, MODEL, **args), kanagen.fit(fast, MODEL, **args))
+
+
+def test_threads_share_a_compiled_family(families):
+    """Per-thread argument buffers: concurrent fits give the sequential answers."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    _, fast = families
+    cases = [(_data(seed, 10 + seed, 6 + seed), model) for seed in range(6)
+             for model in ("free", "sphere")]
+    expected = [kanagen.fit(fast, model, data=data).q for data, model in cases]
+    with ThreadPoolExecutor(4) as pool:
+        got = list(pool.map(lambda c: kanagen.fit(fast, c[1], data=c[0]).q, cases * 3))
+    for q, ref in zip(got, expected * 3, strict=True):
+        np.testing.assert_array_equal(q, ref)
