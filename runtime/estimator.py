@@ -11,13 +11,15 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from . import lattice
 from .coherence import free_dof
 from .family import ModelFamily
 from .fit import fit_problem
+from .initializers import model_initializers
 from .inputs import ChannelData, channel_data, parameter_vector, prior_information
 from .phi import phi as get_phi
 from .projector import Problem
@@ -27,9 +29,6 @@ from .scoring import samples_for_confidence
 from .scoring import scorer as get_scorer
 
 _RESUME_FRACTION = 10  # a re-queued model draws a tenth of a fresh search's samples
-_SUPPORT = 0.95  # a general model must keep this fraction of its parent's relevance
-_SAME_FIT = 1e-6  # relative cost difference below which two fits are the same fit
-_MORE_SUPPORT = 1.2  # ... and wins outright when it explains this much more
 
 
 @dataclass(frozen=True)
@@ -79,9 +78,16 @@ class Estimator:
         The channel samples are drawn from (default: the only one).
     samples_per_model : int, optional
         Samples per model (default: eq. 25 with ``confidence`` and ``inlier_ratio``).
+    adaptive : bool
+        Stop a model's search as soon as eq. 25 holds for the inlier ratio of its best
+        estimate so far (at least ``min_samples`` samples); the budget above still caps it.
     q0, Q0, constants : the prior and the constants, as for :func:`kanagen.fit`.
     model : str, optional
         Search this model only (no lattice); default: the lattice from the null model.
+    initializers : dict, optional
+        ``{model: name or callable or None}``: closed-form starts of the model's minimal
+        solves (:mod:`kanagen.runtime.initializers`), over the spec's ``initializer:``;
+        ``None`` switches one off.
 
     Examples
     --------
@@ -97,8 +103,10 @@ class Estimator:
     def __init__(self, fam: ModelFamily, scale: float = 1.0,
                  scorer: str | Callable = "relevance", phi=None, seed: int | None = 0,
                  channel: str | None = None, samples_per_model: int | None = None,
-                 confidence: float = 0.99, inlier_ratio: float = 0.5, window: float = 0.35,
-                 q0=None, Q0=None, constants=None, model: str | None = None):
+                 confidence: float = 0.99, inlier_ratio: float = 0.5, adaptive: bool = False,
+                 min_samples: int = 20, window: float = 0.35,
+                 q0=None, Q0=None, constants=None, model: str | None = None,
+                 initializers: dict | None = None):
         if not scale > 0:
             raise ValueError(f"scale (L*) must be positive, got {scale}")
         get_scorer(scorer)  # validate now: a bad choice must not surface mid-run
@@ -113,10 +121,13 @@ class Estimator:
         self.samples_per_model = samples_per_model
         self.confidence = confidence
         self.inlier_ratio = inlier_ratio
+        self.adaptive = adaptive
+        self.min_samples = min_samples
         self.window = window
         if model is not None:
             fam.model(model)
         self.model = model  # a single model (no lattice), or None for the whole lattice
+        self.initializers = model_initializers(fam, initializers)
         self.q0 = parameter_vector(fam, q0)
         self.Q0 = prior_information(Q0, fam.n)
         self._constants = dict(constants or {})
@@ -154,14 +165,15 @@ class Estimator:
             return ids
 
     def remove_measures(self, ids) -> None:
-        """Remove measures by id (any time). Removing an inlier re-queues the parents."""
+        """Remove measures by id (any time). Removing an inlier of an accepted model
+        re-queues it and its parent."""
         with self._lock:
             gone = set(np.asarray(ids, dtype=int).tolist())
             for name in self._rows:
                 self._rows[name] = [r for r in self._rows[name] if r[0] not in gone]
             self._problem = None
             touched = [s for s in self._states.values()
-                       if gone & set(s.inliers.tolist())]
+                       if s.accepted and gone & set(s.inliers.tolist())]
             for state in touched:
                 self._requeue(state.parent or state.model)
                 self._requeue(state.model)
@@ -269,6 +281,12 @@ class Estimator:
         self._problem = None
         self.history = []
         self._states[self._root] = self._null_state()
+        self._skipped: dict[str, str | None] = {}  # too few measures to sample: -> its parent
+        self._shape: dict[str, tuple[int, int]] = {}  # equations per measure, free dof
+        self._corrected: dict[str, dict[str, np.ndarray]] = {}  # inliers, corrected
+        self._selected: dict[tuple, ModelState] = {}
+        self._reachable = {self._root} if self.model else lattice.reachable(self.fam,
+                                                                             self._root)
 
     def _restart_if_idle(self) -> None:
         if self._done or self._search is None:
@@ -307,9 +325,25 @@ class Estimator:
             raise ValueError(f"channel= is required: measures in {names}")
         return problem, ids, names.index(channel)
 
-    def _budget(self, search: ModelSearch) -> int:
+    def _budget(self, search: ModelSearch, parent: ModelState | None) -> int:
+        """Samples for the search: eq. 25 (``inlier_ratio``, or ``samples_per_model``).
+
+        A child with fewer equations per measure than its parent wins only by explaining a
+        fifth more measures (:func:`~kanagen.runtime.lattice.explains_more`): its extra
+        measures must then be at least that share of the parent's outliers it samples, and
+        eq. 25 is taken at that inlier ratio when it is higher — enough samples to find any
+        estimate that could win.
+        """
+        if search.free_dof() == 0:
+            return 1  # nothing to sample: the model's parameter is fixed
         if self.samples_per_model is not None:
             return self.samples_per_model
+        if parent is not None and search.base is not None and parent.model in self._shape \
+                and self._shape[parent.model][0] != max(search.ranks[search.channel], 1):
+            needed = (lattice.MORE_SUPPORT - 1) * parent.inliers.size / max(search.pool.size, 1)
+            return samples_for_confidence(self.confidence,
+                                          min(1.0, max(needed, self.inlier_ratio)),
+                                          search.sample_size)
         return samples_for_confidence(self.confidence, self.inlier_ratio,
                                       search.sample_size + search.base_size)
 
@@ -322,6 +356,9 @@ class Estimator:
         self._samples += 1
         previous = self.history[-1][1] if self.history else -np.inf
         self.history.append((self._samples, max(previous, self._best_relevance(search))))
+        if self.adaptive and search.samples >= self.min_samples:
+            needed = search.samples_needed(self.confidence)
+            budget = min(budget, needed) if needed is not None else budget
         if search.samples >= budget or search.exhausted:
             self._search = None
             self._conclude(model, parent, search)
@@ -342,19 +379,26 @@ class Estimator:
             parent_state = self._states.get(parent) if parent else None
             start = parent_state.q if parent_state is not None else self.q0
             pool = base = parent_free = None
-            if parent_state is not None:
+            if parent_state is not None and parent_state.samples and \
+                    parent_state.inliers.size >= lattice.RELEVANT * sum(len(i) for i in ids):
                 # the extra measures among those not coherent with the parent (report §5),
-                # the rest of the sample among the parent's inliers
+                # the rest of the sample among the parent's inliers (a parent that explains
+                # next to nothing is no base: the child is searched afresh)
                 ch_ids = ids[channel]
                 pool = np.flatnonzero(np.isin(ch_ids, parent_state.outliers))
                 base = np.flatnonzero(np.isin(ch_ids, parent_state.inliers))
-                parent_free = self._free(parent, parent_state.q)
+                name = problem.channels[channel].name
+                parent_free = lattice.fixed_by(
+                    self.fam, parent_state, self._free(parent, parent_state.q), model, name,
+                    self._corrected.get(parent, {}).get(name), self._constants)
             search = ModelSearch(self.fam, model, problem, channel, start, self._rng,
                                  self.scale, self.scorer, pool=pool, parent_free=parent_free,
-                                 base=base)
+                                 base=base, initializer=self.initializers.get(model))
             if search.exhausted:
+                self._skipped[model] = parent
+                self._queue_alternatives(model)
                 continue
-            budget = self._budget(search)
+            budget = self._budget(search, parent_state)
             if resume is not None:  # re-queued: resume from its estimate, a few more samples
                 search.seed_estimate(resume)
                 budget = max(1, budget // _RESUME_FRACTION)
@@ -369,91 +413,101 @@ class Estimator:
     def _conclude(self, model: str, parent: str | None, search: ModelSearch) -> None:
         estimate = search.finish(self.q0, self.Q0, self.window)
         if estimate is None or not np.all(np.isfinite(estimate.q)):
+            self._skipped[model] = parent
+            self._queue_alternatives(model)
             return
+        self._shape[model] = (max(search.ranks[search.channel], 1), search.free_dof(estimate.q))
+        self._corrected[model] = estimate.fit.measures
         _, _, ids = self._channels()
         state = self._state(model, parent, estimate, ids)
         self._states[model] = state
+        self._skipped.pop(model, None)
         if state.accepted:
             best = self._best_state()
             if best is state:
                 for cb in self._on_model:
                     cb(state)
-        # the more general models next, against this one if it was accepted, else against
-        # its parent: a rejected model does not hide a more general one (a hyperbola is
-        # neither a circle nor an ellipse, but it is a conic)
-        against = model if state.accepted else parent
+        self._queue_alternatives(model)
+
+    # -- the lattice ---------------------------------------------------------------------------
+    def _queue_alternatives(self, model: str) -> None:
+        """Queue each more general model once all its parents in the lattice are settled
+        (report §5: a model is not estimated before its parents), against the best of their
+        accepted anchors."""
+        if self.model:
+            return
         known = {m for m, _, _ in self._queue}
-        for alt, _ in ([] if self.model or against is None
-                       else self.fam.model(model).alternatives):
-            if alt not in known and alt not in self._states:
-                self._queue.append((alt, against, None))
-                self._declared_by[alt] = model  # the edge whose Φ decides
+        for alt, _ in self.fam.model(model).alternatives:
+            if alt in known or alt in self._states or alt in self._skipped:
+                continue
+            parents = lattice.lattice_parents(self.fam, alt, self._reachable)
+            if not all(p in self._states or p in self._skipped for p in parents):
+                continue  # the others will queue it
+            anchors: dict[str, str] = {}
+            for p in parents:
+                anchor = lattice.anchor(self._states, self._skipped, p)
+                if anchor is not None:
+                    anchors.setdefault(anchor, p)
+            if not anchors:
+                continue
+            chosen = self._select([self._states[a] for a in anchors])
+            self._queue.append((alt, chosen.model, None))
+            self._declared_by[alt] = anchors[chosen.model]  # the edge whose Φ decides
 
     def _state(self, model, parent, est: RobustEstimate, ids) -> ModelState:
         names = list(est.inliers)
         channel_ids = dict(zip(self._channels()[0], ids, strict=True))
         inliers = np.concatenate([channel_ids[n][est.inliers[n]] for n in names])
         outliers = np.concatenate([channel_ids[n][est.outliers[n]] for n in names])
-        cost = est.fit.normalized_cost
-        accepted = True
+        state = ModelState(model, parent, est.params, est.q, est.fit.info, est.fit.covariance,
+                           np.sort(inliers), np.sort(outliers), est.fit.normalized_cost,
+                           est.fit.dof, est.relevance, est.samples, est.threshold, True,
+                           est.fit.derived,
+                           "estimated" if est.fit.success else est.fit.message,
+                           est.fit.slacks)
         if parent is not None:
             p = self._states.get(parent)
             if p is not None and p.samples and np.isfinite(p.cost):
-                accepted = self._beats(parent, p, model, est)
-        return ModelState(model, parent, est.params, est.q, est.fit.info, est.fit.covariance,
-                          np.sort(inliers), np.sort(outliers), cost, est.fit.dof,
-                          est.relevance, est.samples, est.threshold, accepted,
-                          est.fit.derived, "estimated" if est.fit.success else est.fit.message,
-                          est.fit.slacks)
+                state = replace(state, accepted=lattice.beats(p, state, self._shape,
+                                                              self._replaces))
+        return state
 
-    def _beats(self, parent: str, p: ModelState, model: str, est: RobustEstimate) -> bool:
-        """Does the general model replace its parent? (report eq. 46, made comparable)
-
-        A general model that explains clearly more measures (relevance up by a fifth) wins
-        on support; one that explains fewer loses (a general model fitted to a few measures
-        has a small cost for free). Otherwise both are refitted on the measures both take as
-        inliers and ``L̃'²/d' < Φ(d, d') L̃²/d`` decides: on common measures ``d' − d`` counts
-        only the extra freedom, as the F-test of appendix B presumes.
-        """
-        if est.relevance >= _MORE_SUPPORT * p.relevance:
-            return True
-        if est.relevance < _SUPPORT * p.relevance:
-            return False
-        problem, ids, _ = self._problem_for(parent)
-        names = [ch.name for ch in problem.channels]
-        channel_ids = dict(zip(self._channels()[0], ids, strict=True))
-        common = tuple(est.inliers[n][np.isin(channel_ids[n][est.inliers[n]], p.inliers)]
-                       for n in names)
-        costs = []
-        for name, q in ((parent, p.q), (model, est.q)):
-            prob = self._problem_for(name)[0].subset(common)
-            costs.append(fit_problem(self.fam, name, prob, q_start=q))
-        general, specific = costs[1], costs[0]
-        if not (np.isfinite(specific.normalized_cost) and np.isfinite(general.normalized_cost)):
-            return False
-        factor = self._phi(parent, model)(specific.dof, general.dof)
-        # strictly better, beyond rounding: a model that only drops an inequality (ellipse
-        # -> conic, same d) reaches the very same fit when the inequality is not active
-        return bool(general.normalized_cost < factor * specific.normalized_cost
-                    * (1 - _SAME_FIT))
+    def _replaces(self, specific: ModelState, general: ModelState) -> bool:
+        """Both refitted on the measures both take as inliers, ``L̃'²/d' < Φ(d, d') L̃²/d``
+        (:func:`~kanagen.runtime.lattice.general_wins`)."""
+        _, _, ids = self._channels()
+        common = np.intersect1d(specific.inliers, general.inliers)
+        rows = tuple(np.flatnonzero(np.isin(ch_ids, common)) for ch_ids in ids)
+        fits = [fit_problem(self.fam, s.model, self._problem_for(s.model)[0].subset(rows),
+                            q_start=s.q) for s in (specific, general)]
+        return lattice.general_wins(fits[0], fits[1], self._phi(specific.model, general.model))
 
     def _phi(self, parent: str, model: str):
+        """The factor of the edge that queued ``model``; between models with no edge (two
+        children of one parent), the F-test factor."""
         if self.phi is not None:
             return get_phi(self.phi)
         for alt, choice in self.fam.model(self._declared_by.get(model, parent)).alternatives:
             if alt == model:
                 return get_phi(choice)
-        return get_phi(1.0)
+        return get_phi("ftest")
+
+    def _select(self, states: list[ModelState]) -> ModelState:
+        """:func:`~kanagen.runtime.lattice.select`, remembered (its cost tests refit)."""
+        key = tuple((s.model, s.samples, s.cost, s.relevance) for s in states)
+        if key not in self._selected:
+            self._selected[key] = lattice.select(states, self._shape, self._replaces)
+        return self._selected[key]
 
     def _best_state(self) -> ModelState | None:
-        """The least-cost accepted model that no accepted, more general model replaced."""
+        """The best accepted model that no accepted, more general model replaced."""
         accepted = [s for s in self._states.values() if s.accepted]
         if not accepted:
             return None
         replaced = {s.parent for s in accepted if s.parent is not None and s.samples}
         leaves = [s for s in accepted if s.model not in replaced]
         estimated = [s for s in leaves if s.samples] or leaves
-        return min(estimated, key=lambda s: (s.cost, -s.dof))
+        return self._select(estimated)
 
     def _coherent_with(self, state: ModelState, channel: str, ch: ChannelData) -> bool:
         from .coherence import coherence_errors

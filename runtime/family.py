@@ -48,12 +48,15 @@ class Reduction:
 
 @dataclass(frozen=True)
 class ModelInfo:
-    """A model of the family: its constraints (as text), alternatives and equation overrides."""
+    """A model of the family: its constraints (as text), alternatives, equation overrides,
+    the derived quantities it reports and the name of its closed-form initializer."""
 
     name: str
     constraints: tuple[str, ...]
     alternatives: tuple[tuple[str, float | str], ...]
     equations: Mapping[str, tuple[str, ...]]
+    derived: tuple[str, ...]
+    initializer: str | None = None
 
 
 class ModelFamily:
@@ -91,7 +94,8 @@ class ModelFamily:
         self.models = {
             name: ModelInfo(name, tuple(m["constraints"]),
                             tuple((a, phi) for a, phi in m["alternatives"]),
-                            {c: tuple(e) for c, e in m["equations"].items()})
+                            {c: tuple(e) for c, e in m["equations"].items()},
+                            tuple(m.get("derived", meta["derived"])), m.get("initializer"))
             for name, m in meta["models"].items()
         }
         self.derived_shapes = {k: tuple(v) for k, v in meta["derived"].items()}
@@ -185,6 +189,20 @@ class ModelFamily:
         holds = [bool(c[i] >= 0 if kind == ">=" else c[i] > 0 if kind == ">" else
                       np.isfinite(c[i]) and c[i] != 0) for i, kind in enumerate(kinds)]
         return all(any(holds[i] for i in clause) for clause in clauses)
+
+    def strict_slacks(self, model: str) -> tuple[tuple[int, int], ...]:
+        """The slacks of ``model``'s strict relations, which diverge when the optimum lies on
+        the boundary: ``(index in q, p)`` with the relation ``c = 1/s^p`` on its equation
+        (``c·s² − 1``: p = 2; ``c·s − 1`` for ``c != 0``: p = 1)."""
+        if not self.slack_names:
+            return ()
+        n_user = self.n - len(self.slack_names)
+        kinds = self.module.FAMILY["slack_kinds"]
+        owners = self.module.FAMILY["slack_owner"]
+        power = {">": 2, "!=": 1}
+        return tuple((n_user + i, power[kind])
+                     for i, (kind, owner) in enumerate(zip(kinds, owners, strict=True))
+                     if owner == model and kind in power)
 
     def slack_dict(self, q: np.ndarray) -> dict[str, float]:
         """The slack components by name."""
