@@ -107,6 +107,9 @@ def _tables(module: ModuleType, family: dict) -> dict:
                              "p": f.size1_out(0), "k": f.size2_out(2)})
             p.append(f.size1_out(0))
     n = len(family["parameter"])
+    names = list(family["derived"])
+    reports = [int(d in family["models"][m].get("derived", names)) for m in module.MODELS
+               for d in names]
     derived, offset, jac_at = [], 0, 0
     if module.DERIVED is not None:
         f = module.DERIVED
@@ -133,7 +136,7 @@ def _tables(module: ModuleType, family: dict) -> dict:
         "n": n, "nk": len(family["constants"]),
         "channels": [{"width": len(ch["components"]), "ncorr": len(ch["corrected"])}
                      for _, ch in channels],
-        "index": index, "index_off": index_off, "p": p, "models": models,
+        "index": index, "index_off": index_off, "p": p, "models": models, "reports": reports,
         "measures": measures, "derived": derived,
         "derived_function": module.DERIVED.name() if module.DERIVED is not None else None,
         "slack_function": module.SLACK_MEASURES.name()

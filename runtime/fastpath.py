@@ -37,11 +37,11 @@ from .results import DerivedValue, FitResult
 #: Python functions (and module constants) that codegen/c/kanagen_fast.c ports, by module.
 PORTED: dict[str, tuple[str, ...]] = {
     "iterate": ("_iterate", "_line_search", "_acceptable", "_restored", "_negligible",
-                "_step_sizes", "iterate", "_MAX_HALVINGS", "_RESTORATION", "_STAGNATION",
-                "_MU_MIN", "_MU_MAX", "_HALVINGS_PER_DAMPING", "CONVERGED"),
-    "projector": ("evaluate", "point", "project_measures", "_halving", "linearise", "solve",
-                  "project", "_equilibrium_weights", "_augmentation", "quadratic",
-                  "_ROUNDING", "Point.finite"),
+                "_step_sizes", "_diverging", "iterate", "_MAX_HALVINGS", "_RESTORATION",
+                "_STAGNATION", "_MU_MIN", "_MU_MAX", "_HALVINGS_PER_DAMPING", "CONVERGED"),
+    "projector": ("evaluate", "point", "project_measures", "_halving", "restore_parameter",
+                  "linearise", "solve", "project", "_equilibrium_weights", "_augmentation",
+                  "quadratic", "_ROUNDING", "Point.finite"),
     "sqrt": ("closest_sqrt", "reduced_sqrt", "reduced_solve", "triangular_solve",
              "_equilibrium", "_closest_single", "_reduced_single", "_scale", "EPS", "_TINY",
              "REDUNDANT"),
@@ -54,12 +54,13 @@ PORTED: dict[str, tuple[str, ...]] = {
 
 #: Fingerprints of :data:`PORTED` when the C port was last brought in line with them.
 FINGERPRINTS: dict[str, str] = {
-    'iterate._iterate': 'bbfdd6012f18',
-    'iterate._line_search': 'd58cf2848732',
+    'iterate._iterate': 'b127c74dc876',
+    'iterate._line_search': '306bd0c75a21',
     'iterate._acceptable': '72a663f4dc13',
-    'iterate._restored': '00bea08bc1ff',
+    'iterate._restored': 'f209b2d5d42e',
     'iterate._negligible': 'c7e796ee9baa',
     'iterate._step_sizes': 'ec374cb32cdc',
+    'iterate._diverging': '0c3d2af38f92',
     'iterate.iterate': '3069efbd2551',
     'iterate._MAX_HALVINGS': '421b988477a7',
     'iterate._RESTORATION': 'af8e123bf441',
@@ -67,12 +68,13 @@ FINGERPRINTS: dict[str, str] = {
     'iterate._MU_MIN': '2b8e962b2b89',
     'iterate._MU_MAX': '2b8e962b2b89',
     'iterate._HALVINGS_PER_DAMPING': 'c8803575fa1a',
-    'iterate.CONVERGED': '4a98458a0ce1',
+    'iterate.CONVERGED': '60135b263528',
     'projector.evaluate': 'b28081ad3158',
     'projector.point': '7f8da2f44ac3',
     'projector.project_measures': 'c3d1d84ea5b4',
     'projector._halving': '788448d7ecbd',
-    'projector.linearise': '6220f21ce18a',
+    'projector.restore_parameter': '0da8b4072804',
+    'projector.linearise': 'e91a1b985976',
     'projector.solve': 'ac3ee6e99d85',
     'projector.project': '270ceff578d0',
     'projector._equilibrium_weights': '2c104d65c08b',
@@ -80,7 +82,7 @@ FINGERPRINTS: dict[str, str] = {
     'projector.quadratic': 'ad2172806540',
     'projector._ROUNDING': 'b19a1c4efef9',
     'projector.Point.finite': 'edcf0b33db9c',
-    'sqrt.closest_sqrt': '40f5ade8a611',
+    'sqrt.closest_sqrt': 'b4340982303f',
     'sqrt.reduced_sqrt': '81d2a95ecf3e',
     'sqrt.reduced_solve': 'caecf64cc8c0',
     'sqrt.triangular_solve': '01c0fd119e19',
@@ -93,10 +95,10 @@ FINGERPRINTS: dict[str, str] = {
     'sqrt.REDUNDANT': 'a11958cb4ea6',
     'kernels.whiten': 'ffc3e108b3d4',
     'kernels.correct': '0e183f7e3c8f',
-    'fit.fit_problem': '77e07b929e79',
+    'fit.fit_problem': '52631ab88dde',
     'fit._feasible': 'fc2209c8e66b',
-    'fit.derived_values': 'e91e4e52c8db',
-    'results.constrained_covariance': 'aa0bb4b479da',
+    'fit.derived_values': '9af6131bb8bb',
+    'results.constrained_covariance': '5d13ed3460e0',
     'results.propagate': '34f15a8c16a7',
     'family.ModelFamily.relations_hold': 'bf07113312e4',
     'inputs.inverse_root': '051a001e58d2',
@@ -171,6 +173,9 @@ class FastPath:
 
     def __init__(self, library: Path, module: ModuleType):
         lib = ctypes.CDLL(str(library))
+        self._root = lib.kg_closest_root
+        self._root.argtypes = [ctypes.c_long, ctypes.c_void_p, ctypes.c_double, ctypes.c_void_p]
+        self._root.restype = ctypes.c_int
         self._fit = lib.kg_fit
         self._fit.argtypes = [ctypes.c_void_p] * 2
         self._fit.restype = ctypes.c_int
@@ -184,6 +189,7 @@ class FastPath:
                    [ch["components"].index(c) for c in ch["corrected"]])
             for i, (name, ch) in enumerate(meta["channels"].items())}
         self.model_ids = {name: i for i, name in enumerate(meta["models"])}
+        self._strict: dict[str, tuple] = {}  # per model: ModelFamily.strict_slacks
         n = self.n
         #: per derived quantity: name, and where its value, covariance and Jacobian are in
         #: the output, with their shapes
@@ -195,6 +201,11 @@ class FastPath:
                                  slice(at + s, at + s + s * n), shape + (n,)))
             at += s + s * n + s * s
         self._derived_size = at - (_SCALARS + n + 2 * n * n)
+        #: per model: the derived quantities it reports (derived_values(model))
+        every = list(meta["derived"])
+        self.reports = {name: [d for d in self.derived
+                               if d[0] in m.get("derived", every)]
+                        for name, m in meta["models"].items()}
         self._identity: dict = {}
         self._default_k = np.array([v for _, v in meta["constants"]], dtype=float)
         self._zeros = np.zeros((self.n, self.n))
@@ -251,16 +262,33 @@ class FastPath:
                 return None
             start = q_start
         k = self._default_k if constants is None else fam.constant_vector(constants)
+        strict = ()
         if self.slack:
             start = fam.with_slacks(start, k, model)
-        return self._run(model, channels, start, q0, self._zeros, k, eps, max_iter, xtol)
+            strict = self._strict.get(model)
+            if strict is None:
+                strict = self._strict[model] = fam.strict_slacks(model)
+        return self._run(model, channels, start, q0, self._zeros, k, eps, max_iter, xtol,
+                         strict)
 
     def fit_problem(self, fam, model: str, problem, start, max_iter: int,
                     xtol: float) -> FitResult | None:
         """``fit_problem`` on a validated problem (start with its slacks completed)."""
         channels = [(ch.name, ch.X, ch.Q, ch.G) for ch in problem.channels]
         return self._run(model, channels, np.asarray(start, dtype=float), problem.q0,
-                         problem.Q0, problem.k, problem.eps, max_iter, xtol)
+                         problem.Q0, problem.k, problem.eps, max_iter, xtol,
+                         problem.strict_slacks)
+
+    def closest_sqrt(self, S: np.ndarray, eps: float) -> np.ndarray:
+        """The compiled :func:`~kanagen.runtime.sqrt.closest_sqrt` of one matrix (what the
+        estimator factors; for the differential tests of the port)."""
+        S = np.ascontiguousarray(S, dtype=float)
+        if S.ndim != 2 or S.shape[0] != S.shape[1] or S.shape[0] > self.n:
+            raise ValueError(f"a square matrix of size at most {self.n} is needed, got "
+                             f"shape {S.shape}")
+        L = np.empty_like(S)
+        self._root(S.shape[0], S.ctypes.data, eps, L.ctypes.data)
+        return L
 
     # -- packing --------------------------------------------------------------------------
     def _scalar_information(self, k: int, value):
@@ -287,18 +315,21 @@ class FastPath:
             ws = self._local.ws = (inp, out, inp.ctypes.data, out.ctypes.data)
         return ws
 
-    def _run(self, model, channels, start, q0, Q0, k, eps, max_iter, xtol):
+    def _run(self, model, channels, start, q0, Q0, k, eps, max_iter, xtol, strict=()):
         n, nch = self.n, len(channels)
-        head = [self.model_ids[model], nch, max_iter, 1 if self.slack else 0, eps, xtol]
-        size_in = 6 + 3 * nch + 2 * n + n * n + k.size
+        head = [self.model_ids[model], nch, max_iter, 1 if self.slack else 0, eps, xtol,
+                len(strict)]
+        size_in = 7 + 3 * nch + 2 * len(strict) + 2 * n + n * n + k.size
         size_out = _SCALARS + 2 * n * n + n + self._derived_size
         for name, X, Q, G in channels:
             M = X.shape[0]
             head += [self.channels[name][0], M, Q.ndim == 3]
             size_in += X.size + Q.size + G.size
             size_out += M * (self.channels[name][2] + 1)
+        for pair in strict:
+            head += pair
         inp, out, a_in, a_out = self._buffers(size_in, size_out)
-        at = 6 + 3 * nch
+        at = len(head)
         inp[:at] = head
         inp[at:at + n] = start
         inp[at + n:at + 2 * n] = q0
@@ -323,7 +354,7 @@ class FastPath:
         info = out[at + n:at + n + n * n].reshape(n, n)
         covariance = out[at + n + n * n:at + n + 2 * n * n].reshape(n, n)
         derived = {name: DerivedValue(out[v].reshape(vs), out[c].reshape(cs), out[j].reshape(js))
-                   for name, v, vs, c, cs, j, js in self.derived}
+                   for name, v, vs, c, cs, j, js in self.reports[model]}
         at += n + 2 * n * n + self._derived_size
         measures, ranks = {}, {}
         for name, X, _, _ in channels:

@@ -4,6 +4,7 @@
  * tables (codegen/templates/c/family.c.jinja), which define:
  *   KG_N, KG_NK, KG_NCH, KG_NMODELS, KG_NDERIVED, KG_NSLACK, KG_MAXP, KG_MAXW;
  *   kg_width[], kg_ncorr[], kg_index_off[], kg_index[], kg_p0[], kg_p[], kg_derived_size[],
+ *   kg_reports[],
  *   kg_slack_kind[], kg_clause_count[], kg_clause_off[], kg_clause_len[], kg_clause_start[],
  *   kg_clause[]; kg_c0(), kg_measure(), kg_derived(), kg_slack() (row-major outputs).
  * and KG_MAXP, KG_MAXK, KG_MAXW (largest equation, corrected and component counts) and
@@ -28,6 +29,7 @@
 #define KG_MAX_ITER 1
 #define KG_STALLED 2
 #define KG_FAILED 3
+#define KG_BOUNDARY 4
 #define KG_MAX_HALVINGS 40
 #define KG_RESTORATION 2
 #define KG_STAGNATION 5
@@ -37,6 +39,8 @@
 /* runtime/projector.py: project_measures(tol=1e-10), _halving(halvings=4) */
 #define KG_PROJECT_TOL 1e-10
 #define KG_HALVINGS 4
+/* runtime/projector.py: restore_parameter(iterations=3) */
+#define KG_RESTORE_ITERATIONS 3
 #define KG_COHERENCE_ITERATIONS 50
 
 #define KG_P(p) (KG_UNIFORM_P > 0 ? KG_UNIFORM_P : (p))
@@ -81,11 +85,13 @@ static void kg_closest_sqrt(int n, const double *S, double eps, double *L)
     for (int k = 0; k < n; ++k) {
         double piv = S[k * n + k] / (d[k] * d[k]);
         for (int j = 0; j < k; ++j) piv -= L[k * n + j] * L[k * n + j];
-        L[k * n + k] = sqrt(piv > eps ? piv : eps);
+        int fixed = !(piv > eps);
+        L[k * n + k] = sqrt(fixed ? eps : piv);
         for (int i = k + 1; i < n; ++i) {
             double rest = S[i * n + k] / (d[i] * d[k]);
             for (int j = 0; j < k; ++j) rest -= L[i * n + j] * L[k * n + j];
-            L[i * n + k] = rest / L[k * n + k];
+            /* below a vanishing pivot a PSD matrix has a vanishing column: rounding noise */
+            L[i * n + k] = fixed ? 0.0 : rest / L[k * n + k];
         }
     }
     for (int i = 0; i < n; ++i)
@@ -235,6 +241,8 @@ typedef struct { /* projector.Problem */
     const double *q0, *Q0, *k;
     double eps;
     int guard; /* the family has slacks: problem.relations is set */
+    int nstrict; /* problem.strict_slacks: (component, p) pairs */
+    int strict[2 * KG_NSLACK + 2];
 } kg_problem;
 
 typedef struct { /* projector.Point */
@@ -580,6 +588,52 @@ static int kg_solve(const kg_problem *pb, const kg_lin *lin, double mu, kg_proj 
     return 0;
 }
 
+/* restore_parameter: q back onto c0(q) = 0 with the least move in the metric Q̃ = Ā Āᵀ
+ * (root), C0 re-evaluated at each of a few steps; a step that does not lower ‖c0‖∞ is not
+ * taken. In place on q, with c0 (p0) and C0 (p0 × n) as work space; -1 on a singular
+ * factor (the Python LinAlgError) */
+static int kg_restore_parameter(const kg_problem *pb, double *q, const double *root,
+                                double *c0, double *C0)
+{
+    const int n = KG_N, p0 = pb->p0;
+    if (!p0) return 0; /* no constraint: q as it is */
+    kg_c0(pb->model, q, pb->k, c0, C0);
+    double worst = kg_nanmax_abs(p0, c0);
+    double Ct[n * p0], G0[p0 * p0], L0[p0 * p0], y[p0], trial[n], c0_new[p0], C0_new[p0 * n];
+    int kept0[p0];
+    for (int it = 0; it < KG_RESTORE_ITERATIONS; ++it) {
+        if (!(worst > KG_ROUNDING * (1.0 + kg_nanmax_abs(n, q)) * 1e-3)) break;
+        for (int u = 0; u < n; ++u)
+            for (int r = 0; r < p0; ++r) Ct[u * p0 + r] = C0[r * n + u];
+        if (kg_triangular_solve(n, root, p0, Ct, 0)) return -1; /* Ā⁻¹ C0ᵀ */
+        for (int r = 0; r < p0; ++r)
+            for (int s = 0; s < p0; ++s) {
+                double acc = 0.0;
+                for (int u = 0; u < n; ++u) acc += Ct[u * p0 + r] * Ct[u * p0 + s];
+                G0[r * p0 + s] = acc;
+            }
+        kg_reduced_sqrt(p0, G0, pb->eps, L0, kept0);
+        memcpy(y, c0, sizeof(double) * p0);
+        kg_reduced_solve(p0, L0, kept0, y, 0);
+        kg_reduced_solve(p0, L0, kept0, y, 1);
+        for (int u = 0; u < n; ++u) {
+            double acc = 0.0;
+            for (int r = 0; r < p0; ++r) acc += Ct[u * p0 + r] * y[r];
+            trial[u] = acc;
+        }
+        if (kg_triangular_solve(n, root, 1, trial, 1)) return -1;
+        for (int u = 0; u < n; ++u) trial[u] = q[u] - trial[u];
+        kg_c0(pb->model, trial, pb->k, c0_new, C0_new);
+        double new_worst = kg_nanmax_abs(p0, c0_new);
+        if (!(new_worst < worst)) break;
+        memcpy(q, trial, sizeof(double) * n);
+        memcpy(c0, c0_new, sizeof(double) * p0);
+        memcpy(C0, C0_new, sizeof(double) * p0 * n);
+        worst = new_worst;
+    }
+    return 0;
+}
+
 /* ModelFamily.relations_hold: in each clause of inequalities of the model, one holds */
 static int kg_relations(const kg_problem *pb, const double *q)
 {
@@ -604,10 +658,11 @@ static int kg_relations(const kg_problem *pb, const double *q)
 
 typedef struct {
     const kg_problem *pb;
-    kg_point *pts[2]; /* x and a spare for trial points */
+    kg_point *pts[3]; /* x, the trial point and a spare for its second-order correction */
     kg_lin *lin;
     kg_proj *proj, *target;
     double eps_delta, delta_cap;
+    double root[KG_N * KG_N + 1]; /* _line_search's closest root of the information */
 } kg_state;
 
 /* _step_sizes */
@@ -672,11 +727,28 @@ static int kg_acceptable(const kg_point *trial, const kg_point *x, double eps_de
     return trial->delta <= delta_cap && trial->cost < x->cost * (1 - 1e-10);
 }
 
-/* _restored: the point with its measures projected back onto their equations (in place) */
-static void kg_restored(const kg_problem *pb, kg_point *pt)
+/* _restored: the point with q projected back onto the parameter constraints in the metric
+ * of root (when not NULL) and its measures onto their equations (in place); -1 on a
+ * singular factor */
+static int kg_restored(const kg_problem *pb, kg_point *pt, const double *root)
 {
+    if (root && kg_restore_parameter(pb, pt->q, root, pt->c0, pt->C0)) return -1;
     kg_project_measures(pb, pt->q, pt->mt, pt, KG_RESTORATION, KG_PROJECT_TOL, NULL, NULL);
     kg_point_finish(pb, pt);
+    return 0;
+}
+
+/* _diverging: a strict inequality's slack at least doubles and its relation c = 1/s^p has
+ * fallen below 1e-8 of its starting value */
+static int kg_diverging(const kg_problem *pb, const double *q_old, const double *q_new,
+                        const double *start)
+{
+    for (int j = 0; j < pb->nstrict; ++j) {
+        int index = pb->strict[2 * j], power = pb->strict[2 * j + 1];
+        double s_old = fabs(q_old[index]), s_new = fabs(q_new[index]);
+        if (s_new > 2.0 * s_old && pow(fabs(start[index]) / s_new, power) < 1e-8) return 1;
+    }
+    return 0;
 }
 
 static void kg_copy_measures(const kg_problem *pb, double *const *from, double **to)
@@ -685,7 +757,20 @@ static void kg_copy_measures(const kg_problem *pb, double *const *from, double *
         memcpy(to[c], from[c], sizeof(double) * pb->ch[c].M * pb->ch[c].k);
 }
 
-/* _line_search: the step (or the damped one), halved back as eq. 18; more damping if
+/* x + α (target − x), parameter and measures, into pt */
+static void kg_step_point(const kg_problem *pb, const kg_point *x, const kg_proj *target,
+                          double alpha, kg_point *pt)
+{
+    for (int u = 0; u < KG_N; ++u) pt->q[u] = x->q[u] + alpha * (target->q[u] - x->q[u]);
+    for (int c = 0; c < pb->nch; ++c)
+        for (long j = 0; j < pb->ch[c].M * pb->ch[c].k; ++j) {
+            double a = x->mt[c][j], b = target->mt[c][j];
+            pt->mt[c][j] = a + alpha * (b - a);
+        }
+}
+
+/* _line_search: the step (or the damped one) — as it is, or with its second-order
+ * correction onto the parameter constraints —, halved back as eq. 18; more damping if
  * refused. Returns 1 with the trial in st->pts[1], 0 when nothing is acceptable, -1 on a
  * singular factor (the Python exception, caught by the caller as a failure) */
 static int kg_line_search(kg_state *st, double *mu_io, double *alpha_out, int guard)
@@ -694,6 +779,7 @@ static int kg_line_search(kg_state *st, double *mu_io, double *alpha_out, int gu
     kg_point *x = st->pts[0], *trial = st->pts[1];
     double mu = *mu_io;
     const int n = KG_N;
+    int have_root = 0, correctable = pb->p0 > 0;
     for (;;) {
         kg_proj *target = st->proj;
         if (mu != 0.0) {
@@ -703,13 +789,28 @@ static int kg_line_search(kg_state *st, double *mu_io, double *alpha_out, int gu
         double alpha = 1.0;
         int tries = mu >= KG_MU_MAX ? KG_MAX_HALVINGS : KG_HALVINGS_PER_DAMPING;
         for (int h = 0; h < tries; ++h) {
-            for (int u = 0; u < n; ++u) trial->q[u] = x->q[u] + alpha * (target->q[u] - x->q[u]);
-            for (int c = 0; c < pb->nch; ++c)
-                for (long j = 0; j < pb->ch[c].M * pb->ch[c].k; ++j) {
-                    double a = x->mt[c][j], b = target->mt[c][j];
-                    trial->mt[c][j] = a + alpha * (b - a);
+            kg_step_point(pb, x, target, alpha, trial);
+            kg_restored(pb, trial, NULL);
+            if (correctable && kg_finite(trial) && trial->cost < x->cost
+                && !kg_acceptable(trial, x, st->eps_delta, st->delta_cap)) {
+                if (!have_root) {
+                    kg_closest_sqrt(n, st->lin->info, pb->eps, st->root);
+                    have_root = 1;
                 }
-            kg_restored(pb, trial);
+                kg_point *corrected = st->pts[2];
+                kg_step_point(pb, x, target, alpha, corrected);
+                if (kg_restored(pb, corrected, st->root)) return -1;
+                double moved = 0.0, step = 0.0; /* np.linalg.norm */
+                for (int u = 0; u < n; ++u) {
+                    moved += (corrected->q[u] - trial->q[u]) * (corrected->q[u] - trial->q[u]);
+                    step += (trial->q[u] - x->q[u]) * (trial->q[u] - x->q[u]);
+                }
+                /* second order: small against the step, else no Maratos effect */
+                if (sqrt(moved) <= 0.5 * sqrt(step)) {
+                    st->pts[2] = trial;
+                    st->pts[1] = trial = corrected;
+                }
+            }
             if ((!guard || kg_relations(pb, trial->q))
                 && kg_acceptable(trial, x, st->eps_delta, st->delta_cap)) {
                 *mu_io = mu;
@@ -760,7 +861,7 @@ static int kg_iterate(kg_state *st, const double *q_start, int max_iter, double 
     kg_point *restored = st->pts[1];
     memcpy(restored->q, q_start, sizeof(double) * n);
     kg_copy_measures(pb, x->mt, restored->mt);
-    kg_restored(pb, restored);
+    kg_restored(pb, restored, NULL);
     if (kg_finite(restored) && restored->delta <= x->delta) kg_swap(st);
     st->delta_cap = 1e-2 * st->pts[0]->delta;
     double mu = 0.0, best_q = INFINITY, best_m = INFINITY, last_cost = INFINITY;
@@ -798,8 +899,12 @@ static int kg_iterate(kg_state *st, const double *q_start, int max_iter, double 
             *lin_at_point = 1;
             return KG_STALLED;
         }
-        mu = mu > KG_MU_MIN ? mu / 10 : 0.0;
         kg_point *trial = st->pts[1];
+        if (kg_diverging(pb, x->q, trial->q, q_start)) {
+            kg_swap(st);
+            return KG_BOUNDARY; /* on the boundary of the open set: no linearisation kept */
+        }
+        mu = mu > KG_MU_MIN ? mu / 10 : 0.0;
         if (alpha < 1 && kg_negligible(pb, x->q, trial->q, x->mt, trial->mt, xtol)) {
             kg_swap(st);
             return KG_STALLED;
@@ -860,59 +965,154 @@ static void kg_eigh(int N, double *K, double *w, double *V)
     for (int i = 0; i < N; ++i) w[i] = K[i * N + i];
 }
 
-/* constrained_covariance: top-left block of [[Q̃, C0ᵀ], [C0, 0]]⁻¹, infinite where a
- * direction is unobservable */
+/* the null space of C0 (p × n): Z (n × nz, row-major) orthonormal, nz returned — the
+ * np.linalg.svd of constrained_covariance: C0's singular values by one-sided Jacobi
+ * rotations of the columns of C0ᵀ (rank: those > 1e-12 of the largest), then the
+ * complement of the kept directions as the eigenvectors of I − U Uᵀ with eigenvalue 1
+ * (any orthonormal basis: the covariance does not depend on it) */
+static int kg_null_space(int n, int p, const double *C0, double *Z)
+{
+    double W[n * (p > 0 ? p : 1)], sigma[p > 0 ? p : 1], P[n * n], w[n], V[n * n];
+    for (int i = 0; i < n; ++i)
+        for (int r = 0; r < p; ++r) W[i * p + r] = C0[r * n + i];
+    for (int sweep = 0; sweep < 60; ++sweep) {
+        int rotated = 0;
+        for (int a = 0; a < p - 1; ++a)
+            for (int b = a + 1; b < p; ++b) {
+                double aa = 0.0, bb = 0.0, ab = 0.0;
+                for (int i = 0; i < n; ++i) {
+                    aa += W[i * p + a] * W[i * p + a];
+                    bb += W[i * p + b] * W[i * p + b];
+                    ab += W[i * p + a] * W[i * p + b];
+                }
+                if (fabs(ab) <= DBL_EPSILON * sqrt(aa * bb)) continue;
+                rotated = 1;
+                double zeta = (bb - aa) / (2 * ab);
+                double t = (zeta >= 0 ? 1.0 : -1.0) / (fabs(zeta) + sqrt(zeta * zeta + 1));
+                double c = 1 / sqrt(t * t + 1), s = t * c;
+                for (int i = 0; i < n; ++i) {
+                    double wa = W[i * p + a], wb = W[i * p + b];
+                    W[i * p + a] = c * wa - s * wb;
+                    W[i * p + b] = s * wa + c * wb;
+                }
+            }
+        if (!rotated) break;
+    }
+    double top = 0.0;
+    for (int r = 0; r < p; ++r) {
+        double acc = 0.0;
+        for (int i = 0; i < n; ++i) acc += W[i * p + r] * W[i * p + r];
+        sigma[r] = sqrt(acc);
+        top = sigma[r] > top ? sigma[r] : top;
+    }
+    for (int i = 0; i < n * n; ++i) P[i] = 0.0;
+    for (int i = 0; i < n; ++i) P[i * n + i] = 1.0;
+    int rank = 0;
+    for (int r = 0; r < p && top > 0; ++r) {
+        if (!(sigma[r] > 1e-12 * top)) continue;
+        ++rank;
+        for (int i = 0; i < n; ++i)
+            for (int j = 0; j < n; ++j)
+                P[i * n + j] -= (W[i * p + r] / sigma[r]) * (W[j * p + r] / sigma[r]);
+    }
+    if (!rank) { /* Z = I */
+        memcpy(Z, P, sizeof(double) * n * n);
+        return n;
+    }
+    kg_eigh(n, P, w, V);
+    int nz = 0;
+    for (int l = 0; l < n; ++l)
+        if (w[l] > 0.5) ++nz;
+    for (int l = 0, col = 0; l < n; ++l)
+        if (w[l] > 0.5) {
+            for (int i = 0; i < n; ++i) Z[i * nz + col] = V[i * n + l];
+            ++col;
+        }
+    return nz;
+}
+
+/* constrained_covariance: Z (Zᵀ Q̃ Z)⁻¹ Zᵀ with Z an orthonormal basis of the null space of
+ * C0 (the top-left block of [[Q̃, C0ᵀ], [C0, 0]]⁻¹), infinite where a direction is
+ * unobservable */
 static void kg_constrained_covariance(int n, const double *info, int p, const double *C0,
                                       double *cov)
 {
-    int N = n + p;
-    double K[N * N], w[N], V[N * N], d[KG_N + 1], e[N];
-    memset(K, 0, sizeof(double) * N * N);
-    for (int i = 0; i < n; ++i)
-        for (int j = 0; j < n; ++j) K[i * N + j] = info[i * n + j];
-    for (int r = 0; r < p; ++r)
-        for (int j = 0; j < n; ++j) K[j * N + n + r] = K[(n + r) * N + j] = C0[r * n + j];
-    for (int i = 0; i < N * N; ++i)
-        if (!isfinite(K[i])) {
+    for (int i = 0; i < n * n; ++i)
+        if (!isfinite(info[i])) {
             for (int j = 0; j < n * n; ++j) cov[j] = NAN;
             return;
         }
+    for (int i = 0; i < p * n; ++i)
+        if (!isfinite(C0[i])) {
+            for (int j = 0; j < n * n; ++j) cov[j] = NAN;
+            return;
+        }
+    double Z[n * n];
+    int nz = n;
+    if (p) {
+        nz = kg_null_space(n, p, C0, Z);
+    } else {
+        for (int i = 0; i < n * n; ++i) Z[i] = 0.0;
+        for (int i = 0; i < n; ++i) Z[i * n + i] = 1.0;
+    }
+    if (nz == 0) {
+        for (int j = 0; j < n * n; ++j) cov[j] = 0.0;
+        return;
+    }
+    double ZtQ[nz * n], H[nz * nz], d[nz], w[nz], V[nz * nz], ZV[n * nz];
+    for (int a = 0; a < nz; ++a) /* Zᵀ Q̃ Z, symmetrised */
+        for (int j = 0; j < n; ++j) {
+            double acc = 0.0;
+            for (int i = 0; i < n; ++i) acc += Z[i * nz + a] * info[i * n + j];
+            ZtQ[a * n + j] = acc;
+        }
+    for (int a = 0; a < nz; ++a)
+        for (int b = 0; b < nz; ++b) {
+            double acc = 0.0;
+            for (int j = 0; j < n; ++j) acc += ZtQ[a * n + j] * Z[j * nz + b];
+            H[a * nz + b] = acc;
+        }
+    for (int a = 0; a < nz; ++a)
+        for (int b = 0; b < a; ++b)
+            H[a * nz + b] = H[b * nz + a] = 0.5 * (H[a * nz + b] + H[b * nz + a]);
     double top = 0.0; /* max(float(diag.max(initial=0.0)), 1.0) */
-    for (int i = 0; i < n; ++i) {
-        double a = fabs(info[i * n + i]);
-        if (a > top) top = a;
+    for (int a = 0; a < nz; ++a) {
+        double v = fabs(H[a * nz + a]);
+        if (v > top) top = v;
     }
     top = 1.0 > top ? 1.0 : top;
-    for (int i = 0; i < n; ++i) {
-        double a = fabs(info[i * n + i]);
-        d[i] = e[i] = sqrt(a > 0 ? a : top);
+    for (int a = 0; a < nz; ++a) {
+        double v = fabs(H[a * nz + a]);
+        d[a] = sqrt(v > 0 ? v : top);
     }
-    for (int r = 0; r < p; ++r) {
-        double acc = 0.0;
-        for (int j = 0; j < n; ++j) acc += (C0[r * n + j] / d[j]) * (C0[r * n + j] / d[j]);
-        acc = sqrt(acc);
-        e[n + r] = acc > 0 ? acc : 1.0;
-    }
-    for (int i = 0; i < N; ++i)
-        for (int j = 0; j < N; ++j) K[i * N + j] /= e[i] * e[j];
-    kg_eigh(N, K, w, V);
+    for (int a = 0; a < nz; ++a)
+        for (int b = 0; b < nz; ++b) H[a * nz + b] /= d[a] * d[b];
+    kg_eigh(nz, H, w, V);
     double scale = 0.0;
-    for (int i = 0; i < N; ++i) scale = fabs(w[i]) > scale ? fabs(w[i]) : scale;
-    int null[N], free_[KG_N + 1];
-    for (int i = 0; i < N; ++i) null[i] = scale > 0 ? fabs(w[i]) <= 1e-12 * scale : 1;
-    for (int i = 0; i < n; ++i) {
+    for (int l = 0; l < nz; ++l) scale = fabs(w[l]) > scale ? fabs(w[l]) : scale;
+    int null[nz], free_[n];
+    for (int l = 0; l < nz; ++l) null[l] = scale > 0 ? fabs(w[l]) <= 1e-12 * scale : 1;
+    for (int i = 0; i < n; ++i) { /* ZV = Z (V / d); free: |Z V[:, null]| > 1e-8 */
         free_[i] = 0;
-        for (int l = 0; l < N; ++l) free_[i] |= null[l] && fabs(V[i * N + l]) > 1e-8;
+        for (int l = 0; l < nz; ++l) {
+            double acc = 0.0, raw = 0.0;
+            for (int a = 0; a < nz; ++a) {
+                acc += Z[i * nz + a] * (V[a * nz + l] / d[a]);
+                raw += Z[i * nz + a] * V[a * nz + l];
+            }
+            ZV[i * nz + l] = acc;
+            free_[i] |= null[l] && fabs(raw) > 1e-8;
+        }
     }
     for (int i = 0; i < n; ++i)
         for (int j = 0; j <= i; ++j) {
             double a = 0.0, b = 0.0;
-            for (int l = 0; l < N; ++l)
+            for (int l = 0; l < nz; ++l)
                 if (!null[l]) {
-                    a += V[i * N + l] / w[l] * V[j * N + l];
-                    b += V[j * N + l] / w[l] * V[i * N + l];
+                    a += ZV[i * nz + l] / w[l] * ZV[j * nz + l];
+                    b += ZV[j * nz + l] / w[l] * ZV[i * nz + l];
                 }
-            double v = 0.5 * (a / (d[i] * d[j]) + b / (d[j] * d[i]));
+            double v = 0.5 * (a + b);
             cov[i * n + j] = cov[j * n + i] = (free_[i] || free_[j]) ? INFINITY : v;
         }
 }
@@ -1002,8 +1202,7 @@ static void kg_layout(kg_arena *a, kg_problem *pb, kg_point *pts, kg_lin *lin, k
         double *m = KG_TAKE(a, double, pb->ch[c].M * pb->ch[c].k);
         if (a->base) pb->ch[c].m = m;
     }
-    kg_layout_point(a, pb, &pts[0]);
-    kg_layout_point(a, pb, &pts[1]);
+    for (int j = 0; j < 3; ++j) kg_layout_point(a, pb, &pts[j]);
     kg_layout_proj(a, pb, &prs[0]);
     kg_layout_proj(a, pb, &prs[1]);
     lin->info = KG_TAKE(a, double, n * n);
@@ -1051,8 +1250,8 @@ static int kg_feasible(const kg_problem *pb, const kg_point *x, double start_vio
 }
 
 /* kg_fit: fit_problem on one model, on packed arguments (integers as doubles):
- *   in:  model, nch, max_iter, guard, eps, xtol, then per channel its id, M, per_measure;
- *        q_start (n), q0 (n), Q0 (n × n), k (constants), then per channel X (M × w), Q and G
+ *   in:  model, nch, max_iter, guard, eps, xtol, the number of strict slacks, then per
+ *        channel its id, M, per_measure; per strict slack its component and power; q_start (n), q0 (n), Q0 (n × n), k (constants), then per channel X (M × w), Q and G
  *        (k × k, or M × k × k when per_measure)
  *   out: cost, δ, residual E², start violation, status, iterations, rank0, success, dof,
  *        outputs valid (10 numbers), q (n), info (n × n), covariance (n × n), per derived
@@ -1074,7 +1273,11 @@ int kg_fit(const double *in, double *out)
     pb.eps = in[4];
     int max_iter = (int)in[2];
     double xtol = in[5];
-    const double *head = in + 6, *q_start = in + 6 + 3 * nch, *at = q_start + n;
+    pb.nstrict = (int)in[6];
+    if (pb.nstrict < 0 || pb.nstrict > KG_NSLACK) return 1;
+    const double *head = in + 7, *strict = head + 3 * nch, *q_start = strict + 2 * pb.nstrict;
+    const double *at = q_start + n;
+    for (int j = 0; j < 2 * pb.nstrict; ++j) pb.strict[j] = (int)strict[j];
     pb.q0 = at;
     pb.Q0 = at + n;
     pb.k = at + n + n * n;
@@ -1098,7 +1301,7 @@ int kg_fit(const double *in, double *out)
         for (long j = 0; j < ch->M * ch->w; ++j)
             if (!isfinite(ch->X[j])) return 1;
     }
-    kg_point pts[2];
+    kg_point pts[3];
     kg_lin lin;
     kg_proj prs[2];
     kg_arena arena = {NULL, 0};
@@ -1121,7 +1324,7 @@ int kg_fit(const double *in, double *out)
             }
         ch->scale = ch->M * ch->k > 0 ? top * sqrt(qtop) : 0.0;
     }
-    kg_state st = {&pb, {&pts[0], &pts[1]}, &lin, &prs[0], &prs[1], 0.0, 0.0};
+    kg_state st = {&pb, {&pts[0], &pts[1], &pts[2]}, &lin, &prs[0], &prs[1], 0.0, 0.0, {0.0}};
     int iterations, lin_at_point;
     double start_violation;
     int status = kg_iterate(&st, q_start, max_iter, xtol, &iterations, &start_violation,
@@ -1183,11 +1386,21 @@ int kg_fit(const double *in, double *out)
         kg_derived(x->q, pb.k, d);
         for (int j = 0; j < KG_NDERIVED; ++j) {
             int s = kg_derived_size[j];
-            kg_propagate(s, n, d + s, out_cov, d + s + s * n);
+            if (kg_reports[pb.model * KG_NDERIVED + j]) /* derived_values(model) */
+                kg_propagate(s, n, d + s, out_cov, d + s + s * n);
             d += s + s * n + s * s;
         }
     }
     free(arena.base);
+    return 0;
+}
+
+/* closest_sqrt of one n × n matrix S (row-major, n <= KG_N) into L: the port's square root
+ * on its own, for the differential tests of the port. Returns -1 when n is too large. */
+int kg_closest_root(long n, const double *S, double eps, double *L)
+{
+    if (n < 0 || n > KG_N) return -1;
+    kg_closest_sqrt((int)n, S, eps, L);
     return 0;
 }
 
