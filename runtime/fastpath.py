@@ -30,9 +30,9 @@ from types import ModuleType
 
 import numpy as np
 
+from .compiled_result import SCALARS, CompiledFitResult
 from .inputs import inverse_root
-from .iterate import FAILED, MESSAGES
-from .results import DerivedValue, FitResult
+from .results import FitResult
 
 #: Python functions (and module constants) that codegen/c/kanagen_fast.c ports, by module.
 PORTED: dict[str, tuple[str, ...]] = {
@@ -157,9 +157,6 @@ def changed() -> list[str]:
                   if now.get(k) != FINGERPRINTS.get(k))
 
 
-_SCALARS = 10  # cost, δ, E², start violation, status, iterations, rank0, success, dof, valid
-
-
 class FastPath:
     """``kg_fit`` of a compiled family library, behind the interface of ``fit_problem``.
 
@@ -193,14 +190,15 @@ class FastPath:
         n = self.n
         #: per derived quantity: name, and where its value, covariance and Jacobian are in
         #: the output, with their shapes
-        self.derived, at = [], _SCALARS + n + 2 * n * n
+        self.derived, at = [], SCALARS + n + 2 * n * n
         for name, shape in meta["derived"].items():
             shape, s = tuple(shape), math.prod(shape)
             self.derived.append((name, slice(at, at + s), shape,
                                  slice(at + s + s * n, at + s + s * n + s * s), (s, s),
                                  slice(at + s, at + s + s * n), shape + (n,)))
             at += s + s * n + s * s
-        self._derived_size = at - (_SCALARS + n + 2 * n * n)
+        self.derived_size = at - (SCALARS + n + 2 * n * n)
+        self.fixed_out = at  # the output before the channels
         #: per model: the derived quantities it reports (derived_values(model))
         every = list(meta["derived"])
         self.reports = {name: [d for d in self.derived
@@ -312,92 +310,44 @@ class FastPath:
         if ws is None or ws[0].size < size_in or ws[1].size < size_out:
             inp = np.empty(max(size_in, 2 * (ws[0].size if ws else 0), 256))
             out = np.empty(max(size_out, 2 * (ws[1].size if ws else 0), 512))
-            ws = self._local.ws = (inp, out, inp.ctypes.data, out.ctypes.data)
+            ws = self._local.ws = (inp, out, ctypes.c_void_p(inp.ctypes.data),
+                                   ctypes.c_void_p(out.ctypes.data))
         return ws
 
     def _run(self, model, channels, start, q0, Q0, k, eps, max_iter, xtol, strict=()):
-        n, nch = self.n, len(channels)
-        head = [self.model_ids[model], nch, max_iter, 1 if self.slack else 0, eps, xtol,
-                len(strict)]
-        size_in = 7 + 3 * nch + 2 * len(strict) + 2 * n + n * n + k.size
-        size_out = _SCALARS + 2 * n * n + n + self._derived_size
+        n = self.n
+        prior = Q0 is not self._zeros  # no prior: Q0 = 0 is not copied
+        head = [self.model_ids[model], len(channels), max_iter, 1 if self.slack else 0, eps,
+                xtol, len(strict), prior]
+        size_in = 8 + 2 * n + k.size + (n * n if prior else 0)
+        size_out = self.fixed_out
         for name, X, Q, G in channels:
             M = X.shape[0]
-            head += [self.channels[name][0], M, Q.ndim == 3]
-            size_in += X.size + Q.size + G.size
-            size_out += M * (self.channels[name][2] + 1)
+            ch = self.channels[name]
+            head += (ch[0], M, Q.ndim == 3)
+            size_in += 3 + X.size + Q.size + G.size
+            size_out += M * (ch[2] + 1)
         for pair in strict:
             head += pair
+        size_in += 2 * len(strict)
         inp, out, a_in, a_out = self._buffers(size_in, size_out)
         at = len(head)
         inp[:at] = head
         inp[at:at + n] = start
         inp[at + n:at + 2 * n] = q0
-        inp[at + 2 * n:at + 2 * n + n * n] = Q0.reshape(-1)
-        at += 2 * n + n * n
+        at += 2 * n
+        if prior:
+            inp[at:at + n * n] = Q0.ravel()
+            at += n * n
         inp[at:at + k.size] = k
         at += k.size
         for _, X, Q, G in channels:
             for a in (X, Q, G):
-                inp[at:at + a.size] = a.reshape(-1)
+                inp[at:at + a.size] = a.ravel()
                 at += a.size
         if self._fit(a_in, a_out) != 0:
             return None
-        return self._result(model, channels, out[:size_out].copy())
-
-    def _result(self, model, channels, out) -> FitResult:
-        n = self.n
-        cost, delta, residual, _, status, iterations, _, success, dof, _ = out[:_SCALARS].tolist()
-        status, iterations = int(status), int(iterations)
-        at = _SCALARS
-        q = out[at:at + n]
-        info = out[at + n:at + n + n * n].reshape(n, n)
-        covariance = out[at + n + n * n:at + n + 2 * n * n].reshape(n, n)
-        derived = {name: DerivedValue(out[v].reshape(vs), out[c].reshape(cs), out[j].reshape(js))
-                   for name, v, vs, c, cs, j, js in self.reports[model]}
-        at += n + 2 * n * n + self._derived_size
-        measures, ranks = {}, {}
-        for name, X, _, _ in channels:
-            _, width, k, index = self.channels[name]
-            M = X.shape[0]
-            mt = out[at:at + M * k].reshape(M, k)
-            if k == width:
-                measures[name] = mt
-            else:
-                full = X.copy()
-                full[:, index] = mt
-                measures[name] = full
-            ranks[name] = out[at + M * k:at + M * k + M].astype(np.int64)
-            at += M * k + M
-        message = MESSAGES[status]
-        if status == FAILED:
-            message += " at the starting point" if iterations == 0 else " in the projector"
-        slack, values = self.slack, q.tolist()
-        # FitResult without its generated __init__: the same fields, without 18 frozen
-        # setattr calls (a tenth of a conic fit)
-        result = object.__new__(FitResult)
-        result.__dict__.update(
-            model=model,
-            params={k: v for k, v in zip(self.names, values, strict=True) if k not in slack}
-            if slack else dict(zip(self.names, values, strict=True)),
-            q=q,
-            measures=measures,
-            info=info,
-            covariance=covariance,
-            cost=cost,
-            dof=int(dof),
-            residual=residual,
-            constraint_violation=delta,
-            iterations=iterations,
-            success=bool(success),
-            status=status,
-            message=message,
-            ranks=ranks,
-            derived=derived,
-            slacks={k: v for k, v in zip(self.names, values, strict=True) if k in slack}
-            if slack else {},
-        )
-        return result
+        return CompiledFitResult.unpack(self, model, channels, out[:size_out].copy())
 
 
 def main() -> None:

@@ -144,6 +144,21 @@ def test_general_inputs_go_through_the_validated_problem(families):
             same_fit(kanagen.fit(ref, model, **args), kanagen.fit(fast, model, **args))
 
 
+def test_results_pickle_and_copy_as_plain_fit_results(families):
+    """The compiled result builds its fields on demand; pickled or copied, it is the plain
+    FitResult with the same values."""
+    import copy
+    import pickle
+
+    ref, fast = families
+    data = _data(6, 14, 8)
+    res = kanagen.fit(fast, "positive", data=data)
+    for other in (pickle.loads(pickle.dumps(res)), copy.deepcopy(res)):
+        assert type(other) is kanagen.FitResult
+        same_fit(res, other)
+    same_fit(kanagen.fit(ref, "positive", data=data), res)
+
+
 def test_iteration_cap_and_far_starts(families):
     ref, fast = families
     data = _data(5, 20, 10, noise=0.3)

@@ -320,11 +320,13 @@ static void kg_point_finish(const kg_problem *pb, kg_point *x)
         if (ch->M * ch->p == 0) continue;
         double worst = kg_nanmax_abs(ch->M * ch->p, x->c[c]);
         delta = worst != worst ? INFINITY : (worst > delta ? worst : delta);
+        const int k = KG_K(ch->k);
+        const double *mt = x->mt[c];
         double total = 0.0;
         for (long i = 0; i < ch->M; ++i) {
             double v[KG_MAXK + 1];
-            for (int j = 0; j < ch->k; ++j) v[j] = x->mt[c][i * ch->k + j] - ch->m[i * ch->k + j];
-            total += kg_quadratic(ch->k, v, kg_Q(ch, i));
+            for (int j = 0; j < k; ++j) v[j] = mt[i * k + j] - ch->m[i * k + j];
+            total += kg_quadratic(k, v, kg_Q(ch, i));
         }
         cost += 0.5 * total;
     }
@@ -393,9 +395,10 @@ static void kg_project_measures(const kg_problem *pb, const double *q, double *c
     for (int c = 0; c < pb->nch; ++c) {
         const kg_channel *ch = &pb->ch[c];
         const int k = KG_K(ch->k), p = KG_P(ch->p);
+        double *mt = out->mt[c], *cc = out->c[c], *CC = out->C[c], *DD = out->D[c];
         for (long i = 0; i < ch->M; ++i) {
-            double *m = out->mt[c] + i * k, *ci = out->c[c] + i * p;
-            double *Ci = out->C[c] + i * p * n, *Di = out->D[c] + i * p * k;
+            double *m = mt + i * k, *ci = cc + i * p;
+            double *Ci = CC + i * p * n, *Di = DD + i * p * k;
             const double *mobs = ch->m + i * k, *G = kg_G(ch, i);
             double xi[KG_MAXW + 1], B[2 * KG_MAXP + 1];
             double E[KG_MAXP * KG_MAXK + 1], L[KG_MAXP * KG_MAXP + 1];
@@ -404,6 +407,9 @@ static void kg_project_measures(const kg_problem *pb, const double *q, double *c
             if (m != mt_in[c] + i * k) memcpy(m, mt_in[c] + i * k, sizeof(double) * k);
             kg_measure(pb->model, ch->id, q, kg_with_corrected(ch, i, m, xi), pb->k, ci, Ci, Di);
             for (int it = 0; it < iterations; ++it) {
+                /* the last whitening only gives the violation and rank: skipped when the
+                 * caller does not want them (_restored) */
+                if (!violation && !rank && (it == iterations - 1 || !active)) break;
                 for (int a = 0; a < p; ++a) { /* r − C q with q fixed */
                     double acc = 0.0;
                     for (int j = 0; j < k; ++j) acc += Di[a * k + j] * (m[j] - mobs[j]);
@@ -441,13 +447,15 @@ static void kg_project_measures(const kg_problem *pb, const double *q, double *c
 static void kg_linearise(const kg_problem *pb, kg_point *x, kg_lin *lin)
 {
     const int n = KG_N;
-    double *A = lin->info, g[KG_N + 1];
+    /* A and g accumulate in local arrays (registers when n is small): the same sums */
+    double A[KG_N * KG_N + 1], g[KG_N + 1];
     memset(A, 0, sizeof(double) * n * n);
     memset(g, 0, sizeof(double) * n);
     double residual = 0.0;
     for (int c = 0; c < pb->nch; ++c) {
         const kg_channel *ch = &pb->ch[c];
         const int k = KG_K(ch->k), p = KG_P(ch->p), t = n + 2;
+        double *Cbar = lin->Cbar[c], *rbar = lin->rbar[c];
         for (long i = 0; i < ch->M; ++i) {
             const double *Ci = x->C[c] + i * p * n, *Di = x->D[c] + i * p * k;
             const double *ci = x->c[c] + i * p, *m = x->mt[c] + i * k, *mobs = ch->m + i * k;
@@ -467,9 +475,9 @@ static void kg_linearise(const kg_problem *pb, kg_point *x, kg_lin *lin)
                 for (int u = 0; u < n; ++u) {
                     for (int v = 0; v <= u; ++v) A[u * n + v] += row[u] * row[v];
                     g[u] += row[u] * row[n];
-                    lin->Cbar[c][(i * p + a) * n + u] = row[u];
+                    Cbar[(i * p + a) * n + u] = row[u];
                 }
-                lin->rbar[c][i * p + a] = row[n];
+                rbar[i * p + a] = row[n];
                 residual += row[n + 1] * row[n + 1];
             }
         }
@@ -477,6 +485,7 @@ static void kg_linearise(const kg_problem *pb, kg_point *x, kg_lin *lin)
     for (int u = 0; u < n; ++u)
         for (int v = 0; v < u; ++v) A[v * n + u] = A[u * n + v];
     for (int u = 0; u < n * n; ++u) A[u] += pb->Q0[u]; /* info = Q0 + A */
+    memcpy(lin->info, A, sizeof(double) * n * n);
     for (int u = 0; u < n; ++u) {
         double acc = 0.0;
         for (int v = 0; v < n; ++v) acc += pb->Q0[u * n + v] * (pb->q0[v] - x->q[v]);
@@ -511,8 +520,10 @@ static void kg_linearise(const kg_problem *pb, kg_point *x, kg_lin *lin)
 }
 
 /* solve(): the projector's point (eq. 12/43), damped by μ diag(H) when μ > 0; -1 when a
- * triangular factor is singular (the Python LinAlgError) */
-static int kg_solve(const kg_problem *pb, const kg_lin *lin, double mu, kg_proj *out)
+ * triangular factor is singular (the Python LinAlgError). Without measures, the corrected
+ * measures (eq. 44) are not computed (fit_problem's outputs do not read them). */
+static int kg_solve(const kg_problem *pb, const kg_lin *lin, double mu, kg_proj *out,
+                    int measures)
 {
     const int n = KG_N, p0 = pb->p0;
     const kg_point *x = lin->x;
@@ -569,19 +580,21 @@ static int kg_solve(const kg_problem *pb, const kg_lin *lin, double mu, kg_proj 
     }
     if (kg_triangular_solve(n, Abar, 1, bbar, 1)) return -1; /* Δq */
     for (int u = 0; u < n; ++u) out->q[u] = x->q[u] + bbar[u];
-    for (int c = 0; c < pb->nch; ++c) { /* eq. 44 */
+    for (int c = 0; c < pb->nch && measures; ++c) { /* eq. 44 */
         const kg_channel *ch = &pb->ch[c];
         const int k = KG_K(ch->k), p = KG_P(ch->p);
+        const double *Cbar = lin->Cbar[c], *rbar = lin->rbar[c], *E = lin->E[c], *L = lin->L[c];
+        const int *kept = lin->kept[c];
+        double *mt = out->mt[c];
         for (long i = 0; i < ch->M; ++i) {
             double z[KG_MAXP + 1], dm[KG_MAXK + 1];
             for (int a = 0; a < p; ++a) {
                 double acc = 0.0;
-                for (int u = 0; u < n; ++u) acc += lin->Cbar[c][(i * p + a) * n + u] * bbar[u];
-                z[a] = lin->rbar[c][i * p + a] - acc;
+                for (int u = 0; u < n; ++u) acc += Cbar[(i * p + a) * n + u] * bbar[u];
+                z[a] = rbar[i * p + a] - acc;
             }
-            kg_correct(p, k, lin->E[c] + i * p * k, lin->L[c] + i * p * p,
-                       lin->kept[c] + i * p, kg_G(ch, i), z, dm);
-            for (int j = 0; j < k; ++j) out->mt[c][i * k + j] = ch->m[i * k + j] + dm[j];
+            kg_correct(p, k, E + i * p * k, L + i * p * p, kept + i * p, kg_G(ch, i), z, dm);
+            for (int j = 0; j < k; ++j) mt[i * k + j] = ch->m[i * k + j] + dm[j];
         }
     }
     out->residual = residual;
@@ -682,8 +695,9 @@ static void kg_step_sizes(const kg_problem *pb, const kg_point *x, const kg_proj
         double worst = -INFINITY;
         for (long i = 0; i < ch->M; ++i) {
             double v[KG_MAXK + 1];
-            for (int j = 0; j < ch->k; ++j) v[j] = pr->mt[c][i * ch->k + j] - x->mt[c][i * ch->k + j];
-            double qv = kg_quadratic(ch->k, v, kg_Q(ch, i));
+            const int k = KG_K(ch->k);
+            for (int j = 0; j < k; ++j) v[j] = pr->mt[c][i * k + j] - x->mt[c][i * k + j];
+            double qv = kg_quadratic(k, v, kg_Q(ch, i));
             if (qv != qv || worst != worst) worst = NAN; else if (qv > worst) worst = qv;
         }
         sm = worst > sm ? worst : sm;
@@ -706,8 +720,9 @@ static int kg_negligible(const kg_problem *pb, const double *q_old, const double
         double moved = -INFINITY, bound = xtol + KG_ROUNDING * ch->scale;
         for (long i = 0; i < ch->M; ++i) {
             double v[KG_MAXK + 1];
-            for (int j = 0; j < ch->k; ++j) v[j] = mt_new[c][i * ch->k + j] - mt_old[c][i * ch->k + j];
-            double qv = kg_quadratic(ch->k, v, kg_Q(ch, i));
+            const int k = KG_K(ch->k);
+            for (int j = 0; j < k; ++j) v[j] = mt_new[c][i * k + j] - mt_old[c][i * k + j];
+            double qv = kg_quadratic(k, v, kg_Q(ch, i));
             if (qv != qv || moved != moved) moved = NAN; else if (qv > moved) moved = qv;
         }
         if (moved > bound * bound) return 0;
@@ -783,7 +798,7 @@ static int kg_line_search(kg_state *st, double *mu_io, double *alpha_out, int gu
     for (;;) {
         kg_proj *target = st->proj;
         if (mu != 0.0) {
-            if (kg_solve(pb, st->lin, mu, st->target)) return -1;
+            if (kg_solve(pb, st->lin, mu, st->target, 1)) return -1;
             target = st->target;
         }
         double alpha = 1.0;
@@ -870,7 +885,7 @@ static int kg_iterate(kg_state *st, const double *q_start, int max_iter, double 
         x = st->pts[0];
         *iterations = it;
         kg_linearise(pb, x, st->lin);
-        if (kg_solve(pb, st->lin, 0.0, st->proj) || !kg_proj_finite(pb, st->proj))
+        if (kg_solve(pb, st->lin, 0.0, st->proj, 1) || !kg_proj_finite(pb, st->proj))
             return KG_FAILED; /* "in the projector": no linearisation kept */
         if (kg_negligible(pb, x->q, st->proj->q, x->mt, st->proj->mt, xtol)) {
             kg_point *next = st->pts[1];
@@ -968,11 +983,11 @@ static void kg_eigh(int N, double *K, double *w, double *V)
 /* the null space of C0 (p × n): Z (n × nz, row-major) orthonormal, nz returned — the
  * np.linalg.svd of constrained_covariance: C0's singular values by one-sided Jacobi
  * rotations of the columns of C0ᵀ (rank: those > 1e-12 of the largest), then the
- * complement of the kept directions as the eigenvectors of I − U Uᵀ with eigenvalue 1
- * (any orthonormal basis: the covariance does not depend on it) */
+ * orthogonal complement of the kept columns by Householder reflections (another basis of
+ * the same null space: the covariance does not depend on it) */
 static int kg_null_space(int n, int p, const double *C0, double *Z)
 {
-    double W[n * (p > 0 ? p : 1)], sigma[p > 0 ? p : 1], P[n * n], w[n], V[n * n];
+    double W[n * (p > 0 ? p : 1)], sigma[p > 0 ? p : 1], top = 0.0;
     for (int i = 0; i < n; ++i)
         for (int r = 0; r < p; ++r) W[i * p + r] = C0[r * n + i];
     for (int sweep = 0; sweep < 60; ++sweep) {
@@ -998,37 +1013,85 @@ static int kg_null_space(int n, int p, const double *C0, double *Z)
             }
         if (!rotated) break;
     }
-    double top = 0.0;
     for (int r = 0; r < p; ++r) {
         double acc = 0.0;
         for (int i = 0; i < n; ++i) acc += W[i * p + r] * W[i * p + r];
         sigma[r] = sqrt(acc);
         top = sigma[r] > top ? sigma[r] : top;
     }
-    for (int i = 0; i < n * n; ++i) P[i] = 0.0;
-    for (int i = 0; i < n; ++i) P[i * n + i] = 1.0;
+    /* the kept directions, as columns of U (n × rank), reduced to R by reflections
+     * H_j = I − 2 v_j v_jᵀ; Z = H_0 … H_{rank−1} [0; I] */
+    double U[n * (p > 0 ? p : 1)], Vh[n * (p > 0 ? p : 1)];
     int rank = 0;
-    for (int r = 0; r < p && top > 0; ++r) {
-        if (!(sigma[r] > 1e-12 * top)) continue;
-        ++rank;
-        for (int i = 0; i < n; ++i)
-            for (int j = 0; j < n; ++j)
-                P[i * n + j] -= (W[i * p + r] / sigma[r]) * (W[j * p + r] / sigma[r]);
+    for (int r = 0; r < p && top > 0; ++r)
+        if (sigma[r] > 1e-12 * top) {
+            for (int i = 0; i < n; ++i) U[i * p + rank] = W[i * p + r] / sigma[r];
+            ++rank;
+        }
+    for (int j = 0; j < rank; ++j) {
+        double norm = 0.0;
+        for (int i = j; i < n; ++i) norm += U[i * p + j] * U[i * p + j];
+        norm = sqrt(norm);
+        double alpha = U[j * p + j] > 0 ? -norm : norm, vnorm = 0.0;
+        for (int i = 0; i < n; ++i) Vh[i * p + j] = i < j ? 0.0 : U[i * p + j];
+        Vh[j * p + j] -= alpha;
+        for (int i = j; i < n; ++i) vnorm += Vh[i * p + j] * Vh[i * p + j];
+        vnorm = sqrt(vnorm);
+        for (int i = j; i < n; ++i) Vh[i * p + j] = vnorm > 0 ? Vh[i * p + j] / vnorm : 0.0;
+        for (int c = j + 1; c < rank; ++c) { /* the later columns: H_j U */
+            double dot = 0.0;
+            for (int i = j; i < n; ++i) dot += Vh[i * p + j] * U[i * p + c];
+            for (int i = j; i < n; ++i) U[i * p + c] -= 2 * dot * Vh[i * p + j];
+        }
     }
-    if (!rank) { /* Z = I */
-        memcpy(Z, P, sizeof(double) * n * n);
-        return n;
-    }
-    kg_eigh(n, P, w, V);
-    int nz = 0;
-    for (int l = 0; l < n; ++l)
-        if (w[l] > 0.5) ++nz;
-    for (int l = 0, col = 0; l < n; ++l)
-        if (w[l] > 0.5) {
-            for (int i = 0; i < n; ++i) Z[i * nz + col] = V[i * n + l];
-            ++col;
+    int nz = n - rank;
+    for (int i = 0; i < n; ++i)
+        for (int c = 0; c < nz; ++c) Z[i * nz + c] = i == rank + c ? 1.0 : 0.0;
+    for (int j = rank - 1; j >= 0; --j)
+        for (int c = 0; c < nz; ++c) {
+            double dot = 0.0;
+            for (int i = j; i < n; ++i) dot += Vh[i * p + j] * Z[i * nz + c];
+            for (int i = j; i < n; ++i) Z[i * nz + c] -= 2 * dot * Vh[i * p + j];
         }
     return nz;
+}
+
+/* The inverse of the equilibrated K (nz × nz, unit-scale diagonal) by Cholesky, when it
+ * certifies that eigh would find no null eigenvalue: λ_min >= 1 / tr(K⁻¹) and λ_max <=
+ * tr(K), and 1 / tr(K⁻¹) > 1e-11 tr(K) (ten times the null test of constrained_covariance).
+ * Then eigh's inverse is this one, up to rounding of the same order (both are accurate to
+ * cond(K) ε on the equilibrated matrix). Returns 0 with Kinv, -1 when not certified. */
+static int kg_certified_inverse(int nz, const double *K, double *Kinv)
+{
+    double L[nz * nz], Li[nz * nz], trace = 0.0, trace_inv = 0.0;
+    memset(L, 0, sizeof(double) * nz * nz);
+    for (int k = 0; k < nz; ++k) {
+        trace += K[k * nz + k];
+        double piv = K[k * nz + k];
+        for (int j = 0; j < k; ++j) piv -= L[k * nz + j] * L[k * nz + j];
+        if (!(piv > 0) || !isfinite(piv)) return -1;
+        L[k * nz + k] = sqrt(piv);
+        for (int i = k + 1; i < nz; ++i) {
+            double rest = K[i * nz + k];
+            for (int j = 0; j < k; ++j) rest -= L[i * nz + j] * L[k * nz + j];
+            L[i * nz + k] = rest / L[k * nz + k];
+        }
+    }
+    for (int c = 0; c < nz; ++c) /* L⁻¹, column by column */
+        for (int a = 0; a < nz; ++a) {
+            double acc = a == c ? 1.0 : 0.0;
+            for (int j = c; j < a; ++j) acc -= L[a * nz + j] * Li[j * nz + c];
+            Li[a * nz + c] = a < c ? 0.0 : acc / L[a * nz + a];
+            trace_inv += Li[a * nz + c] * Li[a * nz + c];
+        }
+    if (!(1.0 / trace_inv > 1e-11 * trace)) return -1;
+    for (int a = 0; a < nz; ++a) /* K⁻¹ = L⁻ᵀ L⁻¹ */
+        for (int b = 0; b <= a; ++b) {
+            double acc = 0.0;
+            for (int j = a; j < nz; ++j) acc += Li[j * nz + a] * Li[j * nz + b];
+            Kinv[a * nz + b] = Kinv[b * nz + a] = acc;
+        }
+    return 0;
 }
 
 /* constrained_covariance: Z (Zᵀ Q̃ Z)⁻¹ Zᵀ with Z an orthonormal basis of the null space of
@@ -1087,6 +1150,25 @@ static void kg_constrained_covariance(int n, const double *info, int p, const do
     }
     for (int a = 0; a < nz; ++a)
         for (int b = 0; b < nz; ++b) H[a * nz + b] /= d[a] * d[b];
+    double Kinv[nz * nz];
+    if (!kg_certified_inverse(nz, H, Kinv)) { /* no null direction: Z D⁻¹ K⁻¹ D⁻¹ Zᵀ */
+        for (int i = 0; i < n; ++i)
+            for (int a = 0; a < nz; ++a) ZV[i * nz + a] = Z[i * nz + a] / d[a];
+        double ZK[n * nz]; /* (Z D⁻¹) K⁻¹ */
+        for (int i = 0; i < n; ++i)
+            for (int b = 0; b < nz; ++b) {
+                double acc = 0.0;
+                for (int a = 0; a < nz; ++a) acc += ZV[i * nz + a] * Kinv[a * nz + b];
+                ZK[i * nz + b] = acc;
+            }
+        for (int i = 0; i < n; ++i)
+            for (int j = 0; j <= i; ++j) {
+                double acc = 0.0;
+                for (int b = 0; b < nz; ++b) acc += ZK[i * nz + b] * ZV[j * nz + b];
+                cov[i * n + j] = cov[j * n + i] = acc;
+            }
+        return;
+    }
     kg_eigh(nz, H, w, V);
     double scale = 0.0;
     for (int l = 0; l < nz; ++l) scale = fabs(w[l]) > scale ? fabs(w[l]) : scale;
@@ -1127,19 +1209,22 @@ static void kg_propagate(int s, int n, const double *J, const double *cov, doubl
         for (int u = 0; u < n; ++u)
             touched[a] |= !isfinite(cov[u * n + u]) && J[a * n + u] != 0;
     }
+    /* zero entries of J add exact zeros to the sums: skipped (derived quantities are
+     * often sparse in q: a conic's matrix has one component per entry) */
     for (int u = 0; u < n; ++u)
         for (int b = 0; b < s; ++b) {
             double acc = 0.0;
             for (int v = 0; v < n; ++v) {
-                double x = cov[u * n + v];
-                acc += (isfinite(x) ? x : 0.0) * J[b * n + v];
+                double x = cov[u * n + v], j = J[b * n + v];
+                if (j != 0) acc += (isfinite(x) ? x : 0.0) * j;
             }
             SJ[u * s + b] = acc;
         }
     for (int a = 0; a < s; ++a)
         for (int b = 0; b < s; ++b) {
             double acc = 0.0;
-            for (int u = 0; u < n; ++u) acc += J[a * n + u] * SJ[u * s + b];
+            for (int u = 0; u < n; ++u)
+                if (J[a * n + u] != 0) acc += J[a * n + u] * SJ[u * s + b];
             out[a * s + b] = (touched[a] || touched[b]) ? INFINITY : acc;
         }
 }
@@ -1250,9 +1335,10 @@ static int kg_feasible(const kg_problem *pb, const kg_point *x, double start_vio
 }
 
 /* kg_fit: fit_problem on one model, on packed arguments (integers as doubles):
- *   in:  model, nch, max_iter, guard, eps, xtol, the number of strict slacks, then per
- *        channel its id, M, per_measure; per strict slack its component and power; q_start (n), q0 (n), Q0 (n × n), k (constants), then per channel X (M × w), Q and G
- *        (k × k, or M × k × k when per_measure)
+ *   in:  model, nch, max_iter, guard, eps, xtol, the number of strict slacks, prior (Q0 is
+ *        given, else 0), then per channel its id, M, per_measure; per strict slack its
+ *        component and power; q_start (n), q0 (n), Q0 (n × n, when prior), k (constants),
+ *        then per channel X (M × w), Q and G (k × k, or M × k × k when per_measure)
  *   out: cost, δ, residual E², start violation, status, iterations, rank0, success, dof,
  *        outputs valid (10 numbers), q (n), info (n × n), covariance (n × n), per derived
  *        quantity its value, Jacobian (size × n) and covariance (size × size), then per
@@ -1275,13 +1361,15 @@ int kg_fit(const double *in, double *out)
     double xtol = in[5];
     pb.nstrict = (int)in[6];
     if (pb.nstrict < 0 || pb.nstrict > KG_NSLACK) return 1;
-    const double *head = in + 7, *strict = head + 3 * nch, *q_start = strict + 2 * pb.nstrict;
+    int prior = (int)in[7];
+    const double *head = in + 8, *strict = head + 3 * nch, *q_start = strict + 2 * pb.nstrict;
     const double *at = q_start + n;
+    static const double zeros[KG_N * KG_N + 1];
     for (int j = 0; j < 2 * pb.nstrict; ++j) pb.strict[j] = (int)strict[j];
     pb.q0 = at;
-    pb.Q0 = at + n;
-    pb.k = at + n + n * n;
-    at += n + n * n + KG_NK;
+    pb.Q0 = prior ? at + n : zeros;
+    pb.k = at + n + (prior ? n * n : 0);
+    at = pb.k + KG_NK;
     for (int u = 0; u < n; ++u)
         if (!isfinite(q_start[u]) || !isfinite(pb.q0[u])) return 1;
     for (int c = 0; c < nch; ++c) {
@@ -1334,7 +1422,7 @@ int kg_fit(const double *in, double *out)
     int valid = 1;
     if (!lin_at_point) { /* the outputs are taken at the returned point: project(x) */
         kg_linearise(&pb, x, &lin);
-        valid = kg_solve(&pb, &lin, 0.0, st.proj) == 0;
+        valid = kg_solve(&pb, &lin, 0.0, st.proj, 0) == 0;
     }
     double *out_q = out + 10, *out_info = out_q + n, *out_cov = out_info + n * n;
     double *out_derived = out_cov + n * n, *out_ch = out_derived;
