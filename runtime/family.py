@@ -8,7 +8,7 @@ import importlib.util
 import os
 import sys
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import ModuleType
 
@@ -57,6 +57,8 @@ class ModelInfo:
     equations: Mapping[str, tuple[str, ...]]
     derived: tuple[str, ...]
     initializer: str | None = None
+    #: qualitative variables (appendix F, ``x in {a, b, ...}``): component -> its labels
+    labels: Mapping[str, tuple[float, ...]] = field(default_factory=dict)
 
 
 class ModelFamily:
@@ -95,7 +97,8 @@ class ModelFamily:
             name: ModelInfo(name, tuple(m["constraints"]),
                             tuple((a, phi) for a, phi in m["alternatives"]),
                             {c: tuple(e) for c, e in m["equations"].items()},
-                            tuple(m.get("derived", meta["derived"])), m.get("initializer"))
+                            tuple(m.get("derived", meta["derived"])), m.get("initializer"),
+                            {x: tuple(v) for x, v in m.get("labels", {}).items()})
             for name, m in meta["models"].items()
         }
         self.derived_shapes = {k: tuple(v) for k, v in meta["derived"].items()}
@@ -198,11 +201,13 @@ class ModelFamily:
             return ()
         n_user = self.n - len(self.slack_names)
         kinds = self.module.FAMILY["slack_kinds"]
-        owners = self.module.FAMILY["slack_owner"]
         power = {">": 2, "!=": 1}
-        return tuple((n_user + i, power[kind])
-                     for i, (kind, owner) in enumerate(zip(kinds, owners, strict=True))
-                     if owner == model and kind in power)
+        # a relation alone in its clause: within a disjunction (a product of equations) the
+        # slack of a relation that does not hold is free to wander
+        alone = {c[0] for c in self.module.FAMILY.get("slack_clauses", {}).get(model, [])
+                 if len(c) == 1}
+        return tuple((n_user + i, power[kinds[i]]) for i in sorted(alone)
+                     if kinds[i] in power)
 
     def slack_dict(self, q: np.ndarray) -> dict[str, float]:
         """The slack components by name."""

@@ -40,8 +40,9 @@ PORTED: dict[str, tuple[str, ...]] = {
                 "_step_sizes", "_diverging", "iterate", "_MAX_HALVINGS", "_RESTORATION",
                 "_STAGNATION", "_MU_MIN", "_MU_MAX", "_HALVINGS_PER_DAMPING", "CONVERGED"),
     "projector": ("evaluate", "point", "project_measures", "_halving", "restore_parameter",
-                  "linearise", "solve", "project", "_equilibrium_weights", "_augmentation",
-                  "quadratic", "_ROUNDING", "Point.finite"),
+                  "linearise", "solve", "_seen", "_solve_seen", "project",
+                  "_equilibrium_weights", "_augmentation", "quadratic", "_ROUNDING",
+                  "Point.finite"),
     "sqrt": ("closest_sqrt", "reduced_sqrt", "reduced_solve", "triangular_solve",
              "_equilibrium", "_closest_single", "_reduced_single", "_scale", "EPS", "_TINY",
              "REDUNDANT"),
@@ -75,7 +76,9 @@ FINGERPRINTS: dict[str, str] = {
     'projector._halving': '788448d7ecbd',
     'projector.restore_parameter': '0da8b4072804',
     'projector.linearise': 'e91a1b985976',
-    'projector.solve': 'ac3ee6e99d85',
+    'projector.solve': '1940c2758150',
+    'projector._seen': '75024a9ecda4',
+    'projector._solve_seen': '0ff1f7352cee',
     'projector.project': '270ceff578d0',
     'projector._equilibrium_weights': '2c104d65c08b',
     'projector._augmentation': '5b7bc91fe778',
@@ -95,7 +98,7 @@ FINGERPRINTS: dict[str, str] = {
     'sqrt.REDUNDANT': 'a11958cb4ea6',
     'kernels.whiten': 'ffc3e108b3d4',
     'kernels.correct': '0e183f7e3c8f',
-    'fit.fit_problem': '52631ab88dde',
+    'fit.fit_problem': 'ec1566bdb254',
     'fit._feasible': 'fc2209c8e66b',
     'fit.derived_values': '9af6131bb8bb',
     'results.constrained_covariance': '5d13ed3460e0',
@@ -263,6 +266,8 @@ class FastPath:
         strict = ()
         if self.slack:
             start = fam.with_slacks(start, k, model)
+            if not fam.relations_hold(model, start, k):
+                return None  # fit_problem moves the start inside first (_inside, phase 1)
             strict = self._strict.get(model)
             if strict is None:
                 strict = self._strict[model] = fam.strict_slacks(model)

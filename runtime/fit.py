@@ -105,6 +105,7 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
                           Q0=problem.Q0 if Q0 is None else Q0)
     start = problem.q0 if q_start is None else np.asarray(q_start, dtype=float)
     start = fam.with_slacks(start, problem.k, model)  # its slacks consistent with the start
+    start = _inside(problem, start)
     red = fam.reduction(model)
     if red is None and fam.fastpath is not None:  # the compiled estimator (same results)
         res = fam.fastpath.fit_problem(fam, model, problem, start, max_iter, xtol)
@@ -158,6 +159,20 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
         derived=derived_values(fam, x.q, covariance, problem.k, model),
         slacks=fam.slack_dict(x.q),
     )
+
+
+def _inside(problem: Problem, start: np.ndarray) -> np.ndarray:
+    """A start where the model's inequalities (appendix F) do not hold is first moved onto
+    its constraints: the closest point satisfying ``c0`` (eq. 21 with no measures). From
+    outside, a squared slack cannot follow: linearised, ``c − s² = 0`` with ``c < 0`` asks
+    the free slack to absorb the violation, and it oscillates about zero instead."""
+    if problem.relations is None or problem.relations(start):
+        return start
+    from .coherence import solve_minimal  # coherence builds on this module
+
+    sol = solve_minimal(problem.subset(tuple(np.zeros(0, dtype=int)
+                                             for _ in problem.channels)), start)
+    return sol.q if sol.success and problem.relations(sol.q) else start
 
 
 def _feasible(x, start_violation: float, residual: float, ranks) -> bool:

@@ -271,11 +271,38 @@ def solve(problem: Problem, lin: Linearisation, mu: float = 0.0) -> Projection:
     H = lin.H
     if mu > 0.0:
         H = H + mu * np.diag(_equilibrium_weights(H))
-    Abar = closest_sqrt(H, problem.eps)  # H = Ā Āᵀ
-    bbar = triangular_solve(Abar, lin.rhs)
-    C0 = x.C0
+    # A component that neither the data nor the constraints see (a slack in a factor of a
+    # disjunction that does not hold: its column is rounding) holds only rounding in the
+    # right-hand side, which the closest root would divide by ε: it does not move.
+    seen = _seen(lin.info, x.C0)
+    dq = np.zeros(x.q.size)
+    if not seen.all():
+        H, rhs, C0 = H[np.ix_(seen, seen)], lin.rhs[seen], x.C0[:, seen]
+    else:
+        rhs, C0 = lin.rhs, x.C0
     residual = lin.residual
-    rank0, kept0 = 0, np.zeros(0, dtype=bool)
+    rank0, kept0 = 0, np.zeros(x.C0.shape[0], dtype=bool)
+    if seen.any():  # none seen, e.g. every gradient vanishes at the start: q stays
+        rank0, kept0, residual = _solve_seen(problem, x, H, rhs, C0, seen, dq, residual)
+    mt_new = []
+    for (_, correct), ch, w in zip(problem.kernels, problem.channels, lin.whitened,
+                                   strict=True):
+        if w is None:
+            mt_new.append(ch.m.copy())
+            continue
+        Cbar, rbar, state = w
+        mt_new.append(ch.m + correct(state, ch.G, rbar - Cbar @ dq))  # eq. 44
+    return Projection(x.q + dq, tuple(mt_new), x.C0[kept0], rank0, residual)
+
+
+def _solve_seen(problem: Problem, x: Point, H: np.ndarray, rhs: np.ndarray, C0: np.ndarray,
+                seen: np.ndarray, dq: np.ndarray, residual: float,
+                ) -> tuple[int, np.ndarray, float]:
+    """The parameter block of eq. 43 on the seen components: writes ``dq[seen]``; returns the
+    rank of the constraints, the rows kept and the residual with ``‖c0‖²`` whitened."""
+    Abar = closest_sqrt(H, problem.eps)  # H = Ā Āᵀ
+    bbar = triangular_solve(Abar, rhs)
+    rank0, kept0 = 0, np.zeros(C0.shape[0], dtype=bool)
     if C0.shape[0]:
         C0bar_t = triangular_solve(Abar, C0.T)  # Ā⁻¹ C0ᵀ
         L0, kept0 = reduced_sqrt(C0bar_t.T @ C0bar_t, problem.eps)
@@ -285,22 +312,24 @@ def solve(problem: Problem, lin: Linearisation, mu: float = 0.0) -> Projection:
         e0 = reduced_solve(L0, kept0, x.c0)
         residual += float(e0 @ e0)
         rank0 = int(kept0.sum())
-    dq = triangular_solve(Abar, bbar, transpose=True)
-    mt_new = []
-    for (_, correct), ch, w in zip(problem.kernels, problem.channels, lin.whitened,
-                                   strict=True):
-        if w is None:
-            mt_new.append(ch.m.copy())
-            continue
-        Cbar, rbar, state = w
-        mt_new.append(ch.m + correct(state, ch.G, rbar - Cbar @ dq))  # eq. 44
-    return Projection(x.q + dq, tuple(mt_new), C0[kept0], rank0, residual)
-
+    dq[seen] = triangular_solve(Abar, bbar, transpose=True)
+    return rank0, kept0, residual
 
 def project(problem: Problem, x: Point) -> tuple[Linearisation, Projection]:
     """One application of the projector ``P_{x0}(x•)`` (report eq. 12, Fig. 17)."""
     lin = linearise(problem, x)
     return lin, solve(problem, lin)
+
+
+def _seen(info: np.ndarray, C0: np.ndarray) -> np.ndarray:
+    """Components the data or the constraints see: some information (however small: the
+    scales of components may differ by many orders) or a constraint Jacobian entry above the
+    rounding level of its row."""
+    seen = np.diagonal(info) != 0.0
+    if C0.shape[0]:
+        rows = np.max(np.abs(C0), axis=1, keepdims=True)
+        seen |= np.any(np.abs(C0) > _ROUNDING * rows, axis=0)
+    return seen
 
 
 def _equilibrium_weights(H: np.ndarray) -> np.ndarray:

@@ -94,9 +94,21 @@ def two_view_cases():
     return cases
 
 
+def pga_cases():
+    """Readings at gain 4 (no glitches): the qualitative model from a start near the setting
+    (its quartic constraint pulls the gain onto 4), from the setting 1 (a local solve stays
+    there), and the general linear model with a per-reading information."""
+    rng = np.random.default_rng(7)
+    v = rng.uniform(-1.0, 1.0, 25)
+    data = {"reading": np.c_[v, 4.0 * v + 0.3 + rng.normal(0.0, 0.01, v.size)]}
+    return [("pga", data, {"reading": 1e4}, np.array([3.9, 0.2]), None),
+            ("pga", data, {"reading": 1e4}, np.array([1.0, 0.0]), None),
+            ("linear", data, {"reading": rng.uniform(0.5e4, 2e4, v.size)}, None, None)]
+
+
 #: spec file name -> cases (model, data, info, start, constants)
 SCENARIOS = {"conic.yaml": conic_cases, "conic_lattice.yaml": conic_lattice_cases,
              "line.yaml": line_cases, "hysteresis.yaml": hysteresis_cases,
-             "two_view.yaml": two_view_cases}
+             "two_view.yaml": two_view_cases, "pga.yaml": pga_cases}
 
 

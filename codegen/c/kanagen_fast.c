@@ -519,7 +519,73 @@ static void kg_linearise(const kg_problem *pb, kg_point *x, kg_lin *lin)
     lin->x = x;
 }
 
-/* solve(): the projector's point (eq. 12/43), damped by μ diag(H) when μ > 0; -1 when a
+/* _seen: the components the data or the constraints see — some information on the diagonal
+ * of info (NaN counts) or a C0 entry above _ROUNDING × its row's NumPy max; their indices in
+ * idx, their count returned */
+static int kg_seen(int n, int p0, const double *info, const double *C0, int *idx)
+{
+    int ns = 0;
+    double bound[p0 + 1];
+    for (int r = 0; r < p0; ++r) bound[r] = KG_ROUNDING * kg_nanmax_abs(n, C0 + r * n);
+    for (int u = 0; u < n; ++u) {
+        int seen = info[u * n + u] != 0.0;
+        for (int r = 0; r < p0 && !seen; ++r) seen = fabs(C0[r * n + u]) > bound[r];
+        if (seen) idx[ns++] = u;
+    }
+    return ns;
+}
+
+/* _solve_seen: the parameter block of eq. 43 on the ns seen components idx (H, rhs already
+ * restricted to them): writes dq at idx, the constraints' rank and kept rows in out, adds
+ * the whitened ‖c0‖² to *residual; -1 on a singular factor */
+static int kg_solve_seen(const kg_problem *pb, const kg_point *x, int ns, const int *idx,
+                         const double *H, double *bbar, double *dq, double *residual,
+                         kg_proj *out)
+{
+    const int n = KG_N, p0 = pb->p0;
+    double Abar[KG_N * KG_N + 1];
+    kg_closest_sqrt(ns, H, pb->eps, Abar);
+    if (kg_triangular_solve(ns, Abar, 1, bbar, 0)) return -1;
+    if (p0) {
+        double Ct[ns * p0], G0[p0 * p0], L0[p0 * p0], v[p0], e0[p0];
+        for (int u = 0; u < ns; ++u)
+            for (int r = 0; r < p0; ++r) Ct[u * p0 + r] = x->C0[r * n + idx[u]];
+        if (kg_triangular_solve(ns, Abar, p0, Ct, 0)) return -1; /* Ā⁻¹ C0ᵀ */
+        for (int r = 0; r < p0; ++r)
+            for (int s = 0; s < p0; ++s) {
+                double acc = 0.0;
+                for (int u = 0; u < ns; ++u) acc += Ct[u * p0 + r] * Ct[u * p0 + s];
+                G0[r * p0 + s] = acc;
+            }
+        kg_reduced_sqrt(p0, G0, pb->eps, L0, out->kept0);
+        for (int r = 0; r < p0; ++r) {
+            double acc = 0.0;
+            for (int u = 0; u < ns; ++u) acc += Ct[u * p0 + r] * bbar[u];
+            v[r] = acc + x->c0[r];
+            e0[r] = x->c0[r];
+        }
+        kg_reduced_solve(p0, L0, out->kept0, v, 0);
+        kg_reduced_solve(p0, L0, out->kept0, v, 1); /* λ0 */
+        for (int u = 0; u < ns; ++u) {
+            double acc = 0.0;
+            for (int r = 0; r < p0; ++r) acc += Ct[u * p0 + r] * v[r];
+            bbar[u] -= acc;
+        }
+        kg_reduced_solve(p0, L0, out->kept0, e0, 0);
+        double e2 = 0.0;
+        for (int r = 0; r < p0; ++r) {
+            e2 += e0[r] * e0[r];
+            out->rank0 += out->kept0[r];
+        }
+        *residual += e2;
+    }
+    if (kg_triangular_solve(ns, Abar, 1, bbar, 1)) return -1;
+    for (int u = 0; u < ns; ++u) dq[idx[u]] = bbar[u];
+    return 0;
+}
+
+/* solve(): the projector's point (eq. 12/43), damped by μ diag(H) when μ > 0, solved on the
+ * components seen (_seen; the others do not move, nothing seen: q stays); -1 when a
  * triangular factor is singular (the Python LinAlgError). Without measures, the corrected
  * measures (eq. 44) are not computed (fit_problem's outputs do not read them). */
 static int kg_solve(const kg_problem *pb, const kg_lin *lin, double mu, kg_proj *out,
@@ -527,7 +593,8 @@ static int kg_solve(const kg_problem *pb, const kg_lin *lin, double mu, kg_proj 
 {
     const int n = KG_N, p0 = pb->p0;
     const kg_point *x = lin->x;
-    double H[KG_N * KG_N + 1], Abar[KG_N * KG_N + 1], bbar[KG_N + 1];
+    double H[KG_N * KG_N + 1], bbar[KG_N + 1], dq[KG_N + 1];
+    int idx[KG_N + 1];
     memcpy(H, lin->H, sizeof(double) * n * n);
     if (mu > 0.0) { /* _equilibrium_weights */
         double top = 0.0;
@@ -540,46 +607,17 @@ static int kg_solve(const kg_problem *pb, const kg_lin *lin, double mu, kg_proj 
             H[u * n + u] += mu * (a > 0 ? a : (top > 0 ? top : 1.0));
         }
     }
-    kg_closest_sqrt(n, H, pb->eps, Abar);
-    memcpy(bbar, lin->rhs, sizeof(double) * n);
-    if (kg_triangular_solve(n, Abar, 1, bbar, 0)) return -1;
+    const int ns = kg_seen(n, p0, lin->info, x->C0, idx);
+    if (ns < n) /* H on the seen block, in place (row-major ns × ns) */
+        for (int a = 0; a < ns; ++a)
+            for (int b = 0; b < ns; ++b) H[a * ns + b] = H[idx[a] * n + idx[b]];
+    for (int u = 0; u < ns; ++u) bbar[u] = lin->rhs[idx[u]];
+    memset(dq, 0, sizeof(double) * n);
     double residual = lin->residual;
     out->rank0 = 0;
-    if (p0) {
-        double Ct[n * p0], G0[p0 * p0], L0[p0 * p0], v[p0], e0[p0];
-        for (int u = 0; u < n; ++u)
-            for (int r = 0; r < p0; ++r) Ct[u * p0 + r] = x->C0[r * n + u];
-        if (kg_triangular_solve(n, Abar, p0, Ct, 0)) return -1; /* Ā⁻¹ C0ᵀ */
-        for (int r = 0; r < p0; ++r)
-            for (int s = 0; s < p0; ++s) {
-                double acc = 0.0;
-                for (int u = 0; u < n; ++u) acc += Ct[u * p0 + r] * Ct[u * p0 + s];
-                G0[r * p0 + s] = acc;
-            }
-        kg_reduced_sqrt(p0, G0, pb->eps, L0, out->kept0);
-        for (int r = 0; r < p0; ++r) {
-            double acc = 0.0;
-            for (int u = 0; u < n; ++u) acc += Ct[u * p0 + r] * bbar[u];
-            v[r] = acc + x->c0[r];
-            e0[r] = x->c0[r];
-        }
-        kg_reduced_solve(p0, L0, out->kept0, v, 0);
-        kg_reduced_solve(p0, L0, out->kept0, v, 1); /* λ0 */
-        for (int u = 0; u < n; ++u) {
-            double acc = 0.0;
-            for (int r = 0; r < p0; ++r) acc += Ct[u * p0 + r] * v[r];
-            bbar[u] -= acc;
-        }
-        kg_reduced_solve(p0, L0, out->kept0, e0, 0);
-        double e2 = 0.0;
-        for (int r = 0; r < p0; ++r) {
-            e2 += e0[r] * e0[r];
-            out->rank0 += out->kept0[r];
-        }
-        residual += e2;
-    }
-    if (kg_triangular_solve(n, Abar, 1, bbar, 1)) return -1; /* Δq */
-    for (int u = 0; u < n; ++u) out->q[u] = x->q[u] + bbar[u];
+    for (int r = 0; r < p0; ++r) out->kept0[r] = 0;
+    if (ns && kg_solve_seen(pb, x, ns, idx, H, bbar, dq, &residual, out)) return -1;
+    for (int u = 0; u < n; ++u) out->q[u] = x->q[u] + dq[u];
     for (int c = 0; c < pb->nch && measures; ++c) { /* eq. 44 */
         const kg_channel *ch = &pb->ch[c];
         const int k = KG_K(ch->k), p = KG_P(ch->p);
@@ -590,7 +628,7 @@ static int kg_solve(const kg_problem *pb, const kg_lin *lin, double mu, kg_proj 
             double z[KG_MAXP + 1], dm[KG_MAXK + 1];
             for (int a = 0; a < p; ++a) {
                 double acc = 0.0;
-                for (int u = 0; u < n; ++u) acc += Cbar[(i * p + a) * n + u] * bbar[u];
+                for (int u = 0; u < n; ++u) acc += Cbar[(i * p + a) * n + u] * dq[u];
                 z[a] = rbar[i * p + a] - acc;
             }
             kg_correct(p, k, E + i * p * k, L + i * p * p, kept + i * p, kg_G(ch, i), z, dm);
