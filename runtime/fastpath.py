@@ -48,6 +48,7 @@ PORTED: dict[str, tuple[str, ...]] = {
              "REDUNDANT"),
     "kernels": ("whiten", "correct"),
     "fit": ("fit_problem", "_feasible", "derived_values"),
+    "coherence": ("coherence_errors",),
     "results": ("constrained_covariance", "propagate"),
     "family": ("ModelFamily.relations_hold",),
     "inputs": ("inverse_root", "ChannelData.scale", "ChannelData.with_corrected"),
@@ -101,6 +102,7 @@ FINGERPRINTS: dict[str, str] = {
     'fit.fit_problem': 'ec1566bdb254',
     'fit._feasible': 'fc2209c8e66b',
     'fit.derived_values': '9af6131bb8bb',
+    'coherence.coherence_errors': 'b6d9e82e820b',
     'results.constrained_covariance': '5d13ed3460e0',
     'results.propagate': '34f15a8c16a7',
     'family.ModelFamily.relations_hold': 'bf07113312e4',
@@ -179,6 +181,9 @@ class FastPath:
         self._fit = lib.kg_fit
         self._fit.argtypes = [ctypes.c_void_p] * 2
         self._fit.restype = ctypes.c_int
+        self._coherence = lib.kg_coherence
+        self._coherence.argtypes = [ctypes.c_void_p] * 2
+        self._coherence.restype = ctypes.c_int
         meta = module.FAMILY
         self.n = len(meta["parameter"])
         self.names = tuple(n for n, _ in meta["parameter"])
@@ -211,6 +216,7 @@ class FastPath:
         self._default_k = np.array([v for _, v in meta["constants"]], dtype=float)
         self._zeros = np.zeros((self.n, self.n))
         self._local = threading.local()  # per thread: reused argument buffers
+        self._plans: dict = {}  # kg_fit's input per shape of fit's simple inputs (_plan)
         sizes = (ctypes.c_longlong * 6)()
         lib.kg_sizes(sizes)
         expected = [self.n, len(meta["constants"]), len(meta["channels"]), len(meta["models"]),
@@ -242,16 +248,17 @@ class FastPath:
             return None
         if info is not None and (type(info) is not dict or not info.keys() <= data.keys()):
             return None
-        channels = []
+        shape = [model, max_iter, eps, xtol]  # what the plan of kg_fit's input depends on
         for name, X in data.items():
             ch = self.channels.get(name)
             if ch is None or type(X) is not np.ndarray or X.ndim != 2 or X.shape[1] != ch[1] \
                     or X.dtype.char != "d":
                 return None
-            QG = self._scalar_information(ch[2], None if info is None else info.get(name))
-            if QG is None:
+            value = None if info is None else info.get(name)
+            if value is not None and (type(value) not in (float, int)
+                                      or not 0 < value < math.inf):
                 return None
-            channels.append((name, X, *QG))
+            shape += (name, X.shape[0], value)
         if q0 is None:
             q0 = fam._q0
         elif not (type(q0) is np.ndarray and q0.shape == (self.n,) and q0.dtype.char == "d"):
@@ -262,18 +269,67 @@ class FastPath:
                     and q_start.dtype.char == "d"):
                 return None
             start = q_start
-        k = self._default_k if constants is None else fam.constant_vector(constants)
-        strict = ()
+        if constants is not None:  # the general packing, with these constants
+            k = fam.constant_vector(constants)
+            channels = [(name, X, *self._scalar_information(
+                self.channels[name][2], None if info is None else info.get(name)))
+                for name, X in data.items()]
+            if self.slack:
+                start = fam.with_slacks(start, k, model)
+                if not fam.relations_hold(model, start, k):
+                    return None  # fit_problem moves the start inside first (fit._inside)
+            return self._run(model, channels, start, q0, self._zeros, k, eps, max_iter, xtol,
+                             self._strict_slacks(fam, model))
         if self.slack:
-            start = fam.with_slacks(start, k, model)
-            if not fam.relations_hold(model, start, k):
-                return None  # fit_problem moves the start inside first (_inside, phase 1)
-            strict = self._strict.get(model)
-            if strict is None:
-                strict = self._strict[model] = fam.strict_slacks(model)
-        return self._run(model, channels, start, q0, self._zeros, k, eps, max_iter, xtol,
-                         strict)
+            start = fam.with_slacks(start, self._default_k, model)
+            if not fam.relations_hold(model, start, self._default_k):
+                return None  # fit_problem moves the start inside first (fit._inside)
+        shape = tuple(shape)
+        plan = self._plans.get(shape)
+        if plan is None:
+            plan = self._plan(fam, model, data, info, max_iter, xtol, eps, shape)
+        template, size_out, at_start, at_q0, at_X, QG = plan
+        ws = self._buffers(template.size, size_out)
+        inp = ws[0]
+        if ws[4] is not plan:  # the header, constants and weights of this plan
+            ws[4] = None
+            inp[:template.size] = template
+            ws[4] = plan
+        n = self.n
+        inp[at_start:at_start + n] = start
+        inp[at_q0:at_q0 + n] = q0
+        channels = []
+        for (name, X), at, (Q, G) in zip(data.items(), at_X, QG, strict=True):
+            inp[at:at + X.size] = X.ravel()
+            channels.append((name, X, Q, G))
+        if self._fit(ws[2], ws[3]) != 0:
+            return None
+        return CompiledFitResult.unpack(self, model, channels, ws[1][:size_out].copy())
 
+    def _strict_slacks(self, fam, model: str) -> tuple:
+        strict = self._strict.get(model)
+        if strict is None:
+            strict = self._strict[model] = fam.strict_slacks(model) if self.slack else ()
+        return strict
+
+    def _plan(self, fam, model, data, info, max_iter, xtol, eps, shape):
+        """kg_fit's input for :meth:`fit` on inputs of this ``shape`` (model, options,
+        channels with their sizes and scalar weights): an array with everything but the
+        start, q0 and the measures filled in, where those go, and each channel's Q and G."""
+        k = self._default_k
+        QG = [self._scalar_information(self.channels[name][2],
+                                       None if info is None else info.get(name))
+              for name in data]
+        channels = [(name, X, *qg) for (name, X), qg in zip(data.items(), QG, strict=True)]
+        size_in, size_out, head, where = self._layout(
+            model, channels, k, eps, max_iter, xtol, self._strict_slacks(fam, model), False)
+        template = np.zeros(size_in)
+        self._pack(template, head, where, channels, k)
+        plan = (template, size_out, where[0], where[1], [w[0] for w in where[4:]], QG)
+        if len(self._plans) > 256:
+            self._plans.clear()
+        self._plans[shape] = plan
+        return plan
     def fit_problem(self, fam, model: str, problem, start, max_iter: int,
                     xtol: float) -> FitResult | None:
         """``fit_problem`` on a validated problem (start with its slacks completed)."""
@@ -281,6 +337,34 @@ class FastPath:
         return self._run(model, channels, np.asarray(start, dtype=float), problem.q0,
                          problem.Q0, problem.k, problem.eps, max_iter, xtol,
                          problem.strict_slacks)
+
+    def coherence(self, model: str, problem, q: np.ndarray, iterations: int, tol: float):
+        """``kg_coherence``: per channel of the validated ``problem``, the measures projected
+        onto their equations at ``q`` (:func:`~kanagen.runtime.projector.project_measures`
+        with ``iterations`` and ``tol``): ``(‖m̃ − m‖²_Q + violation, equations kept)``, as
+        two tuples of (M,) arrays; None when kg_coherence refuses the input (not finite)."""
+        channels = [(ch.name, ch.X, ch.Q, ch.G) for ch in problem.channels]
+        q = np.asarray(q, dtype=float)
+        size_in, _, head, where = self._layout(model, channels, problem.k, problem.eps,
+                                               iterations, tol, (), False)
+        sizes = [ch.X.shape[0] for ch in problem.channels]
+        ws = self._buffers(size_in, 2 * sum(sizes))
+        ws[4] = None  # no plan's template any more
+        inp = ws[0]
+        self._pack(inp, head, where, channels, problem.k)
+        n = self.n
+        inp[where[0]:where[0] + n] = q
+        inp[where[1]:where[1] + n] = q
+        for (_, X, _, _), (x_at, _, _) in zip(channels, where[4:], strict=True):
+            inp[x_at:x_at + X.size] = X.ravel()
+        if self._coherence(ws[2], ws[3]) != 0:
+            return None
+        out, totals, kept, at = ws[1], [], [], 0
+        for M in sizes:
+            totals.append(out[at:at + M].copy())
+            kept.append(out[at + M:at + 2 * M].astype(np.int64))
+            at += 2 * M
+        return tuple(totals), tuple(kept)
 
     def closest_sqrt(self, S: np.ndarray, eps: float) -> np.ndarray:
         """The compiled :func:`~kanagen.runtime.sqrt.closest_sqrt` of one matrix (what the
@@ -310,49 +394,68 @@ class FastPath:
         return QG
 
     def _buffers(self, size_in: int, size_out: int):
-        """This thread's argument buffers (grown when too small) and their addresses."""
+        """This thread's argument buffers (grown when too small), their addresses, and what
+        the input buffer holds (:meth:`_run`)."""
         ws = getattr(self._local, "ws", None)
         if ws is None or ws[0].size < size_in or ws[1].size < size_out:
             inp = np.empty(max(size_in, 2 * (ws[0].size if ws else 0), 256))
             out = np.empty(max(size_out, 2 * (ws[1].size if ws else 0), 512))
-            ws = self._local.ws = (inp, out, ctypes.c_void_p(inp.ctypes.data),
-                                   ctypes.c_void_p(out.ctypes.data))
+            ws = self._local.ws = [inp, out, ctypes.c_void_p(inp.ctypes.data),
+                                   ctypes.c_void_p(out.ctypes.data), None]
         return ws
 
-    def _run(self, model, channels, start, q0, Q0, k, eps, max_iter, xtol, strict=()):
+    def _layout(self, model, channels, k, eps, max_iter, xtol, strict, prior):
+        """Where each input goes in kg_fit's input array: (size_in, size_out, head, the
+        offsets of start, q0, Q0, k, and per channel of X, Q, G)."""
         n = self.n
-        prior = Q0 is not self._zeros  # no prior: Q0 = 0 is not copied
         head = [self.model_ids[model], len(channels), max_iter, 1 if self.slack else 0, eps,
                 xtol, len(strict), prior]
-        size_in = 8 + 2 * n + k.size + (n * n if prior else 0)
         size_out = self.fixed_out
-        for name, X, Q, G in channels:
+        for name, X, Q, _ in channels:
             M = X.shape[0]
             ch = self.channels[name]
             head += (ch[0], M, Q.ndim == 3)
-            size_in += 3 + X.size + Q.size + G.size
             size_out += M * (ch[2] + 1)
         for pair in strict:
             head += pair
-        size_in += 2 * len(strict)
-        inp, out, a_in, a_out = self._buffers(size_in, size_out)
         at = len(head)
-        inp[:at] = head
-        inp[at:at + n] = start
-        inp[at + n:at + 2 * n] = q0
-        at += 2 * n
-        if prior:
-            inp[at:at + n * n] = Q0.ravel()
-            at += n * n
-        inp[at:at + k.size] = k
+        where = [at, at + n, at + 2 * n]  # start, q0, Q0
+        at += 2 * n + (n * n if prior else 0)
+        where.append(at)  # k
         at += k.size
         for _, X, Q, G in channels:
-            for a in (X, Q, G):
-                inp[at:at + a.size] = a.ravel()
-                at += a.size
-        if self._fit(a_in, a_out) != 0:
+            where.append((at, at + X.size, at + X.size + Q.size))
+            at += X.size + Q.size + G.size
+        return at, size_out, np.array(head, dtype=float), where
+
+    @staticmethod
+    def _pack(inp, head, where, channels, k):
+        """Write the header, constants and per channel Q and G at their places."""
+        inp[:head.size] = head
+        inp[where[3]:where[3] + k.size] = k
+        for (_, _, Q, G), (_, q_at, g_at) in zip(channels, where[4:], strict=True):
+            inp[q_at:q_at + Q.size] = Q.ravel()
+            inp[g_at:g_at + G.size] = G.ravel()
+
+    def _run(self, model, channels, start, q0, Q0, k, eps, max_iter, xtol, strict=()):
+        """Pack every input into this thread's buffer, call kg_fit, unpack its output."""
+        n = self.n
+        prior = Q0 is not self._zeros  # no prior: Q0 = 0 is not copied
+        size_in, size_out, head, where = self._layout(model, channels, k, eps, max_iter,
+                                                      xtol, strict, prior)
+        ws = self._buffers(size_in, size_out)
+        ws[4] = None  # no plan's template any more
+        inp = ws[0]
+        self._pack(inp, head, where, channels, k)
+        inp[where[0]:where[0] + n] = start
+        inp[where[1]:where[1] + n] = q0
+        if prior:
+            inp[where[2]:where[2] + n * n] = Q0.ravel()
+        for (_, X, _, _), (x_at, _, _) in zip(channels, where[4:], strict=True):
+            inp[x_at:x_at + X.size] = X.ravel()
+        if self._fit(ws[2], ws[3]) != 0:
             return None
-        return CompiledFitResult.unpack(self, model, channels, out[:size_out].copy())
+        return CompiledFitResult.unpack(self, model, channels, ws[1][:size_out].copy())
 
 
 def main() -> None:

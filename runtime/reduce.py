@@ -36,4 +36,5 @@ def reduced_problem(fam: ModelFamily, model: str, problem: Problem,
         q0=r0,
         Q0=Q0,
         relations=None if relations is None else (lambda r: relations(red.full(r))),
+        compiled=None,  # the compiled library evaluates the full model
     )

@@ -1383,33 +1383,35 @@ static int kg_feasible(const kg_problem *pb, const kg_point *x, double start_vio
  *        channel the corrected measures (M × k) and the ranks (M)
  * Returns 0; 1 when an input is not finite (the caller validates and reports); 2 when out
  * of memory. */
-int kg_fit(const double *in, double *out)
+/* The problem of kg_fit's and kg_coherence's input (layout in kg_fit): 1 when the sizes are
+ * out of range or a start, prior mean or measure is not finite */
+static int kg_read(const double *in, kg_problem *pb, kg_channel *channels, int *max_iter,
+                   double *xtol, const double **q_start)
 {
-    kg_problem pb;
     int nch = (int)in[1], n = KG_N;
-    kg_channel channels[nch > 0 ? nch : 1];
-    pb.model = (int)in[0];
-    pb.n = n;
-    pb.p0 = kg_p0[pb.model];
-    pb.nch = nch;
-    pb.ch = channels;
-    pb.guard = (int)in[3];
-    pb.eps = in[4];
-    int max_iter = (int)in[2];
-    double xtol = in[5];
-    pb.nstrict = (int)in[6];
-    if (pb.nstrict < 0 || pb.nstrict > KG_NSLACK) return 1;
+    pb->model = (int)in[0];
+    pb->n = n;
+    pb->p0 = kg_p0[pb->model];
+    pb->nch = nch;
+    pb->ch = channels;
+    pb->guard = (int)in[3];
+    pb->eps = in[4];
+    *max_iter = (int)in[2];
+    *xtol = in[5];
+    pb->nstrict = (int)in[6];
+    if (pb->nstrict < 0 || pb->nstrict > KG_NSLACK) return 1;
     int prior = (int)in[7];
-    const double *head = in + 8, *strict = head + 3 * nch, *q_start = strict + 2 * pb.nstrict;
-    const double *at = q_start + n;
+    const double *head = in + 8, *strict = head + 3 * nch, *qs = strict + 2 * pb->nstrict;
+    *q_start = qs;
+    const double *at = qs + n;
     static const double zeros[KG_N * KG_N + 1];
-    for (int j = 0; j < 2 * pb.nstrict; ++j) pb.strict[j] = (int)strict[j];
-    pb.q0 = at;
-    pb.Q0 = prior ? at + n : zeros;
-    pb.k = at + n + (prior ? n * n : 0);
-    at = pb.k + KG_NK;
+    for (int j = 0; j < 2 * pb->nstrict; ++j) pb->strict[j] = (int)strict[j];
+    pb->q0 = at;
+    pb->Q0 = prior ? at + n : zeros;
+    pb->k = at + n + (prior ? n * n : 0);
+    at = pb->k + KG_NK;
     for (int u = 0; u < n; ++u)
-        if (!isfinite(q_start[u]) || !isfinite(pb.q0[u])) return 1;
+        if (!isfinite(qs[u]) || !isfinite(pb->q0[u])) return 1;
     for (int c = 0; c < nch; ++c) {
         kg_channel *ch = &channels[c];
         ch->id = (int)head[3 * c];
@@ -1417,7 +1419,7 @@ int kg_fit(const double *in, double *out)
         ch->per_measure = (int)head[3 * c + 2];
         ch->w = kg_width[ch->id];
         ch->k = kg_ncorr[ch->id];
-        ch->p = kg_p[pb.model * (KG_NCH > 0 ? KG_NCH : 1) + ch->id];
+        ch->p = kg_p[pb->model * (KG_NCH > 0 ? KG_NCH : 1) + ch->id];
         ch->index = kg_index + kg_index_off[ch->id];
         long qsize = (ch->per_measure ? ch->M : 1) * ch->k * ch->k;
         ch->X = at;
@@ -1427,17 +1429,14 @@ int kg_fit(const double *in, double *out)
         for (long j = 0; j < ch->M * ch->w; ++j)
             if (!isfinite(ch->X[j])) return 1;
     }
-    kg_point pts[3];
-    kg_lin lin;
-    kg_proj prs[2];
-    kg_arena arena = {NULL, 0};
-    kg_layout(&arena, &pb, pts, &lin, prs);
-    arena.base = malloc(arena.used + 16);
-    if (!arena.base) return 2;
-    arena.used = 0;
-    kg_layout(&arena, &pb, pts, &lin, prs);
-    for (int c = 0; c < nch; ++c) { /* ChannelData.m and .scale */
-        kg_channel *ch = &channels[c];
+    return 0;
+}
+
+/* ChannelData.m (the corrected components of X) and ChannelData.scale of every channel */
+static void kg_channel_data(kg_problem *pb)
+{
+    for (int c = 0; c < pb->nch; ++c) {
+        kg_channel *ch = &pb->ch[c];
         double top, qtop = 0.0;
         for (long i = 0; i < ch->M; ++i)
             for (int j = 0; j < ch->k; ++j)
@@ -1450,6 +1449,27 @@ int kg_fit(const double *in, double *out)
             }
         ch->scale = ch->M * ch->k > 0 ? top * sqrt(qtop) : 0.0;
     }
+}
+
+int kg_fit(const double *in, double *out)
+{
+    kg_problem pb;
+    int nch = (int)in[1], n = KG_N, max_iter;
+    double xtol;
+    const double *q_start;
+    if (nch < 0 || nch > KG_NCH) return 1;
+    kg_channel channels[nch > 0 ? nch : 1];
+    if (kg_read(in, &pb, channels, &max_iter, &xtol, &q_start)) return 1;
+    kg_point pts[3];
+    kg_lin lin;
+    kg_proj prs[2];
+    kg_arena arena = {NULL, 0};
+    kg_layout(&arena, &pb, pts, &lin, prs);
+    arena.base = malloc(arena.used + 16);
+    if (!arena.base) return 2;
+    arena.used = 0;
+    kg_layout(&arena, &pb, pts, &lin, prs);
+    kg_channel_data(&pb);
     kg_state st = {&pb, {&pts[0], &pts[1], &pts[2]}, &lin, &prs[0], &prs[1], 0.0, 0.0, {0.0}};
     int iterations, lin_at_point;
     double start_violation;
@@ -1523,6 +1543,60 @@ int kg_fit(const double *in, double *out)
 
 /* closest_sqrt of one n × n matrix S (row-major, n <= KG_N) into L: the port's square root
  * on its own, for the differential tests of the port. Returns -1 when n is too large. */
+/* coherence.coherence_errors' projection: the measures of kg_fit's input (its start is the
+ * q at which they are projected, its iteration cap the projector steps plus one, its xtol
+ * the tolerance) projected onto c_i(q, ·) = 0 (project_measures); out per channel, per
+ * measure: ‖m̃ − m‖²_Q + the whitened violation, then the equations kept. 1: bad input */
+int kg_coherence(const double *in, double *out)
+{
+    kg_problem pb;
+    int nch = (int)in[1], iterations;
+    double tol;
+    const double *q;
+    if (nch < 0 || nch > KG_NCH) return 1;
+    kg_channel channels[nch > 0 ? nch : 1];
+    if (kg_read(in, &pb, channels, &iterations, &tol, &q)) return 1;
+    kg_point pts[3];
+    kg_lin lin;
+    kg_proj prs[2];
+    kg_arena arena = {NULL, 0};
+    kg_layout(&arena, &pb, pts, &lin, prs);
+    arena.base = malloc(arena.used + 16);
+    if (!arena.base) return 2;
+    arena.used = 0;
+    kg_layout(&arena, &pb, pts, &lin, prs);
+    kg_channel_data(&pb);
+    long total = 0;
+    for (int c = 0; c < nch; ++c) total += channels[c].M;
+    double *work = malloc(sizeof(double) * (total + 1) + sizeof(int) * (total + 1));
+    if (!work) {
+        free(arena.base);
+        return 2;
+    }
+    double *violation[nch > 0 ? nch : 1], *observed[nch > 0 ? nch : 1];
+    int *rank[nch > 0 ? nch : 1], *ranks = (int *)(work + total + 1);
+    for (long c = 0, at = 0; c < nch; at += channels[c].M, ++c) {
+        violation[c] = work + at;
+        rank[c] = ranks + at;
+        observed[c] = channels[c].m; /* the projection starts at the observed measures */
+    }
+    kg_project_measures(&pb, q, observed, &pts[0], iterations, tol, violation, rank);
+    for (int c = 0; c < nch; ++c) {
+        const kg_channel *ch = &channels[c];
+        const int k = ch->k;
+        for (long i = 0; i < ch->M; ++i) {
+            double v[KG_MAXK + 1];
+            for (int j = 0; j < k; ++j) v[j] = pts[0].mt[c][i * k + j] - ch->m[i * k + j];
+            out[i] = kg_quadratic(k, v, kg_Q(ch, i)) + violation[c][i];
+            out[ch->M + i] = rank[c][i];
+        }
+        out += 2 * ch->M;
+    }
+    free(work);
+    free(arena.base);
+    return 0;
+}
+
 int kg_closest_root(long n, const double *S, double eps, double *L)
 {
     if (n < 0 || n > KG_N) return -1;
