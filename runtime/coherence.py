@@ -134,6 +134,12 @@ _SLOW = 4  # line-search steps in a row that lower the violation by less than a 
 def solve_minimal(problem: Problem, target: np.ndarray, max_iter: int = 50,
                   xtol: float = 1e-12, eps: float = EPS) -> MinimalSolution:
     """:func:`minimal_solve` on a validated problem (its measures are the sample)."""
+    if problem.compiled is not None:  # the same iteration in C (kg_minimal)
+        fastpath, model = problem.compiled
+        out = fastpath.minimal(model, problem, target, max_iter, xtol, eps)
+        if out is not None:
+            q, success, rank, iterations, violation = out
+            return MinimalSolution(q, success, rank, iterations, violation)
 
     def equations(q):
         c0, C0 = problem.c0(q, problem.k)

@@ -48,7 +48,8 @@ PORTED: dict[str, tuple[str, ...]] = {
              "REDUNDANT"),
     "kernels": ("whiten", "correct"),
     "fit": ("fit_problem", "_feasible", "derived_values"),
-    "coherence": ("coherence_errors",),
+    "coherence": ("coherence_errors", "solve_minimal", "_solved", "_FREE_STEPS", "_WATCHDOG",
+                  "_SLOW"),
     "results": ("constrained_covariance", "propagate"),
     "family": ("ModelFamily.relations_hold",),
     "inputs": ("inverse_root", "ChannelData.scale", "ChannelData.with_corrected"),
@@ -103,6 +104,11 @@ FINGERPRINTS: dict[str, str] = {
     'fit._feasible': 'fc2209c8e66b',
     'fit.derived_values': '9af6131bb8bb',
     'coherence.coherence_errors': 'b6d9e82e820b',
+    'coherence.solve_minimal': 'e3604813df72',
+    'coherence._solved': 'ac88707f4a75',
+    'coherence._FREE_STEPS': '3e5ab2fb8dd8',
+    'coherence._WATCHDOG': '533d3f19a9e0',
+    'coherence._SLOW': '148df96ae1c0',
     'results.constrained_covariance': '5d13ed3460e0',
     'results.propagate': '34f15a8c16a7',
     'family.ModelFamily.relations_hold': 'bf07113312e4',
@@ -184,6 +190,9 @@ class FastPath:
         self._coherence = lib.kg_coherence
         self._coherence.argtypes = [ctypes.c_void_p] * 2
         self._coherence.restype = ctypes.c_int
+        self._minimal = lib.kg_minimal
+        self._minimal.argtypes = [ctypes.c_void_p] * 2
+        self._minimal.restype = ctypes.c_int
         meta = module.FAMILY
         self.n = len(meta["parameter"])
         self.names = tuple(n for n, _ in meta["parameter"])
@@ -365,6 +374,30 @@ class FastPath:
             kept.append(out[at + M:at + 2 * M].astype(np.int64))
             at += 2 * M
         return tuple(totals), tuple(kept)
+
+    def minimal(self, model: str, problem, target: np.ndarray, max_iter: int, xtol: float,
+                eps: float):
+        """``kg_minimal``: :func:`~kanagen.runtime.coherence.solve_minimal` of the validated
+        ``problem`` (its measures the sample) from ``target``: ``(q, success, rank,
+        iterations, violation)``, or None when kg_minimal refuses the input."""
+        channels = [(ch.name, ch.X, ch.Q, ch.G) for ch in problem.channels]
+        target = np.asarray(target, dtype=float)
+        size_in, _, head, where = self._layout(model, channels, problem.k, eps, max_iter,
+                                               xtol, (), False)
+        ws = self._buffers(size_in, self.n + 4)
+        ws[4] = None  # no plan's template any more
+        inp = ws[0]
+        self._pack(inp, head, where, channels, problem.k)
+        n = self.n
+        inp[where[0]:where[0] + n] = target
+        inp[where[1]:where[1] + n] = target
+        for (_, X, _, _), (x_at, _, _) in zip(channels, where[4:], strict=True):
+            inp[x_at:x_at + X.size] = X.ravel()
+        if self._minimal(ws[2], ws[3]) != 0:
+            return None
+        out = ws[1]
+        success, rank, iterations, violation = out[n:n + 4].tolist()
+        return out[:n].copy(), bool(success), int(rank), int(iterations), violation
 
     def closest_sqrt(self, S: np.ndarray, eps: float) -> np.ndarray:
         """The compiled :func:`~kanagen.runtime.sqrt.closest_sqrt` of one matrix (what the

@@ -236,6 +236,45 @@ def test_coherence_errors_as_on_the_numpy_runtime(families, iterations):
             close(x[far], y[far], rtol=1e-7)
 
 
+def test_minimal_solves_as_on_the_numpy_runtime():
+    """The robust search's minimal solves (eq. 21, coherence.solve_minimal) through
+    kg_minimal: random minimal samples of two-view scenes (30 % outliers) for every model,
+    from each closed-form start; the same success, rank and iterations, q to 1e-10."""
+    from kanagen.runtime.coherence import solve_minimal
+    from kanagen.runtime.fit import make_problem
+    from kanagen.runtime.initializers import model_initializers
+    from kanagen.runtime.robust import start_from
+    from kanagen.scenes import two_view_scene
+
+    ref, fast = reference("two_view"), compiled("two_view")
+    starts_of = model_initializers(ref)
+    count = 0
+    for seed, motion in enumerate(("general", "planar", "rotation")):
+        scene = two_view_scene(motion, n=40, outliers=0.3, sigma=0.5, seed=seed)
+        rng = np.random.default_rng(seed)
+        for model in ref.models:
+            size = kanagen.minimal_sample_size(ref, model, "match", None, scene.constants)
+            for _ in range(4):
+                X = scene.data[rng.choice(len(scene.data), size=size, replace=False)]
+                pa, pb = (make_problem(f, model, {"match": X}, None, constants=scene.constants)
+                          for f in (ref, fast))
+                starts = [ref.q0]
+                if model in starts_of:
+                    starts = [start_from(ref, c, ref.q0)
+                              for c in starts_of[model](X, scene.constants)]
+                    starts = [ref.with_slacks(q, pa.k, model) for q in starts if q is not None]
+                for start in starts:
+                    want, got = solve_minimal(pa, start), solve_minimal(pb, start)
+                    assert (got.success, got.rank, got.iterations) == \
+                        (want.success, want.rank, want.iterations)
+                    # at a solution the violation is rounding (1e-16 of scaled equations)
+                    close(got.violation, want.violation, scale=1e-4)
+                    if want.success:
+                        close(got.q, want.q)
+                    count += 1
+    assert count > 50
+
+
 def test_eliminated_models_fall_back_to_the_numpy_iteration():
     ref = reference("conic", eliminate_linear=True)
     fast = compiled("conic", eliminate_linear=True)

@@ -1597,6 +1597,233 @@ int kg_coherence(const double *in, double *out)
     return 0;
 }
 
+/* ---------------------------------------------------- runtime/coherence.py: solve_minimal */
+#define KG_FREE_STEPS 3  /* _FREE_STEPS */
+#define KG_WATCHDOG 1e8  /* _WATCHDOG */
+#define KG_SLOW 4        /* _SLOW */
+
+/* solve_minimal's equations(q): c0 then every measure's equations (R rows), their Jacobian
+ * (R × n), each row times w (scaled); returns max |w c| (NumPy max: NaN wins, 0 if none) */
+static double kg_minimal_equations(const kg_problem *pb, const double *q, const double *w,
+                                   double *c, double *J)
+{
+    const int n = KG_N;
+    kg_c0(pb->model, q, pb->k, c, J);
+    long row = pb->p0;
+    for (int ch = 0; ch < pb->nch; ++ch) {
+        const kg_channel *C = &pb->ch[ch];
+        double D[KG_MAXP * KG_MAXK + 1];
+        for (long i = 0; i < C->M; ++i) {
+            kg_measure(pb->model, C->id, q, C->X + i * C->w, pb->k, c + row, J + row * n, D);
+            row += C->p;
+        }
+    }
+    if (!w) return 0.0;
+    for (long r = 0; r < row; ++r) {
+        c[r] *= w[r];
+        for (int u = 0; u < n; ++u) J[r * n + u] *= w[r];
+    }
+    return row ? kg_nanmax_abs(row, c) : 0.0;
+}
+
+static int kg_solved(double delta, const double *q) /* _solved */
+{
+    return isfinite(delta) && delta <= 1e-8 * (1 + kg_nanmax_abs(KG_N, q));
+}
+
+/* The SVD step of solve_minimal: r − V_k (V_kᵀ r + U_kᵀ c / S_k) over the singular values
+ * above √eps × the largest (J = U S Vᵀ by one-sided Jacobi rotations of J's columns; the
+ * step does not depend on the basis). Returns the rank, -1 when J has a NaN (LAPACK does
+ * not converge: the Python LinAlgError) */
+static int kg_minimal_step(long R, const double *J, const double *c, const double *r,
+                           double eps, double *step)
+{
+    const int n = KG_N;
+    for (long j = 0; j < R * n; ++j)
+        if (J[j] != J[j]) return -1;
+    double *A = malloc(sizeof(double) * (R * n + 1));
+    double V[KG_N * KG_N + 1], S[KG_N + 1], y[KG_N + 1];
+    if (!A) return -1;
+    memcpy(A, J, sizeof(double) * R * n);
+    for (int a = 0; a < n * n; ++a) V[a] = a % (n + 1) == 0 ? 1.0 : 0.0;
+    int finite = 1;
+    for (long j = 0; j < R * n; ++j) finite &= isfinite(A[j]) != 0;
+    for (int sweep = 0; finite && sweep < 60; ++sweep) {
+        int rotated = 0;
+        for (int a = 0; a < n - 1; ++a)
+            for (int b = a + 1; b < n; ++b) {
+                double aa = 0.0, bb = 0.0, ab = 0.0;
+                for (long i = 0; i < R; ++i) {
+                    aa += A[i * n + a] * A[i * n + a];
+                    bb += A[i * n + b] * A[i * n + b];
+                    ab += A[i * n + a] * A[i * n + b];
+                }
+                if (fabs(ab) <= DBL_EPSILON * sqrt(aa * bb)) continue;
+                rotated = 1;
+                double zeta = (bb - aa) / (2 * ab);
+                double t = (zeta >= 0 ? 1.0 : -1.0) / (fabs(zeta) + sqrt(zeta * zeta + 1));
+                double cs = 1 / sqrt(t * t + 1), sn = t * cs;
+                for (long i = 0; i < R; ++i) {
+                    double va = A[i * n + a], vb = A[i * n + b];
+                    A[i * n + a] = cs * va - sn * vb;
+                    A[i * n + b] = sn * va + cs * vb;
+                }
+                for (int i = 0; i < n; ++i) {
+                    double va = V[i * n + a], vb = V[i * n + b];
+                    V[i * n + a] = cs * va - sn * vb;
+                    V[i * n + b] = sn * va + cs * vb;
+                }
+            }
+        if (!rotated) break;
+    }
+    double top = 0.0;
+    for (int j = 0; j < n; ++j) {
+        double acc = 0.0;
+        for (long i = 0; i < R; ++i) acc += A[i * n + j] * A[i * n + j];
+        S[j] = sqrt(acc);
+        top = S[j] > top ? S[j] : top;
+    }
+    int rank = 0;
+    for (int j = 0; j < n; ++j) {
+        /* an infinite J: LAPACK's singular values are NaN, nothing kept */
+        y[j] = 0.0;
+        if (!(finite && R > 0 && top > 0 && S[j] > sqrt(eps) * top)) continue;
+        ++rank;
+        double vr = 0.0, uc = 0.0;
+        for (int u = 0; u < n; ++u) vr += V[u * n + j] * r[u];
+        for (long i = 0; i < R; ++i) uc += A[i * n + j] / S[j] * c[i];
+        y[j] = vr + uc / S[j];
+    }
+    for (int u = 0; u < n; ++u) {
+        double acc = 0.0;
+        for (int j = 0; j < n; ++j) acc += V[u * n + j] * y[j];
+        step[u] = r[u] - acc;
+    }
+    free(A);
+    return rank;
+}
+
+/* solve_minimal: the q closest to the target (kg_fit's start) satisfying c0 and the
+ * equations of the given measures (eq. 21, Q0 = 0), the watchdog and line search of the
+ * Python; out: q (n), success, rank, iterations, violation. 1: bad input, 2: no memory */
+int kg_minimal(const double *in, double *out)
+{
+    kg_problem pb;
+    const int n = KG_N;
+    int nch = (int)in[1], max_iter;
+    double xtol;
+    const double *target;
+    if (nch < 0 || nch > KG_NCH) return 1;
+    kg_channel channels[nch > 0 ? nch : 1];
+    if (kg_read(in, &pb, channels, &max_iter, &xtol, &target)) return 1;
+    long R = pb.p0;
+    for (int c = 0; c < nch; ++c) R += channels[c].M * channels[c].p;
+    /* c, J, their trial and best copies, the weights */
+    double *work = malloc(sizeof(double) * (3 * (R + R * n) + R + 1));
+    if (!work) return 2;
+    double *c = work, *J = c + R, *c_new = J + R * n, *J_new = c_new + R;
+    double *c_best = J_new + R * n, *J_best = c_best + R, *w = J_best + R * n;
+    double q[KG_N + 1], trial[KG_N + 1], step[KG_N + 1], r[KG_N + 1], q_best[KG_N + 1];
+    memcpy(q, target, sizeof(double) * n);
+    int rank = 0, it, success = -1;
+    kg_minimal_equations(&pb, q, NULL, c, J); /* raw: the rows' weights */
+    for (long i = 0; i < R; ++i) {
+        double acc = 0.0;
+        for (int u = 0; u < n; ++u) acc += J[i * n + u] * J[i * n + u];
+        double norm = sqrt(acc);
+        w[i] = isfinite(norm) && norm > 0 ? 1.0 / norm : 1.0;
+        c[i] *= w[i];
+        for (int u = 0; u < n; ++u) J[i * n + u] *= w[i];
+    }
+    double delta = R ? kg_nanmax_abs(R, c) : 0.0, best = delta, d_new = 0.0;
+    memcpy(q_best, q, sizeof(double) * n);
+    memcpy(c_best, c, sizeof(double) * R);
+    memcpy(J_best, J, sizeof(double) * R * n);
+    int free_steps = KG_FREE_STEPS, slow = 0;
+    for (it = 1; it <= max_iter; ++it) {
+        for (int u = 0; u < n; ++u) r[u] = target[u] - q[u];
+        int got = kg_minimal_step(R, J, c, r, pb.eps, step);
+        if (got < 0) {
+            success = 0;
+            break;
+        }
+        rank = got;
+        int finite = 1;
+        for (int u = 0; u < n; ++u) finite &= isfinite(step[u]) != 0;
+        if (!finite) {
+            success = 0;
+            break;
+        }
+        for (int u = 0; u < n; ++u) trial[u] = q[u] + step[u];
+        d_new = kg_minimal_equations(&pb, trial, w, c_new, J_new);
+        double moved = 0.0;
+        if (free_steps > 0 && isfinite(d_new) && d_new < KG_WATCHDOG * (1 + best)) {
+            free_steps -= d_new >= delta;
+            for (int u = 0; u < n; ++u) moved = fabs(step[u]) > moved ? fabs(step[u]) : moved;
+        } else {
+            if (delta > best) { /* the watchdog's steps did not pay: back to the best */
+                delta = best;
+                memcpy(q, q_best, sizeof(double) * n);
+                memcpy(c, c_best, sizeof(double) * R);
+                memcpy(J, J_best, sizeof(double) * R * n);
+                free_steps = 0;
+                continue;
+            }
+            free_steps = 0;
+            double alpha = 1.0;
+            int found = 0;
+            while (alpha > 0x1p-30) {
+                for (int u = 0; u < n; ++u) trial[u] = q[u] + alpha * step[u];
+                d_new = kg_minimal_equations(&pb, trial, w, c_new, J_new);
+                if (isfinite(d_new) && d_new < delta + 1e-12 * (1 + delta)) {
+                    found = 1;
+                    break;
+                }
+                alpha /= 2;
+            }
+            if (!found) {
+                success = kg_solved(delta, q);
+                break;
+            }
+            for (int u = 0; u < n; ++u) {
+                double a = fabs(alpha * step[u]);
+                moved = a > moved ? a : moved;
+            }
+        }
+        slow = free_steps == 0 && d_new > 0.9 * delta ? slow + 1 : 0;
+        memcpy(q, trial, sizeof(double) * n);
+        memcpy(c, c_new, sizeof(double) * R);
+        memcpy(J, J_new, sizeof(double) * R * n);
+        delta = d_new;
+        if (delta < best) {
+            best = delta;
+            memcpy(q_best, q, sizeof(double) * n);
+            memcpy(c_best, c, sizeof(double) * R);
+            memcpy(J_best, J, sizeof(double) * R * n);
+        }
+        if (slow >= KG_SLOW) {
+            success = kg_solved(delta, q);
+            break;
+        }
+        double size = kg_nanmax_abs(n, q);
+        if (moved <= xtol * (1 + size) || (kg_solved(delta, q) && moved <= 1e-8 * (1 + size))) {
+            success = kg_solved(delta, q);
+            break;
+        }
+    }
+    if (success < 0) { /* the iteration cap */
+        success = kg_solved(delta, q);
+        it = max_iter;
+    }
+    memcpy(out, q, sizeof(double) * n);
+    out[n] = success;
+    out[n + 1] = rank;
+    out[n + 2] = it;
+    out[n + 3] = delta;
+    free(work);
+    return 0;
+}
+
 int kg_closest_root(long n, const double *S, double eps, double *L)
 {
     if (n < 0 || n > KG_N) return -1;
