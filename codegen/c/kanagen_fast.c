@@ -1556,15 +1556,20 @@ int kg_coherence(const double *in, double *out)
     if (nch < 0 || nch > KG_NCH) return 1;
     kg_channel channels[nch > 0 ? nch : 1];
     if (kg_read(in, &pb, channels, &iterations, &tol, &q)) return 1;
-    kg_point pts[3];
-    kg_lin lin;
-    kg_proj prs[2];
+    kg_point projected;
     kg_arena arena = {NULL, 0};
-    kg_layout(&arena, &pb, pts, &lin, prs);
-    arena.base = malloc(arena.used + 16);
-    if (!arena.base) return 2;
-    arena.used = 0;
-    kg_layout(&arena, &pb, pts, &lin, prs);
+    for (int pass = 0; pass < 2; ++pass) { /* sizes, then places: ChannelData.m, one point */
+        for (int c = 0; c < nch; ++c) {
+            double *m = KG_TAKE(&arena, double, channels[c].M * channels[c].k);
+            if (arena.base) channels[c].m = m;
+        }
+        kg_layout_point(&arena, &pb, &projected);
+        if (pass == 0) {
+            arena.base = malloc(arena.used + 16);
+            if (!arena.base) return 2;
+            arena.used = 0;
+        }
+    }
     kg_channel_data(&pb);
     long total = 0;
     for (int c = 0; c < nch; ++c) total += channels[c].M;
@@ -1580,13 +1585,13 @@ int kg_coherence(const double *in, double *out)
         rank[c] = ranks + at;
         observed[c] = channels[c].m; /* the projection starts at the observed measures */
     }
-    kg_project_measures(&pb, q, observed, &pts[0], iterations, tol, violation, rank);
+    kg_project_measures(&pb, q, observed, &projected, iterations, tol, violation, rank);
     for (int c = 0; c < nch; ++c) {
         const kg_channel *ch = &channels[c];
         const int k = ch->k;
         for (long i = 0; i < ch->M; ++i) {
             double v[KG_MAXK + 1];
-            for (int j = 0; j < k; ++j) v[j] = pts[0].mt[c][i * k + j] - ch->m[i * k + j];
+            for (int j = 0; j < k; ++j) v[j] = projected.mt[c][i * k + j] - ch->m[i * k + j];
             out[i] = kg_quadratic(k, v, kg_Q(ch, i)) + violation[c][i];
             out[ch->M + i] = rank[c][i];
         }
