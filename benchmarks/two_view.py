@@ -11,10 +11,11 @@ figure measured in this run:
   the transfer RMS of our H no worse than ``findHomography(USAC_MAGSAC)``. What the physical
   parameters buy: the chosen model against our own unconstrained one (``general`` for F,
   ``planar`` for H) refitted on the same inliers;
-* (c) time per scene beside pycolmap's ``estimate_two_view_geometry`` and OpenCV (F + H).
+* (c) time per scene beside pycolmap's ``estimate_two_view_geometry`` and OpenCV (F + H),
+  kanagen on its compiled backend by default (``--backend numpy`` for the NumPy runtime).
 
-Run: ``python benchmarks/two_view.py [--trials N]`` (needs the ``bench`` extra: OpenCV and
-pycolmap). BLAS threads are set to one: the algebra is on small matrices.
+Run: ``python benchmarks/two_view.py [--trials N] [--backend B]`` (needs the ``bench``
+extra: OpenCV and pycolmap). BLAS threads are set to one: the algebra is on small matrices.
 """
 
 from __future__ import annotations
@@ -88,8 +89,10 @@ def main() -> None:
     parser.add_argument("--n", type=int, default=200, help="inliers per scene")
     parser.add_argument("--outliers", type=float, default=0.3)
     parser.add_argument("--sigma", type=float, default=0.5)
+    parser.add_argument("--backend", default="compiled", choices=["numpy", "casadi", "compiled"],
+                        help="kanagen's backend (default: the compiled estimator and scoring)")
     args = parser.parse_args()
-    fam = kanagen.load("two_view")
+    fam = kanagen.load("two_view", backend=args.backend)
     confusion = {m: dict.fromkeys(MOTIONS, 0) for m in MOTIONS}
     colmap_conf: dict[str, dict[str, int]] = {m: {} for m in MOTIONS}
     acc = {m: {"ours": [], "cv": [], "free": []} for m in MOTIONS}
@@ -159,7 +162,7 @@ def main() -> None:
               f"{mine:.4f}, OpenCV {theirs:.4f} px (floor: ours <= OpenCV)")
     print("(gain: median over scenes of the error of our unconstrained model — general for "
           "F, planar for H — refitted on the same inliers, over the chosen model's)")
-    print("\n(c) time per scene (median, s)")
+    print(f"\n(c) time per scene (median, s; kanagen backend {fam.backend!r})")
     med = {k: float(np.median(v)) for k, v in times.items()}
     print(f"ours {med['ours']:.3f}   pycolmap estimate_two_view_geometry {med['pycolmap']:.4f}"
           f"   OpenCV F+H {med['opencv']:.4f}   ours/pycolmap {med['ours'] / med['pycolmap']:.0f}x")

@@ -1,19 +1,25 @@
-"""Code generation: derivatives, CSE and unrolled per-measure algebra, rendered by jinja2."""
+"""Code generation: a description of WHAT to generate (derivatives, CSE, reductions), and
+backends (NumPy, CasADi) that render it through jinja2 templates."""
 
-from .build import build, check, generator_fingerprint, render_spec
-from .describe import FORMAT, describe
-from .numpy_backend import render
-from .printer import NUMPY_FUNCTIONS, CodegenError, NumpyPrinter
+from .backend import Backend
+from .build import BACKENDS, build, check, committed_backends, generator_fingerprint, render_spec
+from .describe import FORMAT, Description, describe
+from .printer import CASADI_FUNCTIONS, NUMPY_FUNCTIONS, CasadiPrinter, CodegenError, NumpyPrinter
 
 __all__ = [
+    "BACKENDS",
+    "CASADI_FUNCTIONS",
     "FORMAT",
     "NUMPY_FUNCTIONS",
+    "Backend",
+    "CasadiPrinter",
     "CodegenError",
+    "Description",
     "NumpyPrinter",
     "build",
     "check",
+    "committed_backends",
     "describe",
     "generator_fingerprint",
-    "render",
     "render_spec",
 ]

@@ -4,20 +4,42 @@ from __future__ import annotations
 
 import difflib
 import hashlib
+from collections.abc import Iterable
 from functools import cache
 from pathlib import Path
 
 from ..modelspec import Family, load_spec
-from .describe import FORMAT
-from .numpy_backend import render
+from .backend import Backend
+from .casadi_backend import BACKEND as CASADI
+from .describe import FORMAT, describe
+from .numpy_backend import BACKEND as NUMPY
+
+#: Every backend by name. The NumPy module is the family's reference (metadata, kernels):
+#: it is always generated; the others add their module beside it.
+BACKENDS: dict[str, Backend] = {b.name: b for b in (NUMPY, CASADI)}
 
 
-def render_spec(family: Family) -> dict[str, str]:
+def _backends(names: Iterable[str]) -> list[Backend]:
+    out = []
+    for name in names:
+        if name not in BACKENDS:
+            raise ValueError(f"unknown backend {name!r} (known: {', '.join(BACKENDS)})")
+        out.append(BACKENDS[name])
+    return out
+
+
+def render_spec(family: Family, backends: Iterable[str] = ("numpy",)) -> dict[str, str]:
     """Generated files for a validated family, named after the spec file it came from."""
-    return render(family, Path(family.source).name)
+    source = Path(family.source).name
+    desc = describe(family, source)
+    files = {}
+    for backend in _backends(backends):
+        files.update(backend.render(family, source, desc))
+    return files
 
 
-def build(spec: str | Path, out_dir: str | Path) -> list[Path]:
+def build(spec: str | Path, out_dir: str | Path,
+          backends: Iterable[str] = ("numpy",)) -> list[Path]:
     """Generate the module(s) of ``spec`` into ``out_dir``; returns the written paths.
 
     Files are rewritten only when their text changes.
@@ -25,7 +47,7 @@ def build(spec: str | Path, out_dir: str | Path) -> list[Path]:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []
-    for name, text in render_spec(load_spec(spec)).items():
+    for name, text in render_spec(load_spec(spec), backends).items():
         path = out / name
         if not path.exists() or path.read_text(encoding="utf-8") != text:
             path.write_text(text, encoding="utf-8")
@@ -33,14 +55,30 @@ def build(spec: str | Path, out_dir: str | Path) -> list[Path]:
     return written
 
 
-def check(specs: list[str | Path], out_dir: str | Path) -> list[str]:
+def committed_backends(family: Family, out_dir: str | Path) -> list[str]:
+    """The NumPy backend, and every other backend whose file for ``family`` is in
+    ``out_dir``."""
+    names = ["numpy"]
+    for backend in BACKENDS.values():
+        if backend.name != "numpy" and any(
+                (Path(out_dir) / t.format(name=family.name)).exists()
+                for t in backend.templates.values()):
+            names.append(backend.name)
+    return names
+
+
+def check(specs: list[str | Path], out_dir: str | Path,
+          backends: Iterable[str] | None = None) -> list[str]:
     """Unified diffs between the committed files in ``out_dir`` and a fresh generation.
 
-    An empty list means everything is current.
+    ``backends`` default: :func:`committed_backends`. An empty list means everything is
+    current.
     """
     diffs = []
     for spec in specs:
-        for name, text in render_spec(load_spec(spec)).items():
+        family = load_spec(spec)
+        names = committed_backends(family, out_dir) if backends is None else backends
+        for name, text in render_spec(family, names).items():
             path = Path(out_dir) / name
             old = path.read_text(encoding="utf-8") if path.exists() else ""
             if old != text:
@@ -55,7 +93,8 @@ def generator_fingerprint() -> str:
     """Hash of the generator itself (code and templates): keys the run-time build cache."""
     digest = hashlib.sha256(f"format {FORMAT}".encode())
     root = Path(__file__).parent
-    for path in sorted(list(root.glob("*.py")) + list(root.glob("templates/*.jinja"))):
-        digest.update(path.name.encode())
+    for path in sorted(list(root.glob("*.py")) + list(root.glob("templates/*/*.jinja"))
+                       + list(root.glob("c/*.c"))):
+        digest.update(str(path.relative_to(root)).encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()

@@ -1,7 +1,13 @@
-"""What to generate for a family, as plain data: derivatives, CSE, printed statements.
+"""WHAT to generate for a family: functions, their derivatives and CSE, as one description.
 
-The description is built from the validated IR only, and templates see nothing else
-(names, shapes, code strings). One description per family; backends render it.
+The description is built from the validated IR only. It holds SymPy expressions (after common
+subexpression elimination), names and shapes — nothing about a target language. Backends
+(:mod:`kanagen.codegen.backend`) print it into plain data for their templates.
+
+Every function takes the parameter ``q`` (or ``r``, the free components of a model reduced
+by :mod:`~kanagen.codegen.eliminate`) and the constants ``k``; measurement functions also
+take one measure ``m`` (all the channel's components). Output shapes are per measure; a
+backend vectorises measurement functions over the measures of a channel.
 """
 
 from __future__ import annotations
@@ -12,191 +18,235 @@ import sympy as sp
 
 from ..modelspec.constructs import qualitative_labels
 from ..modelspec.ir import Family, symbol
-from .printer import NumpyPrinter
+from .eliminate import Reduction, linear_reduction
 
 #: Version of the generated-file layout; generated modules carry it and the loader checks it.
-FORMAT = 1
+FORMAT = 2
+
+
+@dataclass(frozen=True)
+class Input:
+    """An argument: its name, its size and the symbols it carries (by position)."""
+
+    name: str  # "q", "r", "m" or "k"
+    symbols: tuple[sp.Symbol, ...]
+    prefix: str  # local names in generated code: prefix + symbol name
 
 
 @dataclass(frozen=True)
 class Output:
-    """One output array: its name, NumPy shape text and the non-zero entries."""
+    """One output array: its name, shape (per measure) and non-zero entries after CSE."""
 
     name: str
-    shape: str
-    entries: tuple[tuple[str, str], ...]  # (index text, code)
+    shape: tuple[int, ...]
+    entries: tuple[tuple[tuple[int, ...], sp.Expr], ...]
 
 
 @dataclass(frozen=True)
 class Function:
-    """One generated function: signature, unpacking, CSE temporaries and outputs."""
+    """One generated function: inputs, CSE temporaries (``_tmp0 …``) and outputs."""
 
     name: str
-    args: tuple[str, ...]
-    doc: str
-    unpack: tuple[str, ...]
-    temps: tuple[tuple[str, str], ...]
+    kind: str  # "c0", "measure", "derived" or "slack"
+    summary: str
+    inputs: tuple[Input, ...]
+    temps: tuple[tuple[sp.Symbol, sp.Expr], ...]
     outputs: tuple[Output, ...]
-    returns: str
+    #: derived quantities: (name, value output, Jacobian output), in declaration order
+    pairs: tuple[tuple[str, str, str], ...] = ()
+
+    @property
+    def per_measure(self) -> bool:
+        return any(i.name == "m" for i in self.inputs)
+
+    def used(self) -> list[tuple[Input, int, sp.Symbol]]:
+        """The input symbols the outputs and temporaries use, in input order."""
+        used = set()
+        for _, e in self.temps:
+            used |= e.free_symbols
+        for o in self.outputs:
+            for _, e in o.entries:
+                used |= e.free_symbols
+        return [(inp, i, s) for inp in self.inputs for i, s in enumerate(inp.symbols)
+                if s in used]
+
+    def names(self) -> dict[sp.Symbol, str]:
+        """Local name of every symbol in generated code."""
+        out = {s: inp.prefix + s.name for inp in self.inputs for s in inp.symbols}
+        out.update({t: t.name for t, _ in self.temps})
+        return out
 
 
-def _names(family: Family, components: tuple[str, ...] = ()) -> dict[sp.Symbol, str]:
-    names = {symbol(n): f"p_{n}" for n in family.parameter_names}
-    names.update({symbol(n): f"k_{n}" for n, _ in family.constants})
-    names.update({symbol(c): f"m_{c}" for c in components})
-    return names
+@dataclass(frozen=True)
+class ModelEntry:
+    """Which functions serve one model (and its reduced form, when it has one)."""
+
+    c0: str
+    channels: tuple[tuple[str, str], ...]  # (channel, measure function)
+    reduction: Reduction | None = None
+    reduced_c0: str | None = None
+    reduced_channels: tuple[tuple[str, str], ...] = ()
 
 
-def _unpack(family: Family, exprs, components: tuple[str, ...] = ()) -> tuple[str, ...]:
-    """Unpacking lines for the symbols that the expressions use, in declaration order."""
-    used = set().union(*(e.free_symbols for e in exprs)) if exprs else set()
-    lines = [f"p_{n} = q[{i}]" for i, n in enumerate(family.parameter_names) if symbol(n) in used]
-    lines += [f"k_{n} = k[{i}]" for i, (n, _) in enumerate(family.constants) if symbol(n) in used]
-    lines += [f"m_{c} = m[:, {i}]" for i, c in enumerate(components) if symbol(c) in used]
-    return tuple(lines)
+@dataclass(frozen=True)
+class Description:
+    """Everything generated for a family; one per family, shared by every backend."""
+
+    source: str
+    sha256: str
+    family: Family
+    functions: tuple[Function, ...]  # c0 and measurement functions, reduced ones included
+    models: tuple[tuple[str, ModelEntry], ...]
+    derived: Function | None
+    slack_measures: Function | None
+    kernels: tuple[tuple[int, int], ...]  # (p, k) sizes of the per-measure algebra
 
 
-def _function(name, args, doc, family, outputs, returns, components=()) -> Function:
-    """CSE over every entry of every output, then print."""
-    flat = [(o_name, shape, index, expr) for o_name, shape, entries in outputs
+def _function(name, kind, summary, inputs, outputs, pairs=()) -> Function:
+    """CSE over every non-zero entry of every output."""
+    flat = [(o_name, index, expr) for o_name, _, entries in outputs
             for index, expr in entries if expr != 0]
     temps, reduced = sp.cse([e for *_, e in flat], symbols=sp.numbered_symbols("_tmp"),
                             order="canonical")
-    names = _names(family, components)
-    names.update({t: t.name for t, _ in temps})
-    printer = NumpyPrinter(names)
-    printed = {}
-    for (o_name, _, index, _), expr in zip(flat, reduced, strict=True):
-        printed.setdefault(o_name, []).append((index, printer.doprint(expr)))
-    return Function(
-        name=name,
-        args=args,
-        doc=doc,
-        unpack=_unpack(family, [e for *_, e in flat], components),
-        temps=tuple((t.name, printer.doprint(e)) for t, e in temps),
-        outputs=tuple(Output(o, shape, tuple(printed.get(o, ()))) for o, shape, _ in outputs),
-        returns=returns,
-    )
+    entries: dict[str, list] = {o: [] for o, _, _ in outputs}
+    for (o_name, index, _), expr in zip(flat, reduced, strict=True):
+        entries[o_name].append((index, expr))
+    return Function(name, kind, summary, tuple(inputs), tuple(temps),
+                    tuple(Output(o, shape, tuple(entries[o])) for o, shape, _ in outputs),
+                    tuple(pairs))
 
 
-def _shape_text(shape: tuple[int, ...]) -> str:
-    return "(" + ", ".join(map(str, shape)) + ("," if len(shape) == 1 else "") + ")"
+def _parameter_input(family: Family, reduction: Reduction | None) -> Input:
+    q = [symbol(n) for n in family.parameter_names]
+    if reduction is None:
+        return Input("q", tuple(q), "p_")
+    return Input("r", tuple(q[i] for i in reduction.free), "p_")
+
+
+def _constants_input(family: Family) -> Input:
+    return Input("k", tuple(symbol(n) for n, _ in family.constants), "k_")
 
 
 def _jacobian(exprs, variables):
     return [[sp.diff(e, v) for v in variables] for e in exprs]
 
 
-def c0_function(family: Family, model: str) -> Function:
-    """``c0(q)`` and ``∂c0/∂q`` of one model (report eq. 38)."""
-    q = [symbol(n) for n in family.parameter_names]
-    cons = family.model(model).constraints
-    jac = _jacobian(cons, q)
-    p, n = len(cons), len(q)
+def c0_function(family: Family, model: str, reduction: Reduction | None = None) -> Function:
+    """``c0(q)`` and ``∂c0/∂q`` of one model (report eq. 38), or of its reduced form."""
+    par = _parameter_input(family, reduction)
+    cons = family.model(model).constraints if reduction is None else reduction.constraints
+    jac = _jacobian(cons, par.symbols)
+    p, n = len(cons), len(par.symbols)
+    name = f"c0_{model}" + ("__reduced" if reduction else "")
+    what = "Constraints" if reduction is None else "Remaining constraints"
     return _function(
-        f"c0_{model}", ("q", "k"),
-        f"Constraints c0(q) of model {model!r} and their Jacobian: shapes ({p},), ({p}, {n}).",
-        family,
-        [("c0", f"({p},)", [(f"{i}", e) for i, e in enumerate(cons)]),
-         ("C0", f"({p}, {n})", [(f"{i}, {j}", jac[i][j]) for i in range(p) for j in range(n)])],
-        "c0, C0",
+        name, "c0", f"{what} c0({par.name}) of model {model!r} and their Jacobian",
+        [par, _constants_input(family)],
+        [("c0", (p,), [((i,), e) for i, e in enumerate(cons)]),
+         ("C0", (p, n), [((i, j), jac[i][j]) for i in range(p) for j in range(n)])],
     )
 
 
-def measure_function(family: Family, name: str, channel: str, equations) -> Function:
-    """``c_i``, ``∂c_i/∂q`` and ``∂c_i/∂m_i`` of a channel, vectorised over measures."""
+def measure_function(family: Family, name: str, channel: str, equations,
+                     reduction: Reduction | None = None) -> Function:
+    """``c_i``, ``∂c_i/∂q`` and ``∂c_i/∂m_i`` of a channel, for one measure."""
     ch = family.channel(channel)
-    q = [symbol(n) for n in family.parameter_names]
+    par = _parameter_input(family, reduction)
+    if reduction is not None:
+        equations = tuple(reduction.substitute(e) for e in equations)
     m = [symbol(c) for c in ch.corrected]
-    jq, jm = _jacobian(equations, q), _jacobian(equations, m)
-    p, n, k = len(equations), len(q), len(m)
+    jq, jm = _jacobian(equations, par.symbols), _jacobian(equations, m)
+    p, n, k = len(equations), len(par.symbols), len(m)
     return _function(
-        name, ("q", "m", "k"),
-        f"Equations of channel {channel!r}, their Jacobians in q and in the corrected\n"
-        f"    components {list(ch.corrected)}: shapes (M, {p}), (M, {p}, {n}), (M, {p}, {k}).",
-        family,
-        [("c", f"(M, {p})", [(f":, {i}", e) for i, e in enumerate(equations)]),
-         ("C", f"(M, {p}, {n})",
-          [(f":, {i}, {j}", jq[i][j]) for i in range(p) for j in range(n)]),
-         ("D", f"(M, {p}, {k})",
-          [(f":, {i}, {j}", jm[i][j]) for i in range(p) for j in range(k)])],
-        "c, C, D",
-        components=ch.components,
+        name, "measure",
+        f"Equations of channel {channel!r}, their Jacobians in {par.name} and in the corrected"
+        f"\n    components {list(ch.corrected)}",
+        [par, Input("m", tuple(symbol(c) for c in ch.components), "m_"),
+         _constants_input(family)],
+        [("c", (p,), [((i,), e) for i, e in enumerate(equations)]),
+         ("C", (p, n), [((i, j), jq[i][j]) for i in range(p) for j in range(n)]),
+         ("D", (p, k), [((i, j), jm[i][j]) for i in range(p) for j in range(k)])],
     )
 
 
 def derived_function(family: Family) -> Function:
     """Every derived quantity and its Jacobian in q (for uncertainty propagation)."""
-    q = [symbol(n) for n in family.parameter_names]
-    outputs, ret = [], []
-    n = len(q)
+    par = _parameter_input(family, None)
+    n = len(par.symbols)
+    outputs, pairs = [], []
     for d in family.derived:
         shape = d.shape
-        if shape:
-            idx = [", ".join(map(str, divmod(i, shape[1]))) if len(shape) == 2 else str(i)
-                   for i in range(len(d.expressions))]
-        else:
-            idx = ["()"]
-        outputs.append((f"v_{d.name}", _shape_text(shape),
-                        [(i, e) for i, e in zip(idx, d.expressions, strict=True)]))
-        outputs.append((f"j_{d.name}", _shape_text(shape + (n,)),
-                        [(f"{i}, {j}" if shape else f"{j}", sp.diff(e, v))
+        idx = [divmod(i, shape[1]) if len(shape) == 2 else (i,) if shape else ()
+               for i in range(len(d.expressions))]
+        outputs.append((f"v_{d.name}", shape, list(zip(idx, d.expressions, strict=True))))
+        outputs.append((f"j_{d.name}", shape + (n,),
+                        [(i + (j,), sp.diff(e, v))
                          for i, e in zip(idx, d.expressions, strict=True)
-                         for j, v in enumerate(q)]))
-        ret.append(f"{d.name!r}: (v_{d.name}, j_{d.name})")
-    return _function(
-        "derived", ("q", "k"),
-        "Derived quantities and their Jacobians in q, by name: {name: (value, jacobian)}.",
-        family, outputs, "{" + ", ".join(ret) + "}",
-    )
+                         for j, v in enumerate(par.symbols)]))
+        pairs.append((d.name, f"v_{d.name}", f"j_{d.name}"))
+    return _function("derived", "derived",
+                     "Derived quantities and their Jacobians in q, by name",
+                     [par, _constants_input(family)], outputs, pairs)
 
 
 def slack_function(family: Family) -> Function:
     """The measure ``c`` of each slack's relation (``c >= 0``, ``c > 0``, ``c != 0``)."""
     k = len(family.slack_relations)
     return _function(
-        "slack_measures", ("q", "k"),
-        "For each slack component, c of its relation (c >= 0, c > 0 or c != 0).",
-        family,
-        [("c", f"({k},)", [(f"{i}", c) for i, (_, c) in enumerate(family.slack_relations)])],
-        "c",
+        "slack_measures", "slack",
+        "For each slack component, c of its relation (c >= 0, c > 0 or c != 0)",
+        [_parameter_input(family, None), _constants_input(family)],
+        [("c", (k,), [((i,), c) for i, (_, c) in enumerate(family.slack_relations)])],
     )
 
 
-def describe(family: Family, source_name: str) -> dict:
-    """The plain-data description of everything generated for ``family``."""
-    functions, models, shapes = [], {}, set()
-    measure_names: dict[tuple, str] = {}
+def describe(family: Family, source_name: str) -> Description:
+    """The description of everything generated for ``family``."""
+    functions, models, shapes = [], [], set()
+    made: dict[tuple, str] = {}
+
+    def measure(channel, eqs, fname, reduction=None):
+        key = (channel, eqs, reduction)
+        if key not in made:
+            made[key] = fname
+            functions.append(measure_function(family, fname, channel, eqs, reduction))
+        return made[key]
+
     for model in family.models:
         functions.append(c0_function(family, model.name))
-        channels = {}
+        channels = []
         for ch in family.channels:
             eqs = family.equations(model.name, ch.name)
-            key = (ch.name, eqs)
-            if key not in measure_names:
-                overridden = eqs != ch.equations
-                fname = f"measure_{ch.name}" + (f"__{model.name}" if overridden else "")
-                measure_names[key] = fname
-                functions.append(measure_function(family, fname, ch.name, eqs))
-            channels[ch.name] = measure_names[key]
+            overridden = eqs != ch.equations
+            fname = f"measure_{ch.name}" + (f"__{model.name}" if overridden else "")
+            channels.append((ch.name, measure(ch.name, eqs, fname)))
             shapes.add((len(eqs), len(ch.corrected)))
-        models[model.name] = {"c0": f"c0_{model.name}", "channels": channels}
-    return {
-        "format": FORMAT,
-        "source": source_name,
-        "sha256": family.sha256,
-        "family": family_metadata(family),
-        "functions": functions,
-        "models": models,
-        "has_derived": bool(family.derived),
-        "derived": derived_function(family) if family.derived else None,
-        "slack_measures": slack_function(family) if family.slack else None,
-        "kernels": sorted(shapes),
-    }
+        reduction = linear_reduction(family, model.name)
+        entry = ModelEntry(f"c0_{model.name}", tuple(channels))
+        if reduction is not None:
+            functions.append(c0_function(family, model.name, reduction))
+            reduced = tuple(
+                (ch.name, measure(ch.name, family.equations(model.name, ch.name),
+                                  f"measure_{ch.name}__{model.name}__reduced", reduction))
+                for ch in family.channels)
+            entry = ModelEntry(entry.c0, entry.channels, reduction,
+                               f"c0_{model.name}__reduced", reduced)
+        models.append((model.name, entry))
+    return Description(
+        source=source_name,
+        sha256=family.sha256,
+        family=family,
+        functions=tuple(functions),
+        models=tuple(models),
+        derived=derived_function(family) if family.derived else None,
+        slack_measures=slack_function(family) if family.slack else None,
+        kernels=tuple(sorted(shapes)),
+    )
 
 
-def family_metadata(family: Family) -> dict:
+def family_metadata(desc: Description) -> dict:
     """What the runtime needs to know of the family, as plain data (no SymPy objects)."""
+    family = desc.family
     return {
         "name": family.name,
         "parameter": [[n, v] for n, v in family.parameter],
@@ -217,6 +267,12 @@ def family_metadata(family: Family) -> dict:
         "slack_kinds": [kind for kind, _ in family.slack_relations],
         "slack_owner": list(family.slack_owner),
         "slack_clauses": {m: [list(c) for c in cl] for m, cl in family.slack_clauses},
+        "reductions": {
+            name: {"free": list(e.reduction.free),
+                   "T": [[float(v) for v in row] for row in e.reduction.T],
+                   "t": [float(v) for v in e.reduction.t]}
+            for name, e in desc.models if e.reduction is not None
+        },
     }
 
 

@@ -1,48 +1,83 @@
-"""The NumPy backend: renders a family description with jinja2 into one Python module.
-
-Recipe for another backend: a template folder, a printer with one lookup table, and a render
-function that takes the same plain-data description (see :func:`kanagen.codegen.describe`).
-"""
+"""The NumPy backend: one Python module per family, vectorised over the measures of a channel,
+with the per-measure algebra of the projector unrolled for its fixed sizes (report §6)."""
 
 from __future__ import annotations
 
 import pprint
-import re
-from functools import cache
 
-import jinja2
+from .backend import Backend, printed
+from .describe import FORMAT, Description, Function, family_metadata
+from .printer import NumpyPrinter
 
-from ..modelspec.ir import Family
-from .describe import describe
+
+def _shape(shape: tuple[int, ...], per_measure: bool) -> str:
+    dims = (("M",) if per_measure else ()) + tuple(map(str, shape))
+    return "(" + ", ".join(dims) + ("," if len(dims) == 1 else "") + ")"
+
+
+def _index(index: tuple[int, ...], per_measure: bool) -> str:
+    if per_measure:
+        return ", ".join((":",) + tuple(map(str, index)))
+    return ", ".join(map(str, index)) if index else "()"
+
+
+def _doc(f: Function) -> str:
+    if f.kind == "derived":
+        return f"{f.summary}: {{name: (value, jacobian)}}."
+    if f.kind == "slack":
+        return f"{f.summary}."
+    shapes = ", ".join(_shape(o.shape, f.per_measure) for o in f.outputs)
+    return f"{f.summary}: shapes {shapes}."
+
+
+def _returns(f: Function) -> str:
+    if f.kind == "derived":
+        return "{" + ", ".join(f"{name!r}: ({v}, {j})" for name, v, j in f.pairs) + "}"
+    return ", ".join(o.name for o in f.outputs)
+
+
+def function_context(f: Function) -> dict:
+    """One function as plain data for the NumPy templates."""
+    temps, outputs = printed(f, NumpyPrinter)
+    per = f.per_measure
+    # parameter, constants, then measure components
+    used = sorted(f.used(), key=lambda u: u[0].name == "m")
+    unpack = [f"{inp.prefix}{s.name} = {inp.name}[{':, ' if inp.name == 'm' else ''}{i}]"
+              for inp, i, s in used]
+    return {
+        "name": f.name,
+        "args": [inp.name for inp in f.inputs],
+        "doc": _doc(f),
+        "unpack": unpack,
+        "per_measure": per,
+        "temps": temps,
+        "outputs": [{"name": o.name, "shape": _shape(o.shape, per),
+                     "entries": [(_index(i, per), code) for i, code in entries]}
+                    for o, entries in zip(f.outputs, outputs, strict=True)],
+        "returns": _returns(f),
+    }
+
+
+def context(desc: Description) -> dict:
+    """The plain data the NumPy module template sees."""
+    family = family_metadata(desc)
+    return {
+        "format": FORMAT,
+        "source": desc.source,
+        "sha256": desc.sha256,
+        "family": family,
+        "family_literal": pprint.pformat(family, width=96, sort_dicts=False),
+        "functions": [function_context(f) for f in desc.functions],
+        "derived": function_context(desc.derived) if desc.derived else None,
+        "slack_measures": function_context(desc.slack_measures) if desc.slack_measures
+        else None,
+        "models": [{"name": name, "c0": e.c0, "channels": list(e.channels),
+                    "reduced": {"c0": e.reduced_c0, "channels": list(e.reduced_channels)}
+                    if e.reduction else None}
+                   for name, e in desc.models],
+        "kernels": [list(s) for s in desc.kernels],
+    }
+
 
 #: Which templates render to which file: one module per family.
-TEMPLATES = {"module.py.jinja": "{name}.py"}
-
-
-@cache
-def environment() -> jinja2.Environment:
-    return jinja2.Environment(
-        loader=jinja2.PackageLoader("kanagen.codegen", "templates"),
-        undefined=jinja2.StrictUndefined,
-        trim_blocks=True,
-        lstrip_blocks=True,
-        keep_trailing_newline=True,
-        autoescape=False,
-    )
-
-
-def render(family: Family, source_name: str) -> dict[str, str]:
-    """Render ``family``; returns ``{file name: text}``. Deterministic for a given spec."""
-    desc = describe(family, source_name)
-    context = dict(desc, family_literal=pprint.pformat(desc["family"], width=96, sort_dicts=False))
-    out = {}
-    for template, target in TEMPLATES.items():
-        text = environment().get_template(template).render(**context)
-        out[target.format(name=family.name)] = _tidy(text)
-    return out
-
-
-def _tidy(text: str) -> str:
-    """Strip trailing blanks and runs of more than two empty lines."""
-    text = "\n".join(line.rstrip() for line in text.splitlines())
-    return re.sub(r"\n{4,}", "\n\n\n", text).strip("\n") + "\n"
+BACKEND = Backend("numpy", "numpy", {"module.py.jinja": "{name}.py"}, context)

@@ -1,12 +1,17 @@
-"""SymPy -> NumPy source text, through ONE lookup table of functions (checked one-to-one)."""
+"""SymPy -> target source text, through ONE lookup table of functions per target.
+
+Each table maps every SymPy function class a spec may use, and every class their derivatives
+produce (``sign`` from ``abs``), to exactly one function of the target library, and is
+checked one-to-one (two SymPy functions never print as the same target function). A printer
+is the table plus the few spellings that differ between targets (square root, π, e).
+"""
 
 from __future__ import annotations
 
 import sympy as sp
 from sympy.printing.str import StrPrinter
 
-#: SymPy function class -> NumPy function. Every function a spec may use, and every function
-#: their derivatives produce (``sign`` from ``abs``), appears here exactly once.
+#: SymPy function class -> NumPy function.
 NUMPY_FUNCTIONS: dict[type, str] = {
     sp.exp: "np.exp",
     sp.log: "np.log",
@@ -23,15 +28,43 @@ NUMPY_FUNCTIONS: dict[type, str] = {
     sp.Abs: "np.abs",
     sp.sign: "np.sign",
 }
-assert len(set(NUMPY_FUNCTIONS.values())) == len(NUMPY_FUNCTIONS), "table must be one-to-one"
+
+#: SymPy function class -> CasADi function (on ``SX`` symbols).
+CASADI_FUNCTIONS: dict[type, str] = {
+    sp.exp: "ca.exp",
+    sp.log: "ca.log",
+    sp.sin: "ca.sin",
+    sp.cos: "ca.cos",
+    sp.tan: "ca.tan",
+    sp.atan: "ca.atan",
+    sp.atan2: "ca.atan2",
+    sp.asin: "ca.asin",
+    sp.acos: "ca.acos",
+    sp.sinh: "ca.sinh",
+    sp.cosh: "ca.cosh",
+    sp.tanh: "ca.tanh",
+    sp.Abs: "ca.fabs",
+    sp.sign: "ca.sign",
+}
+
+for _table in (NUMPY_FUNCTIONS, CASADI_FUNCTIONS):
+    assert len(set(_table.values())) == len(_table), "a function table must be one-to-one"
 
 
 class CodegenError(ValueError):
-    """An expression cannot be turned into code (e.g. a function with no NumPy counterpart)."""
+    """An expression cannot be turned into code (e.g. a function with no counterpart)."""
 
 
-class NumpyPrinter(StrPrinter):
-    """Print SymPy expressions as NumPy code, with symbols renamed by ``names``."""
+class TablePrinter(StrPrinter):
+    """Print SymPy expressions as Python source for one target library.
+
+    Symbols are renamed by ``names``; functions go through :attr:`functions`, the target's
+    one table. Subclasses set the table, the module prefix and the target's name.
+    """
+
+    functions: dict[type, str] = {}
+    module = ""
+    target = ""
 
     def __init__(self, names: dict[sp.Symbol, str]):
         super().__init__({"full_prec": True})
@@ -47,25 +80,42 @@ class NumpyPrinter(StrPrinter):
         return repr(float(expr))
 
     def _print_Pi(self, expr):
-        return "np.pi"
+        return f"{self.module}.pi"
 
     def _print_Exp1(self, expr):
-        return "np.e"
+        return f"{self.module}.exp(1)" if self.module == "ca" else f"{self.module}.e"
 
     def _print_Pow(self, expr, rational=False):
         if expr.exp == sp.S.Half:
-            return f"np.sqrt({self._print(expr.base)})"
+            return f"{self.module}.sqrt({self._print(expr.base)})"
         if expr.exp == -sp.S.Half:
-            return f"1/np.sqrt({self._print(expr.base)})"
+            return f"1/{self.module}.sqrt({self._print(expr.base)})"
         return super()._print_Pow(expr, rational)
 
     def _print_Function(self, expr):
-        target = NUMPY_FUNCTIONS.get(type(expr))
+        target = self.functions.get(type(expr))
         if target is None:
-            raise CodegenError(f"function {type(expr).__name__} has no NumPy counterpart")
+            raise CodegenError(f"function {type(expr).__name__} has no {self.target} "
+                               "counterpart")
         return f"{target}({', '.join(self._print(a) for a in expr.args)})"
 
     def _print_NaN(self, expr):
         raise CodegenError("expression evaluates to NaN")
 
     _print_ComplexInfinity = _print_Infinity = _print_NegativeInfinity = _print_NaN
+
+
+class NumpyPrinter(TablePrinter):
+    """SymPy -> NumPy (arrays of measures broadcast through every operation)."""
+
+    functions = NUMPY_FUNCTIONS
+    module = "np"
+    target = "NumPy"
+
+
+class CasadiPrinter(TablePrinter):
+    """SymPy -> CasADi ``SX`` expressions (one measure; the runtime maps over measures)."""
+
+    functions = CASADI_FUNCTIONS
+    module = "ca"
+    target = "CasADi"

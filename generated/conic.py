@@ -6,7 +6,7 @@ algebra of the projector. Load it with ``kanagen.load``.
 
 import numpy as np
 
-FORMAT = 1
+FORMAT = 2
 SPEC_SOURCE = "conic.yaml"
 SPEC_SHA256 = "665b5e611ae5dea3dba01dcfd2ed4b0540421f3b480b83a5ba748f7942665c54"
 FAMILY = {'name': 'conic',
@@ -35,7 +35,15 @@ FAMILY = {'name': 'conic',
  'slack': [],
  'slack_kinds': [],
  'slack_owner': [],
- 'slack_clauses': {}}
+ 'slack_clauses': {},
+ 'reductions': {'circle': {'free': [0, 3, 4, 5],
+                           'T': [[1.0, 0.0, 0.0, 0.0],
+                                 [0.0, 0.0, 0.0, 0.0],
+                                 [1.0, 0.0, 0.0, 0.0],
+                                 [0.0, 1.0, 0.0, 0.0],
+                                 [0.0, 0.0, 1.0, 0.0],
+                                 [0.0, 0.0, 0.0, 1.0]],
+                           't': [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]}}}
 
 _TINY = np.finfo(float).tiny
 _REDUNDANT = 1e3 * np.finfo(float).eps
@@ -101,6 +109,54 @@ def measure_point(q, m, k):
     D = np.zeros((M, 1, 2))
     D[:, 0, 0] = p_A*_tmp3 + p_B*_tmp6 + p_D*_tmp5
     D[:, 0, 1] = p_B*_tmp3 + p_C*_tmp6 + p_E*_tmp5
+    return c, C, D
+
+
+def c0_circle__reduced(r, k):
+    """Remaining constraints c0(r) of model 'circle' and their Jacobian: shapes (1,), (1, 4)."""
+    p_A = r[0]
+    p_D = r[1]
+    p_E = r[2]
+    p_F = r[3]
+    # Outputs
+    c0 = np.zeros((1,))
+    c0[0] = 2*p_A**2 + p_D**2 + p_E**2 + p_F**2 - 1
+    C0 = np.zeros((1, 4))
+    C0[0, 0] = 4*p_A
+    C0[0, 1] = 2*p_D
+    C0[0, 2] = 2*p_E
+    C0[0, 3] = 2*p_F
+    return c0, C0
+
+
+def measure_point__circle__reduced(r, m, k):
+    """Equations of channel 'point', their Jacobians in r and in the corrected
+    components ['x', 'y']: shapes (M, 1), (M, 1, 4), (M, 1, 2)."""
+    p_A = r[0]
+    p_D = r[1]
+    p_E = r[2]
+    p_F = r[3]
+    k_f0 = k[0]
+    m_x = m[:, 0]
+    m_y = m[:, 1]
+    M = m.shape[0]
+    # Intermediate terms (5)
+    _tmp0 = m_x**2
+    _tmp1 = m_y**2
+    _tmp2 = k_f0**2
+    _tmp3 = 2*k_f0
+    _tmp4 = 2*p_A
+    # Outputs
+    c = np.zeros((M, 1))
+    c[:, 0] = p_A*_tmp0 + p_A*_tmp1 + p_F*_tmp2 + _tmp3*(p_D*m_x + p_E*m_y)
+    C = np.zeros((M, 1, 4))
+    C[:, 0, 0] = _tmp0 + _tmp1
+    C[:, 0, 1] = _tmp3*m_x
+    C[:, 0, 2] = _tmp3*m_y
+    C[:, 0, 3] = _tmp2
+    D = np.zeros((M, 1, 2))
+    D[:, 0, 0] = p_D*_tmp3 + _tmp4*m_x
+    D[:, 0, 1] = p_E*_tmp3 + _tmp4*m_y
     return c, C, D
 
 
@@ -212,6 +268,7 @@ MODELS = {
     "circle": {
         "c0": c0_circle,
         "channels": {"point": measure_point},
+        "reduced": {"c0": c0_circle__reduced, "channels": {"point": measure_point__circle__reduced}},
     },
     "conic": {
         "c0": c0_conic,

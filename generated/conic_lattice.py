@@ -6,7 +6,7 @@ algebra of the projector. Load it with ``kanagen.load``.
 
 import numpy as np
 
-FORMAT = 1
+FORMAT = 2
 SPEC_SOURCE = "conic_lattice.yaml"
 SPEC_SHA256 = "0b08dedfae5ce9e3eee9d29d3b8f305151b638fc51fdc42b538aea25ff9d9ed6"
 FAMILY = {'name': 'conic_lattice',
@@ -49,7 +49,34 @@ FAMILY = {'name': 'conic_lattice',
  'slack': ['s_ellipse'],
  'slack_kinds': ['>'],
  'slack_owner': ['ellipse'],
- 'slack_clauses': {'ellipse': [[0]]}}
+ 'slack_clauses': {'ellipse': [[0]]},
+ 'reductions': {'line': {'free': [3, 4, 5],
+                         'T': [[0.0, 0.0, 0.0],
+                               [0.0, 0.0, 0.0],
+                               [0.0, 0.0, 0.0],
+                               [1.0, 0.0, 0.0],
+                               [0.0, 1.0, 0.0],
+                               [0.0, 0.0, 1.0],
+                               [0.0, 0.0, 0.0]],
+                         't': [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]},
+                'circle': {'free': [0, 3, 4, 5],
+                           'T': [[1.0, 0.0, 0.0, 0.0],
+                                 [0.0, 0.0, 0.0, 0.0],
+                                 [1.0, 0.0, 0.0, 0.0],
+                                 [0.0, 1.0, 0.0, 0.0],
+                                 [0.0, 0.0, 1.0, 0.0],
+                                 [0.0, 0.0, 0.0, 1.0],
+                                 [0.0, 0.0, 0.0, 0.0]],
+                           't': [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]},
+                'conic': {'free': [0, 1, 2, 3, 4, 5],
+                          'T': [[1.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                                [0.0, 1.0, 0.0, 0.0, 0.0, 0.0],
+                                [0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+                                [0.0, 0.0, 0.0, 1.0, 0.0, 0.0],
+                                [0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+                                [0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+                                [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]],
+                          't': [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]}}}
 
 _TINY = np.finfo(float).tiny
 _REDUNDANT = 1e3 * np.finfo(float).eps
@@ -122,6 +149,47 @@ def measure_point(q, m, k):
     return c, C, D
 
 
+def c0_line__reduced(r, k):
+    """Remaining constraints c0(r) of model 'line' and their Jacobian: shapes (1,), (1, 3)."""
+    p_D = r[0]
+    p_E = r[1]
+    p_F = r[2]
+    # Outputs
+    c0 = np.zeros((1,))
+    c0[0] = p_D**2 + p_E**2 + p_F**2 - 1
+    C0 = np.zeros((1, 3))
+    C0[0, 0] = 2*p_D
+    C0[0, 1] = 2*p_E
+    C0[0, 2] = 2*p_F
+    return c0, C0
+
+
+def measure_point__line__reduced(r, m, k):
+    """Equations of channel 'point', their Jacobians in r and in the corrected
+    components ['x', 'y']: shapes (M, 1), (M, 1, 3), (M, 1, 2)."""
+    p_D = r[0]
+    p_E = r[1]
+    p_F = r[2]
+    k_f0 = k[0]
+    m_x = m[:, 0]
+    m_y = m[:, 1]
+    M = m.shape[0]
+    # Intermediate terms (2)
+    _tmp0 = k_f0**2
+    _tmp1 = 2*k_f0
+    # Outputs
+    c = np.zeros((M, 1))
+    c[:, 0] = p_F*_tmp0 + _tmp1*(p_D*m_x + p_E*m_y)
+    C = np.zeros((M, 1, 3))
+    C[:, 0, 0] = _tmp1*m_x
+    C[:, 0, 1] = _tmp1*m_y
+    C[:, 0, 2] = _tmp0
+    D = np.zeros((M, 1, 2))
+    D[:, 0, 0] = p_D*_tmp1
+    D[:, 0, 1] = p_E*_tmp1
+    return c, C, D
+
+
 def c0_circle(q, k):
     """Constraints c0(q) of model 'circle' and their Jacobian: shapes (4,), (4, 7)."""
     p_A = q[0]
@@ -149,6 +217,54 @@ def c0_circle(q, k):
     C0[2, 5] = 2*p_F
     C0[3, 6] = 1
     return c0, C0
+
+
+def c0_circle__reduced(r, k):
+    """Remaining constraints c0(r) of model 'circle' and their Jacobian: shapes (1,), (1, 4)."""
+    p_A = r[0]
+    p_D = r[1]
+    p_E = r[2]
+    p_F = r[3]
+    # Outputs
+    c0 = np.zeros((1,))
+    c0[0] = 2*p_A**2 + p_D**2 + p_E**2 + p_F**2 - 1
+    C0 = np.zeros((1, 4))
+    C0[0, 0] = 4*p_A
+    C0[0, 1] = 2*p_D
+    C0[0, 2] = 2*p_E
+    C0[0, 3] = 2*p_F
+    return c0, C0
+
+
+def measure_point__circle__reduced(r, m, k):
+    """Equations of channel 'point', their Jacobians in r and in the corrected
+    components ['x', 'y']: shapes (M, 1), (M, 1, 4), (M, 1, 2)."""
+    p_A = r[0]
+    p_D = r[1]
+    p_E = r[2]
+    p_F = r[3]
+    k_f0 = k[0]
+    m_x = m[:, 0]
+    m_y = m[:, 1]
+    M = m.shape[0]
+    # Intermediate terms (5)
+    _tmp0 = m_x**2
+    _tmp1 = m_y**2
+    _tmp2 = k_f0**2
+    _tmp3 = 2*k_f0
+    _tmp4 = 2*p_A
+    # Outputs
+    c = np.zeros((M, 1))
+    c[:, 0] = p_A*_tmp0 + p_A*_tmp1 + p_F*_tmp2 + _tmp3*(p_D*m_x + p_E*m_y)
+    C = np.zeros((M, 1, 4))
+    C[:, 0, 0] = _tmp0 + _tmp1
+    C[:, 0, 1] = _tmp3*m_x
+    C[:, 0, 2] = _tmp3*m_y
+    C[:, 0, 3] = _tmp2
+    D = np.zeros((M, 1, 2))
+    D[:, 0, 0] = p_D*_tmp3 + _tmp4*m_x
+    D[:, 0, 1] = p_E*_tmp3 + _tmp4*m_y
+    return c, C, D
 
 
 def c0_ellipse(q, k):
@@ -205,6 +321,64 @@ def c0_conic(q, k):
     C0[0, 5] = 2*p_F
     C0[1, 6] = 1
     return c0, C0
+
+
+def c0_conic__reduced(r, k):
+    """Remaining constraints c0(r) of model 'conic' and their Jacobian: shapes (1,), (1, 6)."""
+    p_A = r[0]
+    p_B = r[1]
+    p_C = r[2]
+    p_D = r[3]
+    p_E = r[4]
+    p_F = r[5]
+    # Outputs
+    c0 = np.zeros((1,))
+    c0[0] = p_A**2 + p_B**2 + p_C**2 + p_D**2 + p_E**2 + p_F**2 - 1
+    C0 = np.zeros((1, 6))
+    C0[0, 0] = 2*p_A
+    C0[0, 1] = 2*p_B
+    C0[0, 2] = 2*p_C
+    C0[0, 3] = 2*p_D
+    C0[0, 4] = 2*p_E
+    C0[0, 5] = 2*p_F
+    return c0, C0
+
+
+def measure_point__conic__reduced(r, m, k):
+    """Equations of channel 'point', their Jacobians in r and in the corrected
+    components ['x', 'y']: shapes (M, 1), (M, 1, 6), (M, 1, 2)."""
+    p_A = r[0]
+    p_B = r[1]
+    p_C = r[2]
+    p_D = r[3]
+    p_E = r[4]
+    p_F = r[5]
+    k_f0 = k[0]
+    m_x = m[:, 0]
+    m_y = m[:, 1]
+    M = m.shape[0]
+    # Intermediate terms (7)
+    _tmp0 = m_x**2
+    _tmp1 = m_y**2
+    _tmp2 = k_f0**2
+    _tmp3 = 2*m_x
+    _tmp4 = _tmp3*m_y
+    _tmp5 = 2*k_f0
+    _tmp6 = 2*m_y
+    # Outputs
+    c = np.zeros((M, 1))
+    c[:, 0] = p_A*_tmp0 + p_B*_tmp4 + p_C*_tmp1 + p_F*_tmp2 + _tmp5*(p_D*m_x + p_E*m_y)
+    C = np.zeros((M, 1, 6))
+    C[:, 0, 0] = _tmp0
+    C[:, 0, 1] = _tmp4
+    C[:, 0, 2] = _tmp1
+    C[:, 0, 3] = _tmp5*m_x
+    C[:, 0, 4] = _tmp5*m_y
+    C[:, 0, 5] = _tmp2
+    D = np.zeros((M, 1, 2))
+    D[:, 0, 0] = p_A*_tmp3 + p_B*_tmp6 + p_D*_tmp5
+    D[:, 0, 1] = p_B*_tmp3 + p_C*_tmp6 + p_E*_tmp5
+    return c, C, D
 
 
 def derived(q, k):
@@ -305,10 +479,12 @@ MODELS = {
     "line": {
         "c0": c0_line,
         "channels": {"point": measure_point},
+        "reduced": {"c0": c0_line__reduced, "channels": {"point": measure_point__line__reduced}},
     },
     "circle": {
         "c0": c0_circle,
         "channels": {"point": measure_point},
+        "reduced": {"c0": c0_circle__reduced, "channels": {"point": measure_point__circle__reduced}},
     },
     "ellipse": {
         "c0": c0_ellipse,
@@ -317,6 +493,7 @@ MODELS = {
     "conic": {
         "c0": c0_conic,
         "channels": {"point": measure_point},
+        "reduced": {"c0": c0_conic__reduced, "channels": {"point": measure_point__conic__reduced}},
     },
 }
 DERIVED = derived

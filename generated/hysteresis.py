@@ -6,7 +6,7 @@ algebra of the projector. Load it with ``kanagen.load``.
 
 import numpy as np
 
-FORMAT = 1
+FORMAT = 2
 SPEC_SOURCE = "hysteresis.yaml"
 SPEC_SHA256 = "bed58e6950d17582f5cee9dc9ec186320c901e8386354e1e50dbe729b333d635"
 FAMILY = {'name': 'hysteresis',
@@ -80,7 +80,8 @@ FAMILY = {'name': 'hysteresis',
                  'hysteresis',
                  'hysteresis',
                  'hysteresis'],
- 'slack_clauses': {'hysteresis': [[5, 7, 8], [6, 7, 8]]}}
+ 'slack_clauses': {'hysteresis': [[5, 7, 8], [6, 7, 8]]},
+ 'reductions': {}}
 
 _TINY = np.finfo(float).tiny
 _REDUNDANT = 1e3 * np.finfo(float).eps

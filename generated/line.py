@@ -6,7 +6,7 @@ algebra of the projector. Load it with ``kanagen.load``.
 
 import numpy as np
 
-FORMAT = 1
+FORMAT = 2
 SPEC_SOURCE = "line.yaml"
 SPEC_SHA256 = "0c0f4b5249f5beb13cd3ba271a3cb3ad728e3302c6d9deb57a5fcadb7b82cceb"
 FAMILY = {'name': 'line',
@@ -25,7 +25,8 @@ FAMILY = {'name': 'line',
  'slack': [],
  'slack_kinds': [],
  'slack_owner': [],
- 'slack_clauses': {}}
+ 'slack_clauses': {},
+ 'reductions': {'horizontal': {'free': [1], 'T': [[0.0], [1.0]], 't': [0.0, 0.0]}}}
 
 _TINY = np.finfo(float).tiny
 _REDUNDANT = 1e3 * np.finfo(float).eps
@@ -58,6 +59,30 @@ def measure_point(q, m, k):
     C[:, 0, 1] = -1
     D = np.zeros((M, 1, 2))
     D[:, 0, 0] = -p_a
+    D[:, 0, 1] = 1
+    return c, C, D
+
+
+def c0_horizontal__reduced(r, k):
+    """Remaining constraints c0(r) of model 'horizontal' and their Jacobian: shapes (0,), (0, 1)."""
+    # Outputs
+    c0 = np.zeros((0,))
+    C0 = np.zeros((0, 1))
+    return c0, C0
+
+
+def measure_point__horizontal__reduced(r, m, k):
+    """Equations of channel 'point', their Jacobians in r and in the corrected
+    components ['x', 'y']: shapes (M, 1), (M, 1, 1), (M, 1, 2)."""
+    p_b = r[0]
+    m_y = m[:, 1]
+    M = m.shape[0]
+    # Outputs
+    c = np.zeros((M, 1))
+    c[:, 0] = -p_b + m_y
+    C = np.zeros((M, 1, 1))
+    C[:, 0, 0] = -1
+    D = np.zeros((M, 1, 2))
     D[:, 0, 1] = 1
     return c, C, D
 
@@ -134,6 +159,7 @@ MODELS = {
     "horizontal": {
         "c0": c0_horizontal,
         "channels": {"point": measure_point},
+        "reduced": {"c0": c0_horizontal__reduced, "channels": {"point": measure_point__horizontal__reduced}},
     },
     "line": {
         "c0": c0_line,

@@ -6,7 +6,7 @@ algebra of the projector. Load it with ``kanagen.load``.
 
 import numpy as np
 
-FORMAT = 1
+FORMAT = 2
 SPEC_SOURCE = "pga.yaml"
 SPEC_SHA256 = "f8c30c0d93577258c30b753b2406d64403a7e07b68a95528e8c04cc599a1126a"
 FAMILY = {'name': 'pga',
@@ -26,7 +26,8 @@ FAMILY = {'name': 'pga',
  'slack': [],
  'slack_kinds': [],
  'slack_owner': [],
- 'slack_clauses': {}}
+ 'slack_clauses': {},
+ 'reductions': {}}
 
 _TINY = np.finfo(float).tiny
 _REDUNDANT = 1e3 * np.finfo(float).eps

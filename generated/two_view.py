@@ -6,7 +6,7 @@ algebra of the projector. Load it with ``kanagen.load``.
 
 import numpy as np
 
-FORMAT = 1
+FORMAT = 2
 SPEC_SOURCE = "two_view.yaml"
 SPEC_SHA256 = "8d8ee79f3fdf7c3857eea2c03e0a26c560ead9cc08ee9daedff0afc1c7bbcd84"
 FAMILY = {'name': 'two_view',
@@ -213,7 +213,102 @@ FAMILY = {'name': 'two_view',
  'slack': [],
  'slack_kinds': [],
  'slack_owner': [],
- 'slack_clauses': {}}
+ 'slack_clauses': {},
+ 'reductions': {'none': {'free': [2],
+                         'T': [[0.0],
+                               [0.0],
+                               [1.0],
+                               [0.0],
+                               [0.0],
+                               [0.0],
+                               [0.0],
+                               [0.0],
+                               [0.0],
+                               [0.0],
+                               [0.0],
+                               [0.0]],
+                         't': [1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]},
+                'zoom': {'free': [1, 2],
+                         'T': [[0.0, 0.0],
+                               [1.0, 0.0],
+                               [0.0, 1.0],
+                               [0.0, 0.0],
+                               [0.0, 0.0],
+                               [0.0, 0.0],
+                               [0.0, 0.0],
+                               [0.0, 0.0],
+                               [0.0, 0.0],
+                               [0.0, 0.0],
+                               [0.0, 0.0],
+                               [0.0, 0.0]],
+                         't': [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]},
+                'rotation': {'free': [0, 2, 3, 4, 5],
+                             'T': [[1.0, 0.0, 0.0, 0.0, 0.0],
+                                   [1.0, 0.0, 0.0, 0.0, 0.0],
+                                   [0.0, 1.0, 0.0, 0.0, 0.0],
+                                   [0.0, 0.0, 1.0, 0.0, 0.0],
+                                   [0.0, 0.0, 0.0, 1.0, 0.0],
+                                   [0.0, 0.0, 0.0, 0.0, 1.0],
+                                   [0.0, 0.0, 0.0, 0.0, 0.0],
+                                   [0.0, 0.0, 0.0, 0.0, 0.0],
+                                   [0.0, 0.0, 0.0, 0.0, 0.0],
+                                   [0.0, 0.0, 0.0, 0.0, 0.0],
+                                   [0.0, 0.0, 0.0, 0.0, 0.0],
+                                   [0.0, 0.0, 0.0, 0.0, 0.0]],
+                             't': [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]},
+                'translation': {'free': [2, 6, 7, 8],
+                                'T': [[0.0, 0.0, 0.0, 0.0],
+                                      [0.0, 0.0, 0.0, 0.0],
+                                      [1.0, 0.0, 0.0, 0.0],
+                                      [0.0, 0.0, 0.0, 0.0],
+                                      [0.0, 0.0, 0.0, 0.0],
+                                      [0.0, 0.0, 0.0, 0.0],
+                                      [0.0, 1.0, 0.0, 0.0],
+                                      [0.0, 0.0, 1.0, 0.0],
+                                      [0.0, 0.0, 0.0, 1.0],
+                                      [0.0, 0.0, 0.0, 0.0],
+                                      [0.0, 0.0, 0.0, 0.0],
+                                      [0.0, 0.0, 0.0, 0.0]],
+                                't': [1.0,
+                                      1.0,
+                                      0.0,
+                                      0.0,
+                                      0.0,
+                                      0.0,
+                                      0.0,
+                                      0.0,
+                                      0.0,
+                                      0.0,
+                                      0.0,
+                                      0.0]},
+                'planar': {'free': [2, 3, 4, 5, 6, 7, 8, 9, 10, 11],
+                           'T': [[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                                 [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                                 [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                                 [0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                                 [0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                                 [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                                 [0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                                 [0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0],
+                                 [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+                                 [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0],
+                                 [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+                                 [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]],
+                           't': [1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]},
+                'general': {'free': [0, 1, 2, 3, 4, 5, 6, 7, 8],
+                            'T': [[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                                  [0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                                  [0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                                  [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                                  [0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0],
+                                  [0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+                                  [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0],
+                                  [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+                                  [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+                                  [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                                  [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                                  [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]],
+                            't': [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]}}}
 
 _TINY = np.finfo(float).tiny
 _REDUNDANT = 1e3 * np.finfo(float).eps
@@ -409,6 +504,64 @@ def measure_match__none(q, m, k):
     return c, C, D
 
 
+def c0_none__reduced(r, k):
+    """Remaining constraints c0(r) of model 'none' and their Jacobian: shapes (1,), (1, 1)."""
+    p_qw = r[0]
+    # Outputs
+    c0 = np.zeros((1,))
+    c0[0] = p_qw**2 - 1
+    C0 = np.zeros((1, 1))
+    C0[0, 0] = 2*p_qw
+    return c0, C0
+
+
+def measure_match__none__reduced(r, m, k):
+    """Equations of channel 'match', their Jacobians in r and in the corrected
+    components ['u', 'v', 'u2', 'v2']: shapes (M, 3), (M, 3, 1), (M, 3, 4)."""
+    p_qw = r[0]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[:, 0]
+    m_v = m[:, 1]
+    m_u2 = m[:, 2]
+    m_v2 = m[:, 3]
+    M = m.shape[0]
+    # Intermediate terms (13)
+    _tmp0 = -k_cy + m_v
+    _tmp1 = 1/k_f0
+    _tmp2 = p_qw**2
+    _tmp3 = _tmp1*_tmp2
+    _tmp4 = -k_cy + m_v2
+    _tmp5 = -k_cx + m_u
+    _tmp6 = -k_cx + m_u2
+    _tmp7 = k_f0**(-2)
+    _tmp8 = _tmp2*_tmp7
+    _tmp9 = _tmp4*_tmp8
+    _tmp10 = 2*p_qw
+    _tmp11 = _tmp1*_tmp10
+    _tmp12 = -_tmp3
+    # Outputs
+    c = np.zeros((M, 3))
+    c[:, 0] = -_tmp0*_tmp3 + _tmp1*_tmp2*_tmp4
+    c[:, 1] = _tmp3*_tmp5 - _tmp3*_tmp6
+    c[:, 2] = _tmp0*_tmp2*_tmp6*_tmp7 - _tmp5*_tmp9
+    C = np.zeros((M, 3, 1))
+    C[:, 0, 0] = -_tmp0*_tmp11 + 2*_tmp1*_tmp4*p_qw
+    C[:, 1, 0] = _tmp11*_tmp5 - _tmp11*_tmp6
+    C[:, 2, 0] = 2*_tmp0*_tmp6*_tmp7*p_qw - _tmp10*_tmp4*_tmp5*_tmp7
+    D = np.zeros((M, 3, 4))
+    D[:, 0, 1] = _tmp12
+    D[:, 0, 3] = _tmp3
+    D[:, 1, 0] = _tmp3
+    D[:, 1, 2] = _tmp12
+    D[:, 2, 0] = -_tmp9
+    D[:, 2, 1] = _tmp6*_tmp8
+    D[:, 2, 2] = _tmp0*_tmp8
+    D[:, 2, 3] = -_tmp5*_tmp8
+    return c, C, D
+
+
 def c0_zoom(q, k):
     """Constraints c0(q) of model 'zoom' and their Jacobian: shapes (11,), (11, 12)."""
     p_f1 = q[0]
@@ -453,6 +606,70 @@ def c0_zoom(q, k):
     return c0, C0
 
 
+def c0_zoom__reduced(r, k):
+    """Remaining constraints c0(r) of model 'zoom' and their Jacobian: shapes (1,), (1, 2)."""
+    p_qw = r[1]
+    # Outputs
+    c0 = np.zeros((1,))
+    c0[0] = p_qw**2 - 1
+    C0 = np.zeros((1, 2))
+    C0[0, 1] = 2*p_qw
+    return c0, C0
+
+
+def measure_match__zoom__reduced(r, m, k):
+    """Equations of channel 'match', their Jacobians in r and in the corrected
+    components ['u', 'v', 'u2', 'v2']: shapes (M, 3), (M, 3, 2), (M, 3, 4)."""
+    p_f2 = r[0]
+    p_qw = r[1]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[:, 0]
+    m_v = m[:, 1]
+    m_u2 = m[:, 2]
+    m_v2 = m[:, 3]
+    M = m.shape[0]
+    # Intermediate terms (16)
+    _tmp0 = 1/k_f0
+    _tmp1 = p_qw**2
+    _tmp2 = -k_cy + m_v2
+    _tmp3 = -k_cy + m_v
+    _tmp4 = _tmp0*_tmp1
+    _tmp5 = _tmp3*_tmp4
+    _tmp6 = -k_cx + m_u2
+    _tmp7 = -k_cx + m_u
+    _tmp8 = _tmp4*_tmp7
+    _tmp9 = k_f0**(-2)
+    _tmp10 = _tmp1*_tmp9
+    _tmp11 = _tmp10*_tmp2
+    _tmp12 = 2*p_qw
+    _tmp13 = _tmp0*_tmp12
+    _tmp14 = _tmp13*p_f2
+    _tmp15 = _tmp4*p_f2
+    # Outputs
+    c = np.zeros((M, 3))
+    c[:, 0] = _tmp0*_tmp1*_tmp2 - _tmp5*p_f2
+    c[:, 1] = -_tmp4*_tmp6 + _tmp8*p_f2
+    c[:, 2] = _tmp1*_tmp3*_tmp6*_tmp9 - _tmp11*_tmp7
+    C = np.zeros((M, 3, 2))
+    C[:, 0, 0] = -_tmp5
+    C[:, 0, 1] = 2*_tmp0*_tmp2*p_qw - _tmp14*_tmp3
+    C[:, 1, 0] = _tmp8
+    C[:, 1, 1] = -_tmp13*_tmp6 + _tmp14*_tmp7
+    C[:, 2, 1] = -_tmp12*_tmp2*_tmp7*_tmp9 + 2*_tmp3*_tmp6*_tmp9*p_qw
+    D = np.zeros((M, 3, 4))
+    D[:, 0, 1] = -_tmp15
+    D[:, 0, 3] = _tmp4
+    D[:, 1, 0] = _tmp15
+    D[:, 1, 2] = -_tmp4
+    D[:, 2, 0] = -_tmp11
+    D[:, 2, 1] = _tmp10*_tmp6
+    D[:, 2, 2] = _tmp10*_tmp3
+    D[:, 2, 3] = -_tmp10*_tmp7
+    return c, C, D
+
+
 def c0_rotation(q, k):
     """Constraints c0(q) of model 'rotation' and their Jacobian: shapes (8,), (8, 12)."""
     p_f1 = q[0]
@@ -491,6 +708,133 @@ def c0_rotation(q, k):
     C0[6, 10] = 1
     C0[7, 11] = 1
     return c0, C0
+
+
+def c0_rotation__reduced(r, k):
+    """Remaining constraints c0(r) of model 'rotation' and their Jacobian: shapes (1,), (1, 5)."""
+    p_qw = r[1]
+    p_qx = r[2]
+    p_qy = r[3]
+    p_qz = r[4]
+    # Outputs
+    c0 = np.zeros((1,))
+    c0[0] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    C0 = np.zeros((1, 5))
+    C0[0, 1] = 2*p_qw
+    C0[0, 2] = 2*p_qx
+    C0[0, 3] = 2*p_qy
+    C0[0, 4] = 2*p_qz
+    return c0, C0
+
+
+def measure_match__rotation__reduced(r, m, k):
+    """Equations of channel 'match', their Jacobians in r and in the corrected
+    components ['u', 'v', 'u2', 'v2']: shapes (M, 3), (M, 3, 5), (M, 3, 4)."""
+    p_f1 = r[0]
+    p_qw = r[1]
+    p_qx = r[2]
+    p_qy = r[3]
+    p_qz = r[4]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[:, 0]
+    m_v = m[:, 1]
+    m_u2 = m[:, 2]
+    m_v2 = m[:, 3]
+    M = m.shape[0]
+    # Intermediate terms (58)
+    _tmp0 = 2*p_qw
+    _tmp1 = _tmp0*p_qx
+    _tmp2 = -_tmp1 + 2*p_qy*p_qz
+    _tmp3 = _tmp2*p_f1
+    _tmp4 = _tmp0*p_qz
+    _tmp5 = 2*p_qy
+    _tmp6 = _tmp4 + _tmp5*p_qx
+    _tmp7 = 1/k_f0
+    _tmp8 = _tmp7*(-k_cx + m_u)
+    _tmp9 = p_qy**2
+    _tmp10 = p_qz**2
+    _tmp11 = -_tmp10
+    _tmp12 = p_qw**2
+    _tmp13 = p_qx**2
+    _tmp14 = _tmp12 - _tmp13
+    _tmp15 = _tmp11 + _tmp14 + _tmp9
+    _tmp16 = -k_cy + m_v
+    _tmp17 = _tmp16*_tmp7
+    _tmp18 = _tmp15*_tmp17 + _tmp6*_tmp8
+    _tmp19 = _tmp18 + _tmp3
+    _tmp20 = -k_cy + m_v2
+    _tmp21 = _tmp0*p_qy
+    _tmp22 = -_tmp21 + 2*p_qx*p_qz
+    _tmp23 = _tmp1 + _tmp5*p_qz
+    _tmp24 = -_tmp9
+    _tmp25 = _tmp10 + _tmp14 + _tmp24
+    _tmp26 = _tmp17*_tmp23 + _tmp22*_tmp8 + _tmp25*p_f1
+    _tmp27 = 2*p_qx
+    _tmp28 = _tmp21 + _tmp27*p_qz
+    _tmp29 = _tmp28*p_f1
+    _tmp30 = _tmp11 + _tmp12 + _tmp13 + _tmp24
+    _tmp31 = -_tmp4 + 2*p_qx*p_qy
+    _tmp32 = _tmp17*_tmp31 + _tmp30*_tmp8
+    _tmp33 = _tmp29 + _tmp32
+    _tmp34 = -k_cx + m_u2
+    _tmp35 = _tmp26*_tmp7
+    _tmp36 = _tmp19*_tmp7
+    _tmp37 = _tmp33*_tmp7
+    _tmp38 = 2*p_qz
+    _tmp39 = _tmp0*_tmp17 - _tmp27*p_f1 + _tmp38*_tmp8
+    _tmp40 = _tmp0*p_f1 + _tmp17*_tmp27 - _tmp5*_tmp8
+    _tmp41 = _tmp20*_tmp7
+    _tmp42 = -_tmp40*_tmp41
+    _tmp43 = -_tmp40
+    _tmp44 = _tmp17*_tmp5 + _tmp27*_tmp8 + _tmp38*p_f1
+    _tmp45 = _tmp44*p_f1
+    _tmp46 = _tmp0*_tmp8 - 2*_tmp16*_tmp7*p_qz + _tmp5*p_f1
+    _tmp47 = -_tmp46
+    _tmp48 = _tmp46*p_f1
+    _tmp49 = -_tmp41*_tmp44
+    _tmp50 = _tmp34*_tmp7
+    _tmp51 = _tmp39*_tmp50
+    _tmp52 = -_tmp39
+    _tmp53 = _tmp44*_tmp50
+    _tmp54 = _tmp7*p_f1
+    _tmp55 = k_f0**(-2)
+    _tmp56 = _tmp34*_tmp55
+    _tmp57 = _tmp20*_tmp55
+    # Outputs
+    c = np.zeros((M, 3))
+    c[:, 0] = -_tmp19*p_f1 + _tmp20*_tmp26*_tmp7
+    c[:, 1] = _tmp33*p_f1 - _tmp34*_tmp35
+    c[:, 2] = -_tmp20*_tmp37 + _tmp34*_tmp36
+    C = np.zeros((M, 3, 5))
+    C[:, 0, 0] = -_tmp18 + _tmp20*_tmp25*_tmp7 - 2*_tmp3
+    C[:, 0, 1] = -_tmp39*p_f1 - _tmp42
+    C[:, 0, 2] = _tmp20*_tmp39*_tmp7 - _tmp43*p_f1
+    C[:, 0, 3] = _tmp20*_tmp47*_tmp7 - _tmp45
+    C[:, 0, 4] = -_tmp48 - _tmp49
+    C[:, 1, 0] = -_tmp25*_tmp50 + 2*_tmp29 + _tmp32
+    C[:, 1, 1] = -_tmp40*_tmp50 + _tmp48
+    C[:, 1, 2] = _tmp45 - _tmp51
+    C[:, 1, 3] = _tmp40*p_f1 - _tmp47*_tmp50
+    C[:, 1, 4] = _tmp52*p_f1 - _tmp53
+    C[:, 2, 0] = _tmp2*_tmp50 - _tmp28*_tmp41
+    C[:, 2, 1] = -_tmp41*_tmp46 + _tmp51
+    C[:, 2, 2] = _tmp43*_tmp50 + _tmp49
+    C[:, 2, 3] = _tmp42 + _tmp53
+    C[:, 2, 4] = -_tmp41*_tmp52 + _tmp46*_tmp50
+    D = np.zeros((M, 3, 4))
+    D[:, 0, 0] = _tmp20*_tmp22*_tmp55 - _tmp54*_tmp6
+    D[:, 0, 1] = -_tmp15*_tmp54 + _tmp20*_tmp23*_tmp55
+    D[:, 0, 3] = _tmp35
+    D[:, 1, 0] = -_tmp22*_tmp56 + _tmp30*_tmp54
+    D[:, 1, 1] = -_tmp23*_tmp56 + _tmp31*_tmp54
+    D[:, 1, 2] = -_tmp35
+    D[:, 2, 0] = -_tmp30*_tmp57 + _tmp56*_tmp6
+    D[:, 2, 1] = _tmp15*_tmp56 - _tmp31*_tmp57
+    D[:, 2, 2] = _tmp36
+    D[:, 2, 3] = -_tmp37
+    return c, C, D
 
 
 def c0_translation(q, k):
@@ -662,6 +1006,78 @@ def measure_match(q, m, k):
     return c, C, D
 
 
+def c0_translation__reduced(r, k):
+    """Remaining constraints c0(r) of model 'translation' and their Jacobian: shapes (2,), (2, 4)."""
+    p_qw = r[0]
+    p_tx = r[1]
+    p_ty = r[2]
+    p_tz = r[3]
+    # Outputs
+    c0 = np.zeros((2,))
+    c0[0] = p_qw**2 - 1
+    c0[1] = p_tx**2 + p_ty**2 + p_tz**2 - 1
+    C0 = np.zeros((2, 4))
+    C0[0, 0] = 2*p_qw
+    C0[1, 1] = 2*p_tx
+    C0[1, 2] = 2*p_ty
+    C0[1, 3] = 2*p_tz
+    return c0, C0
+
+
+def measure_match__translation__reduced(r, m, k):
+    """Equations of channel 'match', their Jacobians in r and in the corrected
+    components ['u', 'v', 'u2', 'v2']: shapes (M, 1), (M, 1, 4), (M, 1, 4)."""
+    p_qw = r[0]
+    p_tx = r[1]
+    p_ty = r[2]
+    p_tz = r[3]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[:, 0]
+    m_v = m[:, 1]
+    m_u2 = m[:, 2]
+    m_v2 = m[:, 3]
+    M = m.shape[0]
+    # Intermediate terms (22)
+    _tmp0 = -k_cy + m_v
+    _tmp1 = 1/k_f0
+    _tmp2 = p_qw**2
+    _tmp3 = _tmp2*p_tx
+    _tmp4 = _tmp1*_tmp3
+    _tmp5 = -k_cx + m_u
+    _tmp6 = _tmp2*p_ty
+    _tmp7 = _tmp1*_tmp6
+    _tmp8 = -k_cx + m_u2
+    _tmp9 = _tmp1*_tmp2
+    _tmp10 = _tmp0*_tmp9
+    _tmp11 = _tmp1*(-_tmp10*p_tz + _tmp6)
+    _tmp12 = -k_cy + m_v2
+    _tmp13 = _tmp1*(_tmp1*_tmp2*_tmp5*p_tz - _tmp3)
+    _tmp14 = 2*p_qw
+    _tmp15 = _tmp14*p_tx
+    _tmp16 = _tmp0*_tmp1
+    _tmp17 = _tmp14*p_ty
+    _tmp18 = _tmp1*_tmp12
+    _tmp19 = k_f0**(-2)
+    _tmp20 = _tmp19*_tmp2
+    _tmp21 = _tmp20*_tmp8
+    # Outputs
+    c = np.zeros((M, 1))
+    c[:, 0] = _tmp0*_tmp4 + _tmp11*_tmp8 + _tmp12*_tmp13 - _tmp5*_tmp7
+    C = np.zeros((M, 1, 4))
+    C[:, 0, 0] = -_tmp1*_tmp17*_tmp5 + _tmp1*_tmp8*(-_tmp14*_tmp16*p_tz + _tmp17) + _tmp15*_tmp16 + _tmp18*(2*_tmp1*_tmp5*p_qw*p_tz - _tmp15)
+    C[:, 0, 1] = _tmp10 - _tmp18*_tmp2
+    C[:, 0, 2] = _tmp1*_tmp2*_tmp8 - _tmp5*_tmp9
+    C[:, 0, 3] = -_tmp0*_tmp21 + _tmp12*_tmp20*_tmp5
+    D = np.zeros((M, 1, 4))
+    D[:, 0, 0] = _tmp12*_tmp19*_tmp2*p_tz - _tmp7
+    D[:, 0, 1] = -_tmp21*p_tz + _tmp4
+    D[:, 0, 2] = _tmp11
+    D[:, 0, 3] = _tmp13
+    return c, C, D
+
+
 def c0_planar(q, k):
     """Constraints c0(q) of model 'planar' and their Jacobian: shapes (4,), (4, 12)."""
     p_f1 = q[0]
@@ -690,6 +1106,160 @@ def c0_planar(q, k):
     C0[3, 7] = 2*p_ty
     C0[3, 8] = 2*p_tz
     return c0, C0
+
+
+def c0_planar__reduced(r, k):
+    """Remaining constraints c0(r) of model 'planar' and their Jacobian: shapes (2,), (2, 10)."""
+    p_qw = r[0]
+    p_qx = r[1]
+    p_qy = r[2]
+    p_qz = r[3]
+    p_tx = r[4]
+    p_ty = r[5]
+    p_tz = r[6]
+    # Outputs
+    c0 = np.zeros((2,))
+    c0[0] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    c0[1] = p_tx**2 + p_ty**2 + p_tz**2 - 1
+    C0 = np.zeros((2, 10))
+    C0[0, 0] = 2*p_qw
+    C0[0, 1] = 2*p_qx
+    C0[0, 2] = 2*p_qy
+    C0[0, 3] = 2*p_qz
+    C0[1, 4] = 2*p_tx
+    C0[1, 5] = 2*p_ty
+    C0[1, 6] = 2*p_tz
+    return c0, C0
+
+
+def measure_match__planar__reduced(r, m, k):
+    """Equations of channel 'match', their Jacobians in r and in the corrected
+    components ['u', 'v', 'u2', 'v2']: shapes (M, 3), (M, 3, 10), (M, 3, 4)."""
+    p_qw = r[0]
+    p_qx = r[1]
+    p_qy = r[2]
+    p_qz = r[3]
+    p_tx = r[4]
+    p_ty = r[5]
+    p_tz = r[6]
+    p_wx = r[7]
+    p_wy = r[8]
+    p_wz = r[9]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[:, 0]
+    m_v = m[:, 1]
+    m_u2 = m[:, 2]
+    m_v2 = m[:, 3]
+    M = m.shape[0]
+    # Intermediate terms (61)
+    _tmp0 = 1/k_f0
+    _tmp1 = -k_cy + m_v2
+    _tmp2 = p_qw**2
+    _tmp3 = p_qz**2
+    _tmp4 = p_qx**2
+    _tmp5 = -_tmp4
+    _tmp6 = p_qy**2
+    _tmp7 = -_tmp6
+    _tmp8 = 2*p_qw
+    _tmp9 = _tmp8*p_qy
+    _tmp10 = 2*p_qx
+    _tmp11 = _tmp10*p_qz
+    _tmp12 = _tmp11 - _tmp9 + p_tz*p_wx
+    _tmp13 = -k_cx + m_u
+    _tmp14 = _tmp0*_tmp13
+    _tmp15 = _tmp10*p_qw
+    _tmp16 = 2*p_qz
+    _tmp17 = _tmp16*p_qy
+    _tmp18 = _tmp15 + _tmp17 + p_tz*p_wy
+    _tmp19 = -k_cy + m_v
+    _tmp20 = _tmp0*_tmp19
+    _tmp21 = _tmp12*_tmp14 + _tmp18*_tmp20 + _tmp2 + _tmp3 + _tmp5 + _tmp7 + p_tz*p_wz
+    _tmp22 = _tmp8*p_qz
+    _tmp23 = _tmp10*p_qy
+    _tmp24 = _tmp22 + _tmp23 + p_ty*p_wx
+    _tmp25 = _tmp0*_tmp24
+    _tmp26 = _tmp2 - _tmp3
+    _tmp27 = _tmp26 + _tmp5 + _tmp6 + p_ty*p_wy
+    _tmp28 = _tmp0*_tmp27
+    _tmp29 = _tmp13*_tmp25 - _tmp15 + _tmp17 + _tmp19*_tmp28 + p_ty*p_wz
+    _tmp30 = -k_cx + m_u2
+    _tmp31 = _tmp0*_tmp21
+    _tmp32 = -_tmp22 + _tmp23 + p_tx*p_wy
+    _tmp33 = _tmp0*_tmp32
+    _tmp34 = _tmp26 + _tmp4 + _tmp7 + p_tx*p_wx
+    _tmp35 = _tmp0*_tmp34
+    _tmp36 = _tmp11 + _tmp13*_tmp35 + _tmp19*_tmp33 + _tmp9 + p_tx*p_wz
+    _tmp37 = _tmp0*_tmp29
+    _tmp38 = _tmp0*_tmp36
+    _tmp39 = _tmp20*_tmp8
+    _tmp40 = _tmp14*_tmp16
+    _tmp41 = 2*p_qy
+    _tmp42 = _tmp10*_tmp20 - _tmp14*_tmp41 + _tmp8
+    _tmp43 = _tmp0*_tmp1
+    _tmp44 = _tmp42*_tmp43
+    _tmp45 = -_tmp10 + _tmp39 + _tmp40
+    _tmp46 = _tmp14*_tmp8 - _tmp16*_tmp20 + _tmp41
+    _tmp47 = -_tmp46
+    _tmp48 = _tmp10*_tmp14 + _tmp16 + _tmp20*_tmp41
+    _tmp49 = -_tmp43*_tmp48
+    _tmp50 = _tmp14*p_wx + _tmp20*p_wy + p_wz
+    _tmp51 = _tmp43*_tmp50
+    _tmp52 = k_f0**(-2)
+    _tmp53 = _tmp0*_tmp30
+    _tmp54 = _tmp45*_tmp53
+    _tmp55 = _tmp48*_tmp53
+    _tmp56 = _tmp50*_tmp53
+    _tmp57 = _tmp30*_tmp52
+    _tmp58 = _tmp57*p_tz
+    _tmp59 = _tmp1*_tmp52
+    _tmp60 = _tmp59*p_tx
+    # Outputs
+    c = np.zeros((M, 3))
+    c[:, 0] = _tmp0*_tmp1*_tmp21 - _tmp29
+    c[:, 1] = -_tmp30*_tmp31 + _tmp36
+    c[:, 2] = -_tmp1*_tmp38 + _tmp30*_tmp37
+    C = np.zeros((M, 3, 10))
+    C[:, 0, 0] = _tmp10 - _tmp39 - _tmp40 + _tmp44
+    C[:, 0, 1] = _tmp42 + _tmp43*_tmp45
+    C[:, 0, 2] = _tmp0*_tmp1*_tmp47 - _tmp48
+    C[:, 0, 3] = -_tmp46 - _tmp49
+    C[:, 0, 5] = -_tmp50
+    C[:, 0, 6] = _tmp51
+    C[:, 0, 7] = _tmp1*_tmp13*_tmp52*p_tz - _tmp14*p_ty
+    C[:, 0, 8] = _tmp1*_tmp19*_tmp52*p_tz - _tmp20*p_ty
+    C[:, 0, 9] = _tmp0*_tmp1*p_tz - p_ty
+    C[:, 1, 0] = -_tmp42*_tmp53 + _tmp46
+    C[:, 1, 1] = _tmp48 - _tmp54
+    C[:, 1, 2] = _tmp42 - _tmp47*_tmp53
+    C[:, 1, 3] = -_tmp45 - _tmp55
+    C[:, 1, 4] = _tmp50
+    C[:, 1, 6] = -_tmp56
+    C[:, 1, 7] = -_tmp13*_tmp58 + _tmp14*p_tx
+    C[:, 1, 8] = -_tmp19*_tmp58 + _tmp20*p_tx
+    C[:, 1, 9] = -_tmp53*p_tz + p_tx
+    C[:, 2, 0] = -_tmp43*_tmp46 + _tmp54
+    C[:, 2, 1] = -_tmp42*_tmp53 + _tmp49
+    C[:, 2, 2] = -_tmp44 + _tmp55
+    C[:, 2, 3] = _tmp43*_tmp45 + _tmp46*_tmp53
+    C[:, 2, 4] = -_tmp51
+    C[:, 2, 5] = _tmp56
+    C[:, 2, 7] = _tmp13*_tmp30*_tmp52*p_ty - _tmp13*_tmp60
+    C[:, 2, 8] = _tmp19*_tmp30*_tmp52*p_ty - _tmp19*_tmp60
+    C[:, 2, 9] = _tmp0*_tmp30*p_ty - _tmp43*p_tx
+    D = np.zeros((M, 3, 4))
+    D[:, 0, 0] = _tmp1*_tmp12*_tmp52 - _tmp25
+    D[:, 0, 1] = _tmp1*_tmp18*_tmp52 - _tmp28
+    D[:, 0, 3] = _tmp31
+    D[:, 1, 0] = -_tmp12*_tmp57 + _tmp35
+    D[:, 1, 1] = -_tmp18*_tmp57 + _tmp33
+    D[:, 1, 2] = -_tmp31
+    D[:, 2, 0] = _tmp24*_tmp57 - _tmp34*_tmp59
+    D[:, 2, 1] = _tmp27*_tmp57 - _tmp32*_tmp59
+    D[:, 2, 2] = _tmp37
+    D[:, 2, 3] = -_tmp38
+    return c, C, D
 
 
 def c0_general(q, k):
@@ -723,6 +1293,154 @@ def c0_general(q, k):
     C0[3, 10] = 1
     C0[4, 11] = 1
     return c0, C0
+
+
+def c0_general__reduced(r, k):
+    """Remaining constraints c0(r) of model 'general' and their Jacobian: shapes (2,), (2, 9)."""
+    p_qw = r[2]
+    p_qx = r[3]
+    p_qy = r[4]
+    p_qz = r[5]
+    p_tx = r[6]
+    p_ty = r[7]
+    p_tz = r[8]
+    # Outputs
+    c0 = np.zeros((2,))
+    c0[0] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    c0[1] = p_tx**2 + p_ty**2 + p_tz**2 - 1
+    C0 = np.zeros((2, 9))
+    C0[0, 2] = 2*p_qw
+    C0[0, 3] = 2*p_qx
+    C0[0, 4] = 2*p_qy
+    C0[0, 5] = 2*p_qz
+    C0[1, 6] = 2*p_tx
+    C0[1, 7] = 2*p_ty
+    C0[1, 8] = 2*p_tz
+    return c0, C0
+
+
+def measure_match__general__reduced(r, m, k):
+    """Equations of channel 'match', their Jacobians in r and in the corrected
+    components ['u', 'v', 'u2', 'v2']: shapes (M, 1), (M, 1, 9), (M, 1, 4)."""
+    p_f1 = r[0]
+    p_f2 = r[1]
+    p_qw = r[2]
+    p_qx = r[3]
+    p_qy = r[4]
+    p_qz = r[5]
+    p_tx = r[6]
+    p_ty = r[7]
+    p_tz = r[8]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[:, 0]
+    m_v = m[:, 1]
+    m_u2 = m[:, 2]
+    m_v2 = m[:, 3]
+    M = m.shape[0]
+    # Intermediate terms (82)
+    _tmp0 = 2*p_qw
+    _tmp1 = _tmp0*p_qx
+    _tmp2 = 2*p_qz
+    _tmp3 = _tmp2*p_qy
+    _tmp4 = _tmp1 - _tmp3
+    _tmp5 = -_tmp4
+    _tmp6 = _tmp0*p_qy
+    _tmp7 = _tmp2*p_qx
+    _tmp8 = _tmp6 + _tmp7
+    _tmp9 = _tmp5*p_tx - _tmp8*p_ty
+    _tmp10 = _tmp0*p_qz
+    _tmp11 = 2*p_qx
+    _tmp12 = _tmp11*p_qy
+    _tmp13 = _tmp10 + _tmp12
+    _tmp14 = p_qx**2
+    _tmp15 = p_qy**2
+    _tmp16 = -_tmp15
+    _tmp17 = p_qw**2
+    _tmp18 = p_qz**2
+    _tmp19 = _tmp17 - _tmp18
+    _tmp20 = _tmp14 + _tmp16 + _tmp19
+    _tmp21 = _tmp13*p_tx - _tmp20*p_ty
+    _tmp22 = 1/k_f0
+    _tmp23 = _tmp22*(-k_cx + m_u)
+    _tmp24 = _tmp10 - _tmp12
+    _tmp25 = -_tmp24
+    _tmp26 = -_tmp14
+    _tmp27 = _tmp15 + _tmp19 + _tmp26
+    _tmp28 = -_tmp25*p_ty + _tmp27*p_tx
+    _tmp29 = _tmp22*(-k_cy + m_v)
+    _tmp30 = _tmp21*_tmp23 + _tmp28*_tmp29 + _tmp9*p_f1
+    _tmp31 = -k_cx + m_u2
+    _tmp32 = _tmp6 - _tmp7
+    _tmp33 = -_tmp32
+    _tmp34 = -_tmp13*p_tz + _tmp33*p_ty
+    _tmp35 = _tmp16 + _tmp17 + _tmp18 + _tmp26
+    _tmp36 = _tmp35*p_ty - _tmp5*p_tz
+    _tmp37 = _tmp1 + _tmp3
+    _tmp38 = -_tmp27*p_tz + _tmp37*p_ty
+    _tmp39 = _tmp22*(_tmp23*_tmp34 + _tmp29*_tmp38 + _tmp36*p_f1)
+    _tmp40 = -k_cy + m_v2
+    _tmp41 = _tmp25*p_tz - _tmp37*p_tx
+    _tmp42 = -_tmp35*p_tx + _tmp8*p_tz
+    _tmp43 = _tmp20*p_tz - _tmp33*p_tx
+    _tmp44 = _tmp22*(_tmp23*_tmp43 + _tmp29*_tmp41 + _tmp42*p_f1)
+    _tmp45 = _tmp22*_tmp31
+    _tmp46 = _tmp22*_tmp40
+    _tmp47 = _tmp11*p_tx
+    _tmp48 = 2*p_qy
+    _tmp49 = _tmp48*p_ty
+    _tmp50 = _tmp47 + _tmp49
+    _tmp51 = -_tmp50
+    _tmp52 = _tmp0*p_ty
+    _tmp53 = -_tmp2*p_tx
+    _tmp54 = _tmp52 + _tmp53
+    _tmp55 = -_tmp54
+    _tmp56 = _tmp0*p_tx
+    _tmp57 = _tmp2*p_ty
+    _tmp58 = _tmp56 + _tmp57
+    _tmp59 = _tmp11*p_tz
+    _tmp60 = _tmp52 + _tmp59
+    _tmp61 = _tmp2*p_tz
+    _tmp62 = _tmp49 + _tmp61
+    _tmp63 = -_tmp62
+    _tmp64 = _tmp0*p_tz
+    _tmp65 = _tmp11*p_ty
+    _tmp66 = _tmp64 - _tmp65
+    _tmp67 = -_tmp66
+    _tmp68 = _tmp48*p_tz
+    _tmp69 = _tmp56 - _tmp68
+    _tmp70 = -_tmp69
+    _tmp71 = _tmp48*p_tx
+    _tmp72 = _tmp64 + _tmp71
+    _tmp73 = _tmp47 + _tmp61
+    _tmp74 = -_tmp73
+    _tmp75 = -_tmp65 + _tmp71
+    _tmp76 = _tmp57 - _tmp68
+    _tmp77 = _tmp53 + _tmp59
+    _tmp78 = k_f0**(-2)
+    _tmp79 = _tmp31*_tmp78
+    _tmp80 = _tmp22*p_f2
+    _tmp81 = _tmp40*_tmp78
+    # Outputs
+    c = np.zeros((M, 1))
+    c[:, 0] = _tmp30*p_f2 + _tmp31*_tmp39 + _tmp40*_tmp44
+    C = np.zeros((M, 1, 9))
+    C[:, 0, 0] = _tmp36*_tmp45 + _tmp42*_tmp46 + _tmp9*p_f2
+    C[:, 0, 1] = _tmp30
+    C[:, 0, 2] = _tmp45*(_tmp23*_tmp63 + _tmp29*_tmp67 + _tmp60*p_f1) + _tmp46*(_tmp23*_tmp72 + _tmp29*_tmp74 + _tmp70*p_f1) + p_f2*(_tmp23*_tmp55 + _tmp29*_tmp58 + _tmp51*p_f1)
+    C[:, 0, 3] = _tmp45*(_tmp23*_tmp76 + _tmp29*_tmp60 + _tmp66*p_f1) + _tmp46*(_tmp23*_tmp77 + _tmp29*_tmp70 + _tmp73*p_f1) + p_f2*(_tmp23*_tmp75 + _tmp29*_tmp51 - _tmp58*p_f1)
+    C[:, 0, 4] = _tmp45*(-_tmp23*_tmp60 + _tmp29*_tmp76 + _tmp63*p_f1) + _tmp46*(_tmp23*_tmp69 + _tmp29*_tmp77 + _tmp72*p_f1) + p_f2*(_tmp23*_tmp50 + _tmp29*_tmp75 + _tmp55*p_f1)
+    C[:, 0, 5] = _tmp45*(_tmp23*_tmp67 + _tmp29*_tmp62 + _tmp76*p_f1) + _tmp46*(_tmp23*_tmp74 - _tmp29*_tmp72 + _tmp77*p_f1) + p_f2*(_tmp23*_tmp58 + _tmp29*_tmp54 + _tmp75*p_f1)
+    C[:, 0, 6] = _tmp46*(_tmp23*_tmp32 - _tmp29*_tmp37 - _tmp35*p_f1) + p_f2*(_tmp13*_tmp23 + _tmp27*_tmp29 + _tmp5*p_f1)
+    C[:, 0, 7] = _tmp45*(_tmp23*_tmp33 + _tmp29*_tmp37 + _tmp35*p_f1) + p_f2*(-_tmp20*_tmp23 + _tmp24*_tmp29 - _tmp8*p_f1)
+    C[:, 0, 8] = _tmp45*(-_tmp13*_tmp23 - _tmp27*_tmp29 + _tmp4*p_f1) + _tmp46*(_tmp20*_tmp23 + _tmp25*_tmp29 + _tmp8*p_f1)
+    D = np.zeros((M, 1, 4))
+    D[:, 0, 0] = _tmp21*_tmp80 + _tmp34*_tmp79 + _tmp43*_tmp81
+    D[:, 0, 1] = _tmp28*_tmp80 + _tmp38*_tmp79 + _tmp41*_tmp81
+    D[:, 0, 2] = _tmp39
+    D[:, 0, 3] = _tmp44
+    return c, C, D
 
 
 def derived(q, k):
@@ -1530,26 +2248,32 @@ MODELS = {
     "none": {
         "c0": c0_none,
         "channels": {"match": measure_match__none},
+        "reduced": {"c0": c0_none__reduced, "channels": {"match": measure_match__none__reduced}},
     },
     "zoom": {
         "c0": c0_zoom,
         "channels": {"match": measure_match__none},
+        "reduced": {"c0": c0_zoom__reduced, "channels": {"match": measure_match__zoom__reduced}},
     },
     "rotation": {
         "c0": c0_rotation,
         "channels": {"match": measure_match__none},
+        "reduced": {"c0": c0_rotation__reduced, "channels": {"match": measure_match__rotation__reduced}},
     },
     "translation": {
         "c0": c0_translation,
         "channels": {"match": measure_match},
+        "reduced": {"c0": c0_translation__reduced, "channels": {"match": measure_match__translation__reduced}},
     },
     "planar": {
         "c0": c0_planar,
         "channels": {"match": measure_match__none},
+        "reduced": {"c0": c0_planar__reduced, "channels": {"match": measure_match__planar__reduced}},
     },
     "general": {
         "c0": c0_general,
         "channels": {"match": measure_match},
+        "reduced": {"c0": c0_general__reduced, "channels": {"match": measure_match__general__reduced}},
     },
 }
 DERIVED = derived

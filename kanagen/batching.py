@@ -74,7 +74,8 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
           channel: str | None = None, workers: int | None = None, scheduler: str | None = None,
           retry_errors: bool = False, progress: Callable[[Outcome], None] | None = None,
           on_start: Callable[[int, int], None] | None = None,
-          options: FitOptions | None = None, **fit_options) -> BatchSummary:
+          options: FitOptions | None = None, backend: str = "numpy",
+          **fit_options) -> BatchSummary:
     """Estimate every dataset with the same spec and options; results go to ``db``.
 
     Parameters
@@ -92,6 +93,9 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
     progress : called with an :class:`Outcome` as each dataset finishes.
     on_start : called with (datasets to estimate, datasets skipped) before the first one.
     options : FitOptions, or the same as keywords (``scale=4.0, max_samples=500, ...``).
+    backend : ``"numpy"``, ``"casadi"`` or ``"compiled"`` (as :func:`kanagen.load`; each
+        worker loads, and for ``"compiled"`` compiles once into the shared cache). The same
+        estimates whatever the backend: not part of what a re-run resumes on.
 
     Returns
     -------
@@ -119,7 +123,7 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
         raise ValueError(f"workers must be at least 1, got {workers}")
     paths = _expand(datasets)
     spec_text, source = _spec_source(spec)
-    fam = load(spec)
+    fam = load(spec, backend=backend)
     channel = resolve_channel(fam, channel)
     options.check(fam)
     key = options.key(channel)
@@ -152,7 +156,7 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
                     continue
                 yield path, X
 
-        task = (spec_text, source, channel, options.to_dict())
+        task = (spec_text, source, channel, options.to_dict(), backend)
         with _client(workers, scheduler, bool(todo)) as (client, slots):
             for path, out in _run(client, slots, task, jobs()):
                 if "error" in out:
@@ -247,13 +251,13 @@ def _run(client, slots: int, task: tuple, jobs: Iterator[tuple[str, np.ndarray]]
 
 
 def estimate_dataset(spec_text: str | None, source: str, channel: str, options: dict,
-                     X: np.ndarray, dataset: str) -> dict:
+                     backend: str, X: np.ndarray, dataset: str) -> dict:
     """One dataset on a worker: its record encoded for the database (``"encoded"``,
     ``"found"``, ``"stop_reason"``) or ``"error"``, with ``"seconds"`` (wall) and ``"cpu"``
     (the process's CPU time); never raises (a dataset's failure is its outcome)."""
     started, cpu = time.perf_counter(), time.process_time()
     try:
-        fam = _family(spec_text, source)
+        fam = _family(spec_text, source, backend)
         rec = run_job(fam, X, channel, FitOptions(**options), spec=source, data=dataset)
         out = {"encoded": encode(rec), "found": rec["found"],
                "stop_reason": rec.get("stop_reason") or ""}
@@ -263,8 +267,9 @@ def estimate_dataset(spec_text: str | None, source: str, channel: str, options: 
 
 
 @lru_cache(maxsize=8)
-def _family(spec_text: str | None, source: str):
+def _family(spec_text: str | None, source: str, backend: str):
     """The family on a worker, loaded once per process."""
     from . import load, load_text
 
-    return load(source) if spec_text is None else load_text(spec_text, source)
+    return load(source, backend=backend) if spec_text is None else \
+        load_text(spec_text, source, backend=backend)

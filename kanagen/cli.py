@@ -39,10 +39,18 @@ def main():
 @click.argument("specs", nargs=-1, type=click.Path(dir_okay=False))
 @click.option("-o", "--out", "out_dir", default="generated", show_default=True,
               type=click.Path(file_okay=False), help="Folder for the generated modules.")
+@click.option("--backend", "backends", multiple=True, type=click.Choice(["numpy", "casadi"]),
+              help="Module(s) to generate (repeatable): numpy (default), casadi (CasADi "
+                   "Functions, written beside the NumPy module). With --check, default: "
+                   "every backend whose file is in OUT.")
+@click.option("--compile", "compile_", is_flag=True,
+              help="Also compile the CasADi functions to C (CasADi's code generator and the "
+                   "C compiler $CC or cc) into the cache that kanagen.load(..., "
+                   "backend='compiled') uses. Without a compiler: a warning, not an error.")
 @click.option("--check", is_flag=True,
               help="Regenerate in memory and fail with a diff if a file in OUT differs "
                    "(default SPECS: examples/*.yaml).")
-def build(specs, out_dir, check):
+def build(specs, out_dir, backends, compile_, check):
     """Generate the estimation module of each SPEC (YAML) into OUT."""
     from .codegen import build as build_spec
     from .codegen import check as check_specs
@@ -55,19 +63,41 @@ def build(specs, out_dir, check):
             _fail("no spec given and no examples/*.yaml here")
     try:
         if check:
-            diffs = check_specs(list(specs), out_dir)
+            diffs = check_specs(list(specs), out_dir, backends or None)
             for diff in diffs:
                 click.echo(diff, nl=False)
             if diffs:
                 _fail(f"{len(diffs)} generated file(s) in {out_dir} differ from their spec; "
-                      f"run: kanagen build {' '.join(specs)} -o {out_dir}", 1)
+                      f"run: kanagen build {' '.join(specs)} -o {out_dir}"
+                      + "".join(f" --backend {b}" for b in backends), 1)
             click.echo(f"{len(specs)} spec(s): generated files in {out_dir} are up to date")
             return
+        names = ("numpy", *(b for b in backends if b != "numpy"))
         for spec in specs:
-            for path in build_spec(spec, out_dir):
+            for path in build_spec(spec, out_dir, names):
                 click.echo(f"{spec} -> {path}")
+            if compile_:
+                _compile(spec)
     except SpecError as exc:
         _fail(str(exc))
+
+
+def _compile(spec: str) -> None:
+    """Compile the CasADi functions of ``spec`` into the cache; a warning without compiler."""
+    from .codegen.compile import CompileError, compile_family
+    from .loader import _module_for
+    from .modelspec import load_spec
+    from .runtime.family import cache_dir
+
+    family = load_spec(spec)
+    try:
+        library = compile_family(_module_for(family, "casadi"),
+                                 _module_for(family, "numpy").FAMILY, cache_dir())
+    except CompileError as exc:
+        click.echo(f"warning: {spec}: not compiled: {exc}; kanagen.load(..., "
+                   "backend='compiled') will use the uncompiled CasADi backend", err=True)
+        return
+    click.echo(f"{spec} -> {library} (compiled)")
 
 
 @main.command()
@@ -142,6 +172,13 @@ def fit_options(command):
     return command
 
 
+backend_option = click.option(
+    "--backend", type=click.Choice(["numpy", "casadi", "compiled"]), default="numpy",
+    show_default=True,
+    help="What evaluates the equations; compiled: C through CasADi and the C compiler, with "
+         "the compiled estimator (same results, faster).")
+
+
 def _fit_options(scale, scorer, phi, seed, max_samples, model, local, sigma, consts,
                  max_iter):
     """The validated FitOptions of :func:`fit_options`' values; bad input exits 2."""
@@ -162,7 +199,8 @@ def _fit_options(scale, scorer, phi, seed, max_samples, model, local, sigma, con
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), default=None,
               help="Also write the result as JSON to this file; '-': to stdout, the text "
                    "going to stderr. Infinite or undefined numbers are null.")
-def fit(spec, data, channel, json_out, **options):
+@backend_option
+def fit(spec, data, channel, json_out, backend, **options):
     """Find the model of SPEC that the measures in DATA support, despite outliers.
 
     DATA is a CSV file whose header names the channel's components (in any order, other
@@ -196,7 +234,7 @@ def fit(spec, data, channel, json_out, **options):
 
     opts = _fit_options(**options)
     try:
-        fam = load(spec)
+        fam = load(spec, backend=backend)
         channel = resolve_channel(fam, channel)
         opts.check(fam)
         X = read_measures(data, fam.channel(channel).components, channel)
@@ -231,7 +269,8 @@ def fit(spec, data, channel, json_out, **options):
                    "instead of local ones.")
 @click.option("--retry-errors", is_flag=True,
               help="Estimate again the datasets whose earlier run failed.")
-def batch(spec, data_glob, channel, db, workers, scheduler, retry_errors, **options):
+@backend_option
+def batch(spec, data_glob, channel, db, workers, scheduler, retry_errors, backend, **options):
     """Estimate every dataset matching DATA_GLOB with SPEC and the same options, in parallel.
 
     One estimation per data file (formats as for `kanagen fit`; quote the glob, ** matches
@@ -278,7 +317,7 @@ def batch(spec, data_glob, channel, db, workers, scheduler, retry_errors, **opti
     try:
         summary = run_batch(spec, data_glob, db=db, channel=channel, workers=workers,
                             scheduler=scheduler, retry_errors=retry_errors, progress=step,
-                            on_start=start, options=opts)
+                            on_start=start, options=opts, backend=backend)
     except (SpecError, ValueError, OSError, ImportError) as exc:
         _fail(str(exc))
     except KeyboardInterrupt:

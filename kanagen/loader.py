@@ -2,14 +2,23 @@
 
 from __future__ import annotations
 
+import importlib
+import warnings
 from pathlib import Path
 
-from .codegen import FORMAT, generator_fingerprint, render_spec
+from .codegen import BACKENDS, FORMAT, generator_fingerprint, render_spec
+from .codegen.compile import CompileError, CompileWarning, compile_family, load_compiled
 from .modelspec import Family, load_spec, parse_spec
+from .runtime.backends import CasadiFunctions, CompiledFunctions
 from .runtime.family import ModelFamily, cache_dir, cache_key, import_file, shipped_module
+from .runtime.fastpath import FastPath
+
+#: The backends :func:`load` accepts.
+LOAD_BACKENDS = ("numpy", "casadi", "compiled")
 
 
-def load(spec: str | Path | Family, *, use_generated_kernels: bool = True) -> ModelFamily:
+def load(spec: str | Path | Family, *, backend: str = "numpy",
+         use_generated_kernels: bool = True, eliminate_linear: bool = False) -> ModelFamily:
     """Load a model family.
 
     Parameters
@@ -17,13 +26,24 @@ def load(spec: str | Path | Family, *, use_generated_kernels: bool = True) -> Mo
     spec : path, family name or Family
         A YAML spec file; the name of a shipped family (``"conic"``); or a validated
         :class:`kanagen.modelspec.Family` (e.g. from :func:`kanagen.modelspec.family_from_data`).
+    backend : {"numpy", "casadi", "compiled"}
+        What evaluates the equations: the generated NumPy module; the generated CasADi
+        functions; or those compiled to C (CasADi's code generator and the system C
+        compiler, cached) together with the compiled estimator that :func:`kanagen.fit`
+        then runs (docs/fastpath.md). Same estimates to rounding level. Without a C
+        compiler, "compiled" warns (:class:`~kanagen.codegen.compile.CompileWarning`) and
+        uses "casadi".
     use_generated_kernels : bool
         Use the unrolled per-measure algebra of the generated module (default) or the
         generic runtime implementation.
+    eliminate_linear : bool
+        Fit models with linear parameter constraints in their free components (the
+        constraints solved at build time, report §6); same results.
 
-    The committed module under ``kanagen.generated`` is used when it was generated from the
-    same spec text; otherwise the spec is built into a cache directory (``$KANAGEN_CACHE``,
-    default ``~/.cache/kanagen``) keyed by the spec hash and the generator, and imported.
+    The committed modules under ``kanagen.generated`` are used when they were generated from
+    the same spec text; otherwise the spec is built into a cache directory
+    (``$KANAGEN_CACHE``, default ``~/.cache/kanagen``) keyed by the spec hash and the
+    generator, and imported.
 
     Examples
     --------
@@ -31,7 +51,11 @@ def load(spec: str | Path | Family, *, use_generated_kernels: bool = True) -> Mo
     >>> fam = kanagen.load("conic")
     >>> fam.parameter_names
     ('A', 'B', 'C', 'D', 'E', 'F')
+    >>> kanagen.load("conic", backend="casadi").backend
+    'casadi'
     """
+    if backend not in LOAD_BACKENDS:
+        raise ValueError(f"unknown backend {backend!r} (choose from {', '.join(LOAD_BACKENDS)})")
     if isinstance(spec, Family):
         family = spec
     else:
@@ -39,20 +63,37 @@ def load(spec: str | Path | Family, *, use_generated_kernels: bool = True) -> Mo
         if path.suffix in (".yaml", ".yml") or path.exists():
             family = load_spec(path)
         else:
+            family = None
             module = _shipped_by_name(str(spec))
-            return ModelFamily(module, use_generated_kernels)
-    return ModelFamily(_module_for(family), use_generated_kernels)
+    if family is not None:
+        module = _module_for(family, "numpy")
+    functions = fastpath = None
+    if backend != "numpy":
+        casadi_module = _module_for(family, "casadi") if family is not None else \
+            _shipped_by_name(f"{module.FAMILY['name']}_casadi")
+        functions = None
+        if backend == "compiled":
+            try:
+                library = compile_family(casadi_module, module.FAMILY, cache_dir())
+                functions = CompiledFunctions(casadi_module, module.FAMILY["derived"],
+                                              load_compiled(casadi_module, library), library,
+                                              module.FAMILY)
+                fastpath = FastPath.load(library, module)
+            except CompileError as exc:
+                warnings.warn(f"cannot compile family {module.FAMILY['name']!r}: {exc}; using "
+                              "the uncompiled CasADi backend", CompileWarning, stacklevel=2)
+        if functions is None:
+            functions = CasadiFunctions(casadi_module, module.FAMILY["derived"])
+    return ModelFamily(module, use_generated_kernels, functions, eliminate_linear, fastpath)
 
 
-def load_text(text: str, source: str = "<spec>", *,
-              use_generated_kernels: bool = True) -> ModelFamily:
-    """Load a family from YAML text; ``source`` names it in errors and in the header."""
-    return load(parse_spec(text, source), use_generated_kernels=use_generated_kernels)
+def load_text(text: str, source: str = "<spec>", **options) -> ModelFamily:
+    """Load a family from YAML text; ``source`` names it in errors and in the header.
+    ``options`` are those of :func:`load`."""
+    return load(parse_spec(text, source), **options)
 
 
 def _shipped_by_name(name: str):
-    import importlib
-
     try:
         return importlib.import_module(f"kanagen.generated.{name}")
     except ImportError:
@@ -60,17 +101,21 @@ def _shipped_by_name(name: str):
             from None
 
 
-def _module_for(family: Family):
-    module = shipped_module(family.name, family.sha256, FORMAT)
+def _module_for(family: Family, backend: str):
+    """The generated module of ``family`` for ``backend``: the shipped one when current,
+    else built into the cache."""
+    target = BACKENDS[backend].templates["module.py.jinja"].format(name=family.name)
+    stem = target.removesuffix(".py")
+    module = shipped_module(stem, family.sha256, FORMAT)
     if module is not None:
         return module
     key = cache_key(family.sha256, generator_fingerprint())
     folder = cache_dir() / key
-    files = render_spec(family)
-    target = folder / f"{family.name}.py"
-    if not target.exists() or target.read_text(encoding="utf-8") != files[target.name]:
+    text = render_spec(family, [backend])[target]
+    path = folder / target
+    if not path.exists() or path.read_text(encoding="utf-8") != text:
         folder.mkdir(parents=True, exist_ok=True)
-        tmp = target.with_suffix(".tmp")
-        tmp.write_text(files[target.name], encoding="utf-8")
-        tmp.replace(target)  # atomic: concurrent loaders never see half a file
-    return import_file(target, f"kanagen_cache_{family.name}_{key}")
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(text, encoding="utf-8")
+        tmp.replace(path)  # atomic: concurrent loaders never see half a file
+    return import_file(path, f"kanagen_cache_{stem}_{key}")

@@ -59,18 +59,25 @@ def coherence_errors(problem: Problem, q: np.ndarray, iterations: int | None = N
     rank on the equations' zero set, from :func:`manifold_ranks` (computed here when
     ``iterations`` is 1 and a channel has several equations).
     """
+    iterations = iterations if iterations is not None else 50
+    compiled = None if problem.compiled is None else \
+        problem.compiled[0].coherence(problem.compiled[1], problem, q, iterations, tol)
     with np.errstate(all="ignore"):
-        mt, violations, kept, _ = project_measures(
-            problem, q, tuple(ch.m for ch in problem.channels),
-            iterations if iterations is not None else 50, tol)
+        if compiled is not None:  # the same projection in C: ‖m̃ − m‖²_Q + violation, ranks
+            totals, kept = compiled
+        else:
+            mt, violations, kept, _ = project_measures(
+                problem, q, tuple(ch.m for ch in problem.channels), iterations, tol)
+            totals = [quadratic(m - ch.m, ch.Q) + violation
+                    for ch, m, violation in zip(problem.channels, mt, violations, strict=True)]
         if ranks is None and iterations == 1 and any(r.size and r.max() > 1 for r in kept):
             ranks = manifold_ranks(problem, q)
     out = []
-    for i, (ch, m, violation, rank) in enumerate(zip(problem.channels, mt, violations, kept,
-                                                     strict=True)):
+    for i, (total, rank) in enumerate(zip(totals, kept, strict=True)):
         if ranks is not None:
             rank = np.minimum(rank, ranks[i])
-        errors = (quadratic(m - ch.m, ch.Q) + violation) / np.maximum(rank, 1)
+        with np.errstate(all="ignore"):
+            errors = total / np.maximum(rank, 1)
         out.append(np.where(np.isfinite(errors), errors, np.inf))
     return tuple(out)
 
@@ -127,6 +134,12 @@ _SLOW = 4  # line-search steps in a row that lower the violation by less than a 
 def solve_minimal(problem: Problem, target: np.ndarray, max_iter: int = 50,
                   xtol: float = 1e-12, eps: float = EPS) -> MinimalSolution:
     """:func:`minimal_solve` on a validated problem (its measures are the sample)."""
+    if problem.compiled is not None:  # the same iteration in C (kg_minimal)
+        fastpath, model = problem.compiled
+        out = fastpath.minimal(model, problem, target, max_iter, xtol, eps)
+        if out is not None:
+            q, success, rank, iterations, violation = out
+            return MinimalSolution(q, success, rank, iterations, violation)
 
     def equations(q):
         c0, C0 = problem.c0(q, problem.k)

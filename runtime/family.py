@@ -16,6 +16,7 @@ import numpy as np
 
 from ..modelspec.constructs import slack_value
 from . import kernels as generic_kernels
+from .backends import NumpyFunctions
 
 
 @dataclass(frozen=True)
@@ -30,6 +31,19 @@ class ChannelInfo:
     @property
     def corrected_index(self) -> np.ndarray:
         return np.array([self.components.index(c) for c in self.corrected], dtype=int)
+
+
+@dataclass(frozen=True)
+class Reduction:
+    """``q = T r + t``: a model with its linear constraints eliminated (report §6);
+    ``r = q[free]``."""
+
+    free: np.ndarray
+    T: np.ndarray
+    t: np.ndarray
+
+    def full(self, r: np.ndarray) -> np.ndarray:
+        return self.T @ r + self.t
 
 
 @dataclass(frozen=True)
@@ -50,12 +64,23 @@ class ModelInfo:
 class ModelFamily:
     """A compiled model family: evaluates equations and Jacobians through generated code.
 
-    Obtain one with :func:`kanagen.load`. ``use_generated_kernels=False`` switches the
-    per-measure algebra to the generic runtime implementation (same results).
+    Obtain one with :func:`kanagen.load`. ``module`` is the generated NumPy module (the
+    family's metadata and unrolled per-measure algebra); ``functions`` the backend that
+    evaluates the equations (default: the same NumPy module, :mod:`kanagen.runtime.backends`).
+    ``use_generated_kernels=False`` switches the per-measure algebra to the generic runtime
+    implementation (same results). ``eliminate_linear=True`` fits the models that have
+    linear constraints in their free components (:meth:`reduction`). ``fastpath``: the
+    compiled estimator that :func:`kanagen.fit` uses where it applies
+    (:mod:`kanagen.runtime.fastpath`).
     """
 
-    def __init__(self, module: ModuleType, use_generated_kernels: bool = True):
+    def __init__(self, module: ModuleType, use_generated_kernels: bool = True,
+                 functions=None, eliminate_linear: bool = False, fastpath=None):
         self.module = module
+        #: the compiled estimator (backend "compiled", docs/fastpath.md), or None
+        self.fastpath = fastpath
+        self.functions = functions if functions is not None else NumpyFunctions(module)
+        self.eliminate_linear = eliminate_linear
         meta = module.FAMILY
         self.name: str = meta["name"]
         self.sha256: str = module.SPEC_SHA256
@@ -81,10 +106,20 @@ class ModelFamily:
         #: Components added for inequalities (appendix F), last in q; not "the parameter".
         self.slack_names = tuple(meta.get("slack", ()))
         self.use_generated_kernels = use_generated_kernels
+        self._reductions = {
+            name: Reduction(np.array(r["free"], dtype=int), np.array(r["T"], dtype=float),
+                            np.array(r["t"], dtype=float))
+            for name, r in meta.get("reductions", {}).items()}
 
     def __repr__(self) -> str:
         return (f"<ModelFamily {self.name!r}: parameter {list(self.parameter_names)}, "
-                f"models {list(self.models)}, channels {list(self.channels)}>")
+                f"models {list(self.models)}, channels {list(self.channels)}, "
+                f"backend {self.backend!r}>")
+
+    @property
+    def backend(self) -> str:
+        """Which backend evaluates the equations: "numpy", "casadi" or "compiled"."""
+        return self.functions.name
 
     @property
     def n(self) -> int:
@@ -138,7 +173,7 @@ class ModelFamily:
         if not own:
             return full
         with np.errstate(all="ignore"):
-            c = self.module.SLACK_MEASURES(full, self._k(constants))
+            c = self.functions.slack_measures(full, self._k(constants))
         kinds = self.module.FAMILY["slack_kinds"]
         for i in own:
             full[n_user + i] = slack_value(kinds[i], float(c[i]))
@@ -153,7 +188,7 @@ class ModelFamily:
             return True
         kinds = self.module.FAMILY["slack_kinds"]
         with np.errstate(all="ignore"):
-            c = self.module.SLACK_MEASURES(np.asarray(q, dtype=float), self._k(constants))
+            c = self.functions.slack_measures(np.asarray(q, dtype=float), self._k(constants))
         holds = [bool(c[i] >= 0 if kind == ">=" else c[i] > 0 if kind == ">" else
                       np.isfinite(c[i]) and c[i] != 0) for i, kind in enumerate(kinds)]
         return all(any(holds[i] for i in clause) for clause in clauses)
@@ -196,26 +231,41 @@ class ModelFamily:
     def _k(self, constants):
         return constants if isinstance(constants, np.ndarray) else self.constant_vector(constants)
 
+    def c0_function(self, model: str, reduced: bool = False):
+        """The callable ``(q, k) -> (c0 (p,), C0 (p, n))`` of ``model`` (in ``r`` with
+        ``reduced=True``)."""
+        self.model(model)
+        return self.functions.c0(model, reduced)
+
+    def measurement_function(self, model: str, channel: str, reduced: bool = False):
+        """The callable ``(q, X, k) -> (c (M, p), C (M, p, n), D (M, p, k))`` of a channel
+        under ``model`` (in ``r`` with ``reduced=True``)."""
+        self.model(model)
+        self.channel(channel)
+        return self.functions.measure(model, channel, reduced)
+
+    def reduction(self, model: str) -> Reduction | None:
+        """``q = T r + t`` for ``model`` when its linear constraints are eliminated (report
+        §6, :mod:`kanagen.codegen.eliminate`): only with ``eliminate_linear=True``."""
+        return self._reductions.get(model) if self.eliminate_linear else None
+
     def c0(self, model: str, q, constants=None) -> tuple[np.ndarray, np.ndarray]:
         """Constraints ``c0(q)`` (p,) and their Jacobian (p, n)."""
-        self.model(model)
-        return self.module.MODELS[model]["c0"](np.asarray(q, dtype=float), self._k(constants))
+        return self.c0_function(model)(np.asarray(q, dtype=float), self._k(constants))
 
     def measurement(self, model: str, channel: str, q, m, constants=None):
         """Equations (M, p), Jacobian in q (M, p, n) and in the corrected components (M, p, k).
 
         ``m`` is the full data array (M, len(components)) in component order.
         """
-        self.model(model)
-        self.channel(channel)
-        fn = self.module.MODELS[model]["channels"][channel]
+        fn = self.measurement_function(model, channel)
         return fn(np.asarray(q, dtype=float), np.asarray(m, dtype=float), self._k(constants))
 
     def derived(self, q, constants=None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """Every derived quantity and its Jacobian in q."""
-        if self.module.DERIVED is None:
+        if self.functions.derived is None:
             return {}
-        return self.module.DERIVED(np.asarray(q, dtype=float), self._k(constants))
+        return self.functions.derived(np.asarray(q, dtype=float), self._k(constants))
 
     def kernel(self, p: int, k: int):
         """The (whiten, correct) pair for p equations and k corrected components."""

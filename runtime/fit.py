@@ -10,7 +10,8 @@ import numpy as np
 from .family import ModelFamily
 from .inputs import channel_data, parameter_vector, prior_information
 from .iterate import CONVERGED, FAILED, STALLED, iterate
-from .projector import Problem, project
+from .projector import Problem, evaluate, project
+from .reduce import reduced_problem
 from .results import DerivedValue, FitResult, constrained_covariance, propagate
 from .sqrt import EPS
 
@@ -23,11 +24,11 @@ def make_problem(fam: ModelFamily, model: str, data: Mapping, info: Mapping | No
     k = fam.constant_vector(constants)
     measures, kernels = [], []
     for ch in channels:
-        measures.append(fam.module.MODELS[model]["channels"][ch.name])
+        measures.append(fam.measurement_function(model, ch.name))
         p = _equation_count(fam, model, ch.name, k)
         kernels.append(fam.kernel(p, len(ch.index)))
     return Problem(
-        c0=fam.module.MODELS[model]["c0"],
+        c0=fam.c0_function(model),
         measures=tuple(measures),
         kernels=tuple(kernels),
         channels=channels,
@@ -37,13 +38,14 @@ def make_problem(fam: ModelFamily, model: str, data: Mapping, info: Mapping | No
         eps=eps,
         relations=(lambda q: fam.relations_hold(model, q, k)) if fam.slack_names else None,
         strict_slacks=fam.strict_slacks(model),
+        compiled=None if fam.fastpath is None else (fam.fastpath, model),
     )
 
 
 def _equation_count(fam: ModelFamily, model: str, channel: str, k: np.ndarray) -> int:
     width = len(fam.channel(channel).components)
     with np.errstate(all="ignore"):
-        c, _, _ = fam.module.MODELS[model]["channels"][channel](fam.q0, np.zeros((0, width)), k)
+        c, _, _ = fam.measurement_function(model, channel)(fam.q0, np.zeros((0, width)), k)
     return c.shape[1]
 
 
@@ -86,6 +88,11 @@ def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
     ... # doctest: +SKIP
     """
     model = model or fam.null_model
+    if fam.fastpath is not None:  # the compiled estimator, on simple inputs
+        res = fam.fastpath.fit(fam, model, data, info, q0, Q0, constants, q_start, max_iter,
+                               xtol, eps)
+        if res is not None:
+            return res
     problem = make_problem(fam, model, data or {}, info, q0, Q0, constants, eps)
     start = problem.q0 if q_start is None else parameter_vector(fam, q_start, "q_start")
     return fit_problem(fam, model, problem, q_start=start, max_iter=max_iter, xtol=xtol)
@@ -100,8 +107,20 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
     start = problem.q0 if q_start is None else np.asarray(q_start, dtype=float)
     start = fam.with_slacks(start, problem.k, model)  # its slacks consistent with the start
     start = _inside(problem, start)
-    out = iterate(problem, start, max_iter=max_iter, xtol=xtol)
-    x, lin, proj = out.point, out.lin, out.proj
+    red = fam.reduction(model)
+    if red is None and fam.fastpath is not None:  # the compiled estimator (same results)
+        res = fam.fastpath.fit_problem(fam, model, problem, start, max_iter, xtol)
+        if res is not None:
+            return res
+    if red is None:
+        out = iterate(problem, start, max_iter=max_iter, xtol=xtol)
+        x, lin, proj = out.point, out.lin, out.proj
+    else:  # iterate in the free components (report §6); outputs from the full model
+        out = iterate(reduced_problem(fam, model, problem, red), start[red.free],
+                      max_iter=max_iter, xtol=xtol)
+        with np.errstate(all="ignore"):
+            x = evaluate(problem, red.full(out.point.q), out.point.mt)
+        lin = proj = None
     if lin is None or lin.x is not x:  # the outputs are taken at the returned point
         try:
             with np.errstate(all="ignore"):

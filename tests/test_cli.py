@@ -196,3 +196,36 @@ def test_show_lists_the_lattice(run):
     out = run("show", ROOT / "examples/conic.yaml")
     assert out.exit_code == 0
     assert "model circle (null model)" in out.output and "-> conic (phi ftest)" in out.output
+
+
+def test_build_casadi_backend_and_check(run, tmp_path):
+    spec = tmp_path / "line.yaml"
+    shutil.copy(ROOT / "examples" / "line.yaml", spec)
+    out = run("build", spec, "-o", tmp_path / "gen", "--backend", "casadi")
+    assert out.exit_code == 0
+    assert {p.name for p in (tmp_path / "gen").iterdir()} == {"line.py", "line_casadi.py"}
+    assert run("build", "--check", spec, "-o", tmp_path / "gen").exit_code == 0
+    casadi_file = tmp_path / "gen" / "line_casadi.py"
+    casadi_file.write_text(casadi_file.read_text().replace("ca.SX.sym", "ca.MX.sym", 1))
+    out = run("build", "--check", spec, "-o", tmp_path / "gen")
+    assert out.exit_code == 1 and "line_casadi.py" in out.output
+
+
+def test_build_compile_without_compiler_warns(run, tmp_path, monkeypatch):
+    monkeypatch.setenv("KANAGEN_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("CC", str(tmp_path / "missing-cc"))
+    out = run("build", ROOT / "examples" / "line.yaml", "-o", tmp_path / "gen", "--compile")
+    assert out.exit_code == 0
+    assert "not compiled: no C compiler" in out.output
+    assert "uncompiled CasADi backend" in out.output
+
+
+@pytest.mark.skipif(tuple(map(int, version("click").split(".")[:2])) < (8, 2),
+                    reason="CliRunner separates stdout from stderr from click 8.2")
+def test_fit_on_the_compiled_backend_gives_the_same_answer(run, circle_csv):
+    path, _ = circle_csv
+    args = ("fit", LATTICE, path, "--scale", 4, "--max-samples", 200, "--json", "-")
+    outs = [json.loads(run(*args, "--backend", b).stdout) for b in ("numpy", "compiled")]
+    assert outs[0]["model"] == outs[1]["model"] and outs[0]["inliers"] == outs[1]["inliers"]
+    np.testing.assert_allclose(list(outs[1]["params"].values()),
+                               list(outs[0]["params"].values()), rtol=1e-8, atol=1e-12)
