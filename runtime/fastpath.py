@@ -37,7 +37,8 @@ from .results import FitResult
 #: Python functions (and module constants) that codegen/c/kanagen_fast.c ports, by module.
 PORTED: dict[str, tuple[str, ...]] = {
     "iterate": ("_iterate", "_line_search", "_acceptable", "_restored", "_negligible",
-                "_step_sizes", "_diverging", "iterate", "_MAX_HALVINGS", "_RESTORATION",
+                "_step_sizes", "_diverging", "iterate", "_trust_region_step", "_damping_for",
+                "_TrustRegion.__init__", "_SHRINK", "_GROW", "_MAX_HALVINGS", "_RESTORATION",
                 "_STAGNATION", "_MU_MIN", "_MU_MAX", "_HALVINGS_PER_DAMPING", "CONVERGED"),
     "projector": ("evaluate", "point", "project_measures", "_halving", "restore_parameter",
                   "linearise", "solve", "_seen", "_solve_seen", "project",
@@ -57,7 +58,7 @@ PORTED: dict[str, tuple[str, ...]] = {
 
 #: Fingerprints of :data:`PORTED` when the C port was last brought in line with them.
 FINGERPRINTS: dict[str, str] = {
-    'iterate._iterate': 'b127c74dc876',
+    'iterate._iterate': '5d15471d31b2',
     'iterate._line_search': '306bd0c75a21',
     'iterate._acceptable': '72a663f4dc13',
     'iterate._restored': 'f209b2d5d42e',
@@ -65,6 +66,11 @@ FINGERPRINTS: dict[str, str] = {
     'iterate._step_sizes': 'ec374cb32cdc',
     'iterate._diverging': '0c3d2af38f92',
     'iterate.iterate': '3069efbd2551',
+    'iterate._trust_region_step': 'c436347fa437',
+    'iterate._damping_for': 'ba433e4f58d2',
+    'iterate._TrustRegion.__init__': 'df8b0da6b9ff',
+    'iterate._SHRINK': '7bffdad8d0c1',
+    'iterate._GROW': '7bffdad8d0c1',
     'iterate._MAX_HALVINGS': '421b988477a7',
     'iterate._RESTORATION': 'af8e123bf441',
     'iterate._STAGNATION': 'b9f041cad9fa',
@@ -78,8 +84,8 @@ FINGERPRINTS: dict[str, str] = {
     'projector._halving': '788448d7ecbd',
     'projector.restore_parameter': '0da8b4072804',
     'projector.linearise': 'e91a1b985976',
-    'projector.solve': '1940c2758150',
-    'projector._seen': '75024a9ecda4',
+    'projector.solve': '91fa8f0821d9',
+    'projector._seen': 'c3bf240b45af',
     'projector._solve_seen': '0ff1f7352cee',
     'projector.project': '270ceff578d0',
     'projector._equilibrium_weights': '2c104d65c08b',

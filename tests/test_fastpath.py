@@ -65,12 +65,16 @@ def reference(spec, name="test.yaml", **options):
     return kanagen.load(spec, **options)
 
 
-def same_fit(a, b):
+def same_fit(a, b, path=True):
     """``b`` (compiled) is ``a`` (NumPy runtime) to 1e-10 relative. A failed fit (the
     iteration cap on a run that wanders, a stall far from a solution) only has to fail the
-    same way: after a hundred iterations that do not converge, rounding has moved the point."""
-    assert (b.status, b.iterations, b.success) == (a.status, a.iterations, a.success), \
-        (a.message, b.message)
+    same way: after a hundred iterations that do not converge, rounding has moved the point.
+    ``path=False``: the same estimate, the number of iterations may differ (an ill-conditioned
+    information damped by ``μ I`` in the trust region: rounding of order cond·ε in each step
+    changes the radius' decisions, not where the iteration ends)."""
+    assert (b.status, b.success) == (a.status, a.success), (a.message, b.message)
+    if path:
+        assert b.iterations == a.iterations, (a.iterations, b.iterations)
     assert b.message == a.message and b.model == a.model
     assert b.derived.keys() == a.derived.keys()
     if not a.success:
@@ -466,7 +470,9 @@ def test_a_stale_port_switches_itself_off(monkeypatch):
 
 @pytest.mark.parametrize("name", ["Misra1a", "Thurber", "MGH09", "BoxBOD"])
 def test_nist_problems(name, data_dir):
-    """Hard starts: damping, long line searches, stalls — both starts of each problem."""
+    """Hard starts: the trust region, damping, stalls — both starts of each problem; the
+    same path where the information is well conditioned (Misra1a, BoxBOD, MGH09), the same
+    estimate everywhere."""
     from benchmarks.nist_strd import CHANNEL, MODEL, kanagen_info, load_problem, spec_text
 
     problem = load_problem(name)
@@ -475,7 +481,8 @@ def test_nist_problems(name, data_dir):
     data, info = {CHANNEL: problem.data_array(False)}, {CHANNEL: kanagen_info(problem, False)}
     for start in problem.starts:
         args = dict(data=data, info=info, q0=np.asarray(start, dtype=float), max_iter=500)
-        same_fit(kanagen.fit(ref, MODEL, **args), kanagen.fit(fast, MODEL, **args))
+        same_fit(kanagen.fit(ref, MODEL, **args), kanagen.fit(fast, MODEL, **args),
+                 path=name != "Thurber")
 
 
 def test_threads_share_a_compiled_family(families):

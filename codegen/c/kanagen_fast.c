@@ -36,6 +36,8 @@
 #define KG_MU_MIN 1e-4
 #define KG_MU_MAX 1e8
 #define KG_HALVINGS_PER_DAMPING 4
+#define KG_SHRINK 0.25 /* _SHRINK, _GROW: the trust radius */
+#define KG_GROW 0.75
 /* runtime/projector.py: project_measures(tol=1e-10), _halving(halvings=4) */
 #define KG_PROJECT_TOL 1e-10
 #define KG_HALVINGS 4
@@ -520,16 +522,22 @@ static void kg_linearise(const kg_problem *pb, kg_point *x, kg_lin *lin)
 }
 
 /* _seen: the components the data or the constraints see — some information on the diagonal
- * of info (NaN counts) or a C0 entry above _ROUNDING × its row's NumPy max; their indices in
- * idx, their count returned */
-static int kg_seen(int n, int p0, const double *info, const double *C0, int *idx)
+ * of info (NaN counts) or a C0 entry above _ROUNDING × its row's NumPy max, as it is or as
+ * C0[r, u] q_u; their indices in idx, their count returned */
+static int kg_seen(int n, int p0, const double *info, const double *C0, const double *q,
+                   int *idx)
 {
     int ns = 0;
-    double bound[p0 + 1];
-    for (int r = 0; r < p0; ++r) bound[r] = KG_ROUNDING * kg_nanmax_abs(n, C0 + r * n);
+    double bound[p0 + 1], scaled[p0 + 1], row[KG_N + 1];
+    for (int r = 0; r < p0; ++r) {
+        bound[r] = KG_ROUNDING * kg_nanmax_abs(n, C0 + r * n);
+        for (int u = 0; u < n; ++u) row[u] = C0[r * n + u] * q[u];
+        scaled[r] = KG_ROUNDING * kg_nanmax_abs(n, row);
+    }
     for (int u = 0; u < n; ++u) {
         int seen = info[u * n + u] != 0.0;
-        for (int r = 0; r < p0 && !seen; ++r) seen = fabs(C0[r * n + u]) > bound[r];
+        for (int r = 0; r < p0 && !seen; ++r)
+            seen = fabs(C0[r * n + u]) > bound[r] || fabs(C0[r * n + u] * q[u]) > scaled[r];
         if (seen) idx[ns++] = u;
     }
     return ns;
@@ -584,19 +592,22 @@ static int kg_solve_seen(const kg_problem *pb, const kg_point *x, int ns, const 
     return 0;
 }
 
-/* solve(): the projector's point (eq. 12/43), damped by μ diag(H) when μ > 0, solved on the
+/* solve(): the projector's point (eq. 12/43), damped by μ diag(w) when μ > 0 (w the given
+ * weights, else diag(H): _equilibrium_weights), solved on the
  * components seen (_seen; the others do not move, nothing seen: q stays); -1 when a
  * triangular factor is singular (the Python LinAlgError). Without measures, the corrected
  * measures (eq. 44) are not computed (fit_problem's outputs do not read them). */
 static int kg_solve(const kg_problem *pb, const kg_lin *lin, double mu, kg_proj *out,
-                    int measures)
+                    int measures, const double *weights)
 {
     const int n = KG_N, p0 = pb->p0;
     const kg_point *x = lin->x;
     double H[KG_N * KG_N + 1], bbar[KG_N + 1], dq[KG_N + 1];
     int idx[KG_N + 1];
     memcpy(H, lin->H, sizeof(double) * n * n);
-    if (mu > 0.0) { /* _equilibrium_weights */
+    if (mu > 0.0 && weights) {
+        for (int u = 0; u < n; ++u) H[u * n + u] += mu * weights[u];
+    } else if (mu > 0.0) { /* _equilibrium_weights */
         double top = 0.0;
         for (int u = 0; u < n; ++u) {
             double a = fabs(H[u * n + u]);
@@ -607,7 +618,7 @@ static int kg_solve(const kg_problem *pb, const kg_lin *lin, double mu, kg_proj 
             H[u * n + u] += mu * (a > 0 ? a : (top > 0 ? top : 1.0));
         }
     }
-    const int ns = kg_seen(n, p0, lin->info, x->C0, idx);
+    const int ns = kg_seen(n, p0, lin->info, x->C0, x->q, idx);
     if (ns < n) /* H on the seen block, in place (row-major ns × ns) */
         for (int a = 0; a < ns; ++a)
             for (int b = 0; b < ns; ++b) H[a * ns + b] = H[idx[a] * n + idx[b]];
@@ -714,6 +725,7 @@ typedef struct {
     kg_proj *proj, *target;
     double eps_delta, delta_cap;
     double root[KG_N * KG_N + 1]; /* _line_search's closest root of the information */
+    double radius; /* _TrustRegion: the radius on ‖Δq‖ (weights: ones) */
 } kg_state;
 
 /* _step_sizes */
@@ -836,7 +848,7 @@ static int kg_line_search(kg_state *st, double *mu_io, double *alpha_out, int gu
     for (;;) {
         kg_proj *target = st->proj;
         if (mu != 0.0) {
-            if (kg_solve(pb, st->lin, mu, st->target, 1)) return -1;
+            if (kg_solve(pb, st->lin, mu, st->target, 1, NULL)) return -1;
             target = st->target;
         }
         double alpha = 1.0;
@@ -875,6 +887,99 @@ static int kg_line_search(kg_state *st, double *mu_io, double *alpha_out, int gu
         if (mu >= KG_MU_MAX) return 0;
         mu = 10 * mu > KG_MU_MIN ? 10 * mu : KG_MU_MIN;
     }
+}
+
+static double kg_norm(int n, const double *a, const double *b) /* np.linalg.norm(a − b) */
+{
+    double acc = 0.0;
+    for (int u = 0; u < n; ++u) acc += (a[u] - b[u]) * (a[u] - b[u]);
+    return sqrt(acc);
+}
+
+/* _damping_for: the damping μ whose step has ‖Δq‖ just within radius (bisection on log μ);
+ * -1 on a singular factor */
+static int kg_damping_for(kg_state *st, double radius, const double *ones, double *mu)
+{
+    const kg_problem *pb = st->pb;
+    const double *q = st->lin->x->q;
+    double lo = -12.0, hi = 12.0, size;
+#define KG_SIZE(log_mu) (kg_solve(pb, st->lin, pow(10.0, (log_mu)), st->target, 0, ones) \
+                         ? -1 : (size = kg_norm(KG_N, st->target->q, q), 0))
+    if (KG_SIZE(hi)) return -1;
+    while (size > radius && hi < 300.0) {
+        lo = hi;
+        hi = 2.0 * hi;
+        if (KG_SIZE(hi)) return -1;
+    }
+    while (hi - lo > 0.02) {
+        double mid = 0.5 * (lo + hi);
+        if (KG_SIZE(mid)) return -1;
+        if (size > radius) lo = mid; else hi = mid;
+    }
+#undef KG_SIZE
+    *mu = pow(10.0, hi);
+    return 0;
+}
+
+/* _trust_region_step: an acceptable point within the trust radius (the projector's step
+ * tried first whatever its length, taken beyond the radius when predicted to 5 %; a step
+ * lowering δ taken as eq. 18 takes it). Returns 1 with the trial in st->pts[1], 0 when
+ * nothing is acceptable, -1 on a singular factor */
+static int kg_trust_region_step(kg_state *st, double *mu_out)
+{
+    const kg_problem *pb = st->pb;
+    const int n = KG_N;
+    kg_point *x = st->pts[0], *trial = st->pts[1];
+    const kg_lin *lin = st->lin;
+    double ones[KG_N + 1];
+    for (int u = 0; u < n; ++u) ones[u] = 1.0;
+    const double length = kg_norm(n, st->proj->q, x->q);
+    for (int attempt = 0; attempt < KG_MAX_HALVINGS; ++attempt) {
+        double mu = 0.0;
+        const int beyond = attempt == 0 && length > st->radius;
+        if (attempt && length > st->radius && kg_damping_for(st, st->radius, ones, &mu))
+            return -1;
+        kg_proj *target = st->proj;
+        if (mu != 0.0) {
+            if (kg_solve(pb, lin, mu, st->target, 1, ones)) return -1;
+            target = st->target;
+        }
+        memcpy(trial->q, target->q, sizeof(double) * n);
+        kg_copy_measures(pb, target->mt, trial->mt);
+        kg_restored(pb, trial, NULL);
+        double s[KG_N + 1], pred = 0.0, quad = 0.0;
+        for (int u = 0; u < n; ++u) s[u] = trial->q[u] - x->q[u];
+        const double size = kg_norm(n, trial->q, x->q);
+        for (int u = 0; u < n; ++u) {
+            double acc = 0.0;
+            for (int v = 0; v < n; ++v) acc += lin->info[u * n + v] * s[v];
+            pred += s[u] * lin->rhs[u];
+            quad += s[u] * acc;
+        }
+        pred -= 0.5 * quad; /* the linearised fall of L² */
+        const int finite = kg_finite(trial);
+        if (finite && x->delta > st->eps_delta && trial->delta <= (1 - 1e-4) * x->delta) {
+            *mu_out = mu;
+            return 1; /* eq. 18: the violation falls */
+        }
+        if (finite && kg_acceptable(trial, x, st->eps_delta, st->delta_cap)) {
+            const int rounding = pred <= 1e-13 * x->cost;
+            const double rho = pred > 0.0 ? (x->cost - trial->cost) / pred : 0.0;
+            if (mu == 0.0 && beyond && !(fabs(rho - 1.0) <= 0.05)) continue;
+            if (rounding || rho > 1e-4) {
+                if (rho < KG_SHRINK && !rounding) st->radius = 0.25 * size;
+                else if (rho > KG_GROW) st->radius = st->radius > 2.0 * size ? st->radius
+                                                                               : 2.0 * size;
+                *mu_out = mu;
+                return 1;
+            }
+        }
+        if (mu == 0.0 && beyond) continue;
+        st->radius = 0.25 * (isfinite(size) ? (st->radius < size ? st->radius : size)
+                                            : st->radius);
+        if (!(st->radius > 0.0)) return 0;
+    }
+    return 0;
 }
 
 static void kg_swap(kg_state *st)
@@ -919,11 +1024,17 @@ static int kg_iterate(kg_state *st, const double *q_start, int max_iter, double 
     st->delta_cap = 1e-2 * st->pts[0]->delta;
     double mu = 0.0, best_q = INFINITY, best_m = INFINITY, last_cost = INFINITY;
     int since_best = 0;
+    const int region = pb->p0 == 0; /* _TrustRegion: no parameter constraints */
+    if (region) {
+        double zero[KG_N + 1] = {0};
+        st->radius = kg_norm(n, q_start, zero);
+        if (st->radius == 0.0) st->radius = 1.0;
+    }
     for (int it = 1; it <= max_iter; ++it) {
         x = st->pts[0];
         *iterations = it;
         kg_linearise(pb, x, st->lin);
-        if (kg_solve(pb, st->lin, 0.0, st->proj, 1) || !kg_proj_finite(pb, st->proj))
+        if (kg_solve(pb, st->lin, 0.0, st->proj, 1, NULL) || !kg_proj_finite(pb, st->proj))
             return KG_FAILED; /* "in the projector": no linearisation kept */
         if (kg_negligible(pb, x->q, st->proj->q, x->mt, st->proj->mt, xtol)) {
             kg_point *next = st->pts[1];
@@ -946,7 +1057,8 @@ static int kg_iterate(kg_state *st, const double *q_start, int max_iter, double 
         }
         int guard = pb->guard && kg_relations(pb, x->q);
         double alpha = 1.0;
-        int found = kg_line_search(st, &mu, &alpha, guard);
+        int found = region ? kg_trust_region_step(st, &mu)
+                           : kg_line_search(st, &mu, &alpha, guard);
         if (found < 0) return KG_FAILED;
         if (found == 0) {
             *lin_at_point = 1;
@@ -1480,7 +1592,7 @@ int kg_fit(const double *in, double *out)
     int valid = 1;
     if (!lin_at_point) { /* the outputs are taken at the returned point: project(x) */
         kg_linearise(&pb, x, &lin);
-        valid = kg_solve(&pb, &lin, 0.0, st.proj, 0) == 0;
+        valid = kg_solve(&pb, &lin, 0.0, st.proj, 0, NULL) == 0;
     }
     double *out_q = out + 10, *out_info = out_q + n, *out_cov = out_info + n * n;
     double *out_derived = out_cov + n * n, *out_ch = out_derived;
