@@ -82,6 +82,8 @@ class Estimator:
     q0, Q0, constants : the prior and the constants, as for :func:`kanagen.fit`.
     model : str, optional
         Search this model only (no lattice); default: the lattice from the null model.
+    local : float in [0, 1]
+        Fraction of local (nearest-neighbour) samples, see :class:`ModelSearch`; default 0.
 
     Examples
     --------
@@ -98,7 +100,8 @@ class Estimator:
                  scorer: str | Callable = "relevance", phi=None, seed: int | None = 0,
                  channel: str | None = None, samples_per_model: int | None = None,
                  confidence: float = 0.99, inlier_ratio: float = 0.5, window: float = 0.35,
-                 q0=None, Q0=None, constants=None, model: str | None = None):
+                 q0=None, Q0=None, constants=None, model: str | None = None,
+                 local: float = 0.0):
         if not scale > 0:
             raise ValueError(f"scale (L*) must be positive, got {scale}")
         get_scorer(scorer)  # validate now: a bad choice must not surface mid-run
@@ -114,6 +117,9 @@ class Estimator:
         self.confidence = confidence
         self.inlier_ratio = inlier_ratio
         self.window = window
+        if not 0.0 <= local <= 1.0:
+            raise ValueError(f"local must be a fraction in [0, 1], got {local}")
+        self.local = float(local)
         if model is not None:
             fam.model(model)
         self.model = model  # a single model (no lattice), or None for the whole lattice
@@ -351,7 +357,7 @@ class Estimator:
                 parent_free = self._free(parent, parent_state.q)
             search = ModelSearch(self.fam, model, problem, channel, start, self._rng,
                                  self.scale, self.scorer, pool=pool, parent_free=parent_free,
-                                 base=base)
+                                 base=base, local=self.local)
             if search.exhausted:
                 continue
             budget = self._budget(search)

@@ -26,6 +26,7 @@ from .scoring import samples_for_confidence
 from .scoring import scorer as get_scorer
 
 _REFINE_ROUNDS = 6  # threshold-and-refine rounds at most (they stop when the inliers do)
+_NEIGHBOURHOOD = 4  # a local sample is drawn among this many sample sizes of nearest measures
 
 
 def outlier_threshold(errors: np.ndarray, scale: float, window: float = 0.35) -> float:
@@ -126,13 +127,21 @@ class ModelSearch:
     sample_size : int, optional
         Measures per sample (default: the minimal size for the model's free degrees of
         freedom, or for the extra ones over ``parent_free``).
+    local : float in [0, 1]
+        Fraction of the samples drawn locally (NAPSAC, Nasuto & Craddock 2002): one measure
+        at random, the others among its nearest measures (Euclidean distance of the data
+        rows). Structures in clustered data are spatially coherent: a local sample is far
+        likelier to be outlier-free than a uniform one when each structure holds a small
+        share of the measures. 0: uniform samples only.
     """
 
     def __init__(self, fam: ModelFamily, model: str, problem: Problem, channel: int,
                  start: np.ndarray, rng: np.random.Generator, scale: float = 1.0,
                  scorer: str | Callable = "relevance", pool: np.ndarray | None = None,
                  sample_size: int | None = None, parent_free: int | None = None,
-                 base: np.ndarray | None = None):
+                 base: np.ndarray | None = None, local: float = 0.0):
+        if not 0.0 <= local <= 1.0:
+            raise ValueError(f"local must be a fraction in [0, 1], got {local}")
         self.fam = fam
         self.model = model
         self.problem = problem
@@ -152,6 +161,8 @@ class ModelSearch:
         self.full_rank = min(fam.n, fam.n - self.free_dof()
                              + (self.sample_size + self.base_size)
                              * self._equations_per_measure())
+        self.local = float(local)
+        self._neighbours: np.ndarray | None = None
         self.samples = 0
         self.degenerate = 0
         self.best_q: np.ndarray | None = None
@@ -194,7 +205,7 @@ class ModelSearch:
         if self.exhausted:
             return False
         self.samples += 1
-        rows = self.rng.choice(self.pool, size=self.sample_size, replace=False)
+        rows = self._draw()
         if self.base_size > 0:
             rows = np.r_[rows, self.rng.choice(self.base, size=self.base_size, replace=False)]
         picked = tuple(rows if i == self.channel else np.zeros(0, dtype=int)
@@ -216,6 +227,21 @@ class ModelSearch:
             self.degenerate += 1
         self.history.append((self.samples, self.best_score))
         return improved
+
+    def _draw(self) -> np.ndarray:
+        """The sampled measures: uniform, or local with probability ``local``."""
+        size = self.sample_size
+        if self.local > 0.0 and self.base_size == 0 and self.pool.size > size \
+                and self.rng.random() < self.local:
+            if self._neighbours is None:
+                from scipy.spatial import cKDTree
+
+                X = self.problem.channels[self.channel].X[self.pool]
+                k = min(self.pool.size, _NEIGHBOURHOOD * size)
+                self._neighbours = self.pool[cKDTree(X).query(X, k)[1]]
+            near = self._neighbours[self.rng.integers(self.pool.size)]
+            return np.r_[near[0], self.rng.choice(near[1:], size=size - 1, replace=False)]
+        return self.rng.choice(self.pool, size=size, replace=False)
 
     def _local_optimisation(self, max_iter: int = 10) -> None:
         """LO-RANSAC (Chum, Matas & Kittler 2003): a sample that beats the best is refined
