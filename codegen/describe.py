@@ -209,14 +209,7 @@ def family_metadata(family: Family) -> dict:
             }
             for ch in family.channels
         },
-        "models": {
-            m.name: {
-                "constraints": [str(e) for e in m.constraints],
-                "equations": {c: [str(e) for e in eqs] for c, eqs in m.equations},
-                "alternatives": [[a.model, a.phi] for a in m.alternatives],
-            }
-            for m in family.models
-        },
+        "models": {m.name: _model_metadata(m) for m in family.models},
         "derived": {d.name: list(d.shape) for d in family.derived},
         "null_model": family.null_model,
         "slack": list(family.slack),
@@ -224,3 +217,18 @@ def family_metadata(family: Family) -> dict:
         "slack_owner": list(family.slack_owner),
         "slack_clauses": {m: [list(c) for c in cl] for m, cl in family.slack_clauses},
     }
+
+
+def _model_metadata(model) -> dict:
+    """A model's constraints (as text), overrides and alternatives; its derived list and
+    initializer only when declared (so families without them generate as before)."""
+    out = {
+        "constraints": [str(e) for e in model.constraints],
+        "equations": {c: [str(e) for e in eqs] for c, eqs in model.equations},
+        "alternatives": [[a.model, a.phi] for a in model.alternatives],
+    }
+    if model.derived is not None:
+        out["derived"] = list(model.derived)
+    if model.initializer is not None:
+        out["initializer"] = model.initializer
+    return out

@@ -1,8 +1,14 @@
 """Safe parsing of expression text into SymPy, through Python's ``ast`` and a whitelist.
 
 Nothing here evaluates text: ``ast.parse`` builds a tree, each node kind is checked against a
-fixed list, and SymPy objects are built node by node. Names must be declared symbols or entries
-of :data:`FUNCTIONS` / :data:`CONSTANTS`.
+fixed list, and SymPy objects are built node by node. Names must be declared symbols, helper
+definitions, or entries of :data:`FUNCTIONS` / :data:`MATRIX_FUNCTIONS` / :data:`CONSTANTS`.
+
+Values are scalars or matrices (``sympy.ImmutableMatrix``; a vector is a column): list
+literals ``[a, b, c]`` and ``[[a, b], [c, d]]``, ``@`` for the matrix product, ``*`` and ``/``
+by a scalar, ``+``/``-`` of equal shapes, subscripts by integer literals (``v[0]``,
+``M[1, 2]``) and the functions of :data:`MATRIX_FUNCTIONS`. Matrices expand into scalar
+arithmetic at parse time: the IR and the code generators only ever see scalars.
 """
 
 from __future__ import annotations
@@ -35,11 +41,35 @@ FUNCTIONS: dict[str, object] = {
 }
 _ARITY = {"atan2": 2}
 
+Matrix = sp.ImmutableMatrix
+
+
+def _cross(a, b):
+    return Matrix(a.reshape(3, 1)).cross(Matrix(b.reshape(3, 1)))
+
+
+def _skew(v):
+    x, y, z = v
+    return Matrix([[0, -z, y], [z, 0, -x], [-y, x, 0]])
+
+
+#: Functions on matrices: name -> (arity or None for any, argument check, implementation).
+#: They expand into scalar arithmetic, so code generators never meet them.
+MATRIX_FUNCTIONS: dict[str, tuple[int | None, str, object]] = {
+    "transpose": (1, "matrix", lambda m: m.T),
+    "det": (1, "square", lambda m: m.det(method="berkowitz")),
+    "trace": (1, "square", lambda m: m.trace()),
+    "cross": (2, "vector3", _cross),
+    "dot": (2, "vectors", lambda a, b: sum(x * y for x, y in zip(a, b, strict=True))),
+    "skew": (1, "vector3", _skew),
+    "diag": (None, "scalars", lambda *d: Matrix(sp.diag(*d))),
+}
+
 #: Named constants of the expression language.
 CONSTANTS: dict[str, sp.Expr] = {"pi": sp.pi}
 
 #: Names a spec may not declare (they would shadow the language).
-RESERVED = frozenset(FUNCTIONS) | frozenset(CONSTANTS)
+RESERVED = frozenset(FUNCTIONS) | frozenset(MATRIX_FUNCTIONS) | frozenset(CONSTANTS)
 
 _IDENTIFIER = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 _MAX_LENGTH = 20_000
@@ -64,21 +94,27 @@ def check_identifier(name: object, what: str, source: str, line: int | None) -> 
 
 def parse_expression(
     text: object,
-    symbols: Mapping[str, sp.Symbol],
+    symbols: Mapping[str, sp.Expr | Matrix],
     source: str = "<spec>",
     line: int | None = None,
-) -> sp.Expr:
+) -> sp.Expr | Matrix:
     """Parse one expression.
 
     Parameters
     ----------
     text : str or number
-        The expression, in Python syntax restricted to numbers, declared names, ``+ - * / **``,
-        unary minus and the functions of :data:`FUNCTIONS`.
+        The expression, in Python syntax restricted to numbers, declared names, ``+ - * / **
+        @``, unary minus, list literals, integer subscripts and the functions of
+        :data:`FUNCTIONS` and :data:`MATRIX_FUNCTIONS`.
     symbols : mapping
-        Declared names and their SymPy symbols.
+        Declared names and their values: SymPy symbols, or the expressions and matrices of
+        helper definitions.
     source, line : str, int
         Where the text comes from, for error messages.
+
+    Returns
+    -------
+    sympy.Expr or sympy.ImmutableMatrix
 
     Examples
     --------
@@ -86,6 +122,8 @@ def parse_expression(
     >>> x = sp.Symbol("x")
     >>> parse_expression("2*x**2 - sqrt(x)", {"x": x})
     -sqrt(x) + 2*x**2
+    >>> parse_expression("cross([1, 0, 0], [0, x, 0])", {"x": x}).T
+    Matrix([[0, 0, x]])
     """
     if isinstance(text, bool):
         raise SpecError(f"expected an expression, got the boolean {text}", source, line)
@@ -104,6 +142,11 @@ def parse_expression(
     return _Builder(symbols, source, line, text).build(tree.body)
 
 
+def shape_text(value) -> str:
+    """``"scalar"`` or ``"3×3 matrix"`` — for messages."""
+    return f"{value.rows}×{value.cols} matrix" if isinstance(value, Matrix) else "scalar"
+
+
 class _Builder:
     def __init__(self, symbols, source, line, text):
         self.symbols = symbols
@@ -114,7 +157,13 @@ class _Builder:
     def fail(self, what: str) -> SpecError:
         return SpecError(f"{what} in expression {self.text!r}", self.source, self.line)
 
-    def build(self, node: ast.AST) -> sp.Expr:
+    def scalar(self, node: ast.AST, what: str) -> sp.Expr:
+        value = self.build(node)
+        if isinstance(value, Matrix):
+            raise self.fail(f"{what} needs a scalar, got a {shape_text(value)}")
+        return value
+
+    def build(self, node: ast.AST) -> sp.Expr | Matrix:
         if isinstance(node, ast.Constant):
             value = node.value
             if isinstance(value, bool) or not isinstance(value, int | float):
@@ -125,7 +174,7 @@ class _Builder:
                 return self.symbols[node.id]
             if node.id in CONSTANTS:
                 return CONSTANTS[node.id]
-            if node.id in FUNCTIONS:
+            if node.id in FUNCTIONS or node.id in MATRIX_FUNCTIONS:
                 raise self.fail(f"function {node.id!r} used without a call")
             raise self.fail(f"unknown symbol {node.id!r}")
         if isinstance(node, ast.UnaryOp):
@@ -136,29 +185,95 @@ class _Builder:
                 return operand
             raise self.fail(f"operator {type(node.op).__name__} not allowed")
         if isinstance(node, ast.BinOp):
-            left, right = self.build(node.left), self.build(node.right)
-            op = node.op
-            if isinstance(op, ast.Add):
-                return left + right
-            if isinstance(op, ast.Sub):
-                return left - right
-            if isinstance(op, ast.Mult):
-                return left * right
-            if isinstance(op, ast.Div):
-                return left / right
-            if isinstance(op, ast.Pow):
-                if right.is_Number and abs(float(right)) > _MAX_POWER:
-                    raise self.fail(f"exponent {right} larger than {_MAX_POWER}")
-                return left**right
-            raise self.fail(f"operator {type(op).__name__} not allowed")
+            return self.binary(node)
         if isinstance(node, ast.Call):
-            if not isinstance(node.func, ast.Name) or node.func.id not in FUNCTIONS:
-                name = node.func.id if isinstance(node.func, ast.Name) else ast.dump(node.func)
-                raise self.fail(f"call to {name!r} not allowed (allowed: {', '.join(FUNCTIONS)})")
-            if node.keywords:
-                raise self.fail("keyword arguments not allowed")
-            arity = _ARITY.get(node.func.id, 1)
-            if len(node.args) != arity:
-                raise self.fail(f"{node.func.id} takes {arity} argument(s), got {len(node.args)}")
-            return FUNCTIONS[node.func.id](*(self.build(a) for a in node.args))
+            return self.call(node)
+        if isinstance(node, ast.List):
+            return self.matrix(node)
+        if isinstance(node, ast.Subscript):
+            return self.subscript(node)
         raise self.fail(f"{type(node).__name__} not allowed")
+
+    def binary(self, node: ast.BinOp) -> sp.Expr | Matrix:
+        left, right = self.build(node.left), self.build(node.right)
+        op = node.op
+        shapes = (isinstance(left, Matrix), isinstance(right, Matrix))
+        if isinstance(op, ast.Add | ast.Sub):
+            if shapes[0] != shapes[1] or (all(shapes) and left.shape != right.shape):
+                raise self.fail(f"cannot add a {shape_text(left)} and a {shape_text(right)}")
+            return left + right if isinstance(op, ast.Add) else left - right
+        if isinstance(op, ast.Mult):
+            if all(shapes):
+                raise self.fail("'*' of two matrices: write '@' for the matrix product")
+            return left * right
+        if isinstance(op, ast.MatMult):
+            if not all(shapes) or left.cols != right.rows:
+                raise self.fail(f"'@' of a {shape_text(left)} and a {shape_text(right)}")
+            return left @ right
+        if isinstance(op, ast.Div):
+            if shapes[1]:
+                raise self.fail(f"division by a {shape_text(right)}")
+            return left / right
+        if isinstance(op, ast.Pow):
+            if any(shapes):
+                raise self.fail("'**' of a matrix not allowed")
+            if right.is_Number and abs(float(right)) > _MAX_POWER:
+                raise self.fail(f"exponent {right} larger than {_MAX_POWER}")
+            return left**right
+        raise self.fail(f"operator {type(op).__name__} not allowed")
+
+    def call(self, node: ast.Call) -> sp.Expr | Matrix:
+        name = node.func.id if isinstance(node.func, ast.Name) else None
+        if name not in FUNCTIONS and name not in MATRIX_FUNCTIONS:
+            name = name or ast.dump(node.func)
+            allowed = ", ".join([*FUNCTIONS, *MATRIX_FUNCTIONS])
+            raise self.fail(f"call to {name!r} not allowed (allowed: {allowed})")
+        if node.keywords:
+            raise self.fail("keyword arguments not allowed")
+        if name in FUNCTIONS:
+            arity = _ARITY.get(name, 1)
+            if len(node.args) != arity:
+                raise self.fail(f"{name} takes {arity} argument(s), got {len(node.args)}")
+            return FUNCTIONS[name](*(self.scalar(a, name) for a in node.args))
+        arity, kind, fn = MATRIX_FUNCTIONS[name]
+        if arity is not None and len(node.args) != arity:
+            raise self.fail(f"{name} takes {arity} argument(s), got {len(node.args)}")
+        if kind == "scalars":
+            if not node.args:
+                raise self.fail(f"{name} takes at least one argument")
+            return fn(*(self.scalar(a, name) for a in node.args))
+        args = [self.build(a) for a in node.args]
+        for value in args:
+            if not isinstance(value, Matrix):
+                raise self.fail(f"{name} needs a matrix or vector, got a scalar")
+            vector = 1 in value.shape
+            if (kind == "square" and value.rows != value.cols) or \
+                    (kind == "vector3" and (not vector or len(value) != 3)) or \
+                    (kind == "vectors" and (not vector or len(value) != len(args[0]))):
+                raise self.fail(f"{name} of a {shape_text(value)} not allowed")
+        return fn(*args)
+
+    def matrix(self, node: ast.List) -> Matrix:
+        if not node.elts:
+            raise self.fail("empty list not allowed")
+        if all(isinstance(e, ast.List) for e in node.elts):
+            rows = [[self.scalar(e, "a matrix entry") for e in row.elts] for row in node.elts]
+            if len({len(r) for r in rows}) != 1 or not rows[0]:
+                raise self.fail("matrix rows of unequal length")
+            return Matrix(rows)
+        return Matrix([[self.scalar(e, "a vector entry")] for e in node.elts])
+
+    def subscript(self, node: ast.Subscript) -> sp.Expr:
+        value = self.build(node.value)
+        if not isinstance(value, Matrix):
+            raise self.fail("Subscript not allowed on a scalar")
+        index = node.slice.elts if isinstance(node.slice, ast.Tuple) else [node.slice]
+        if not all(isinstance(i, ast.Constant) and type(i.value) is int for i in index):
+            raise self.fail("subscripts must be integer literals")
+        index = [i.value for i in index]
+        if len(index) == 1 and 1 in value.shape:
+            index = [index[0], 0] if value.cols == 1 else [0, index[0]]
+        if len(index) != 2 or not all(0 <= i < n for i, n in zip(index, value.shape,
+                                                                  strict=True)):
+            raise self.fail(f"subscript {index} out of range for a {shape_text(value)}")
+        return value[index[0], index[1]]

@@ -44,12 +44,15 @@ class Alternative:
 
 @dataclass(frozen=True)
 class Model:
-    """A model: parameter constraints, optional equation overrides, its alternatives."""
+    """A model: parameter constraints, optional equation overrides, its alternatives, the
+    derived quantities it reports (None: all) and the name of its closed-form initialiser."""
 
     name: str
     constraints: tuple[sp.Expr, ...]
     equations: tuple[tuple[str, tuple[sp.Expr, ...]], ...] = ()
     alternatives: tuple[Alternative, ...] = ()
+    derived: tuple[str, ...] | None = None
+    initializer: str | None = None
 
 
 @dataclass(frozen=True)

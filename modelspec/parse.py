@@ -8,21 +8,30 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 
 import sympy as sp
 
 from .constructs import compile_formula, is_formula, parse_formula, slack_start
 from .errors import SpecError
-from .expressions import CONSTANTS, FUNCTIONS, check_identifier, parse_expression
+from .expressions import (
+    CONSTANTS,
+    FUNCTIONS,
+    Matrix,
+    check_identifier,
+    parse_expression,
+    shape_text,
+)
 from .ir import Alternative, Channel, Derived, Family, Model, sha256_text, symbol
 from .yamlsrc import Located, read_yaml
 
-_TOP_KEYS = ("name", "description", "constants", "parameter", "channels", "models", "derived",
-             "null_model")
+_TOP_KEYS = ("name", "description", "constants", "parameter", "define", "channels", "models",
+             "derived", "null_model")
 _CHANNEL_KEYS = ("components", "exact", "equations", "description")
-_MODEL_KEYS = ("constraints", "equations", "alternatives", "description")
-_PHI_WORDS = ("aic", "ftest", "exp")
+_MODEL_KEYS = ("constraints", "equations", "alternatives", "derived", "initializer",
+               "description")
+_PHI_WORDS = ("aic", "ftest", "ess", "exp")
 _SYMPY_FUNCS = tuple(f for f in FUNCTIONS.values() if isinstance(f, type))  # sqrt is a Pow
 
 
@@ -134,13 +143,46 @@ class _Builder:
         return number
 
     def expression(self, value, allowed: Mapping[str, sp.Symbol], *path) -> sp.Expr:
+        """A scalar expression."""
+        expr = self.value(value, allowed, *path)
+        if isinstance(expr, Matrix):
+            raise self.error(f"expected a scalar, got a {shape_text(expr)}: {value!r}", *path)
+        return expr
+
+    def value(self, value, allowed: Mapping[str, sp.Symbol], *path) -> sp.Expr | Matrix:
+        """A scalar or matrix expression; YAML lists are vectors, lists of rows matrices.
+
+        ``allowed`` maps names to symbols and to the helper definitions in scope; the
+        symbols a definition brings must themselves be allowed here (a definition that uses
+        a channel's components cannot enter a constraint).
+        """
+        if isinstance(value, list):
+            return self.listed(value, allowed, *path)
         if isinstance(value, sp.Basic):
             expr = self.check_sympy(value, allowed, *path)
         else:
             expr = parse_expression(value, allowed, self.src.source, self.src.line(*path))
         if expr.has(sp.zoo, sp.oo, -sp.oo, sp.nan):
             raise self.error(f"expression {value!r} is not finite (division by zero?)", *path)
+        symbols = {v for k, v in allowed.items() if isinstance(v, sp.Symbol) and v.name == k}
+        stray = sorted(s.name for s in expr.free_symbols - symbols)
+        if stray:
+            raise self.error(f"symbol {stray[0]!r} (through a definition) is not available "
+                             f"here, in expression {value!r}", *path)
         return expr
+
+    def listed(self, value: list, allowed, *path) -> Matrix:
+        """A YAML list of scalar expressions (a column vector) or of rows (a matrix)."""
+        if value and all(isinstance(row, list) for row in value):
+            widths = {len(row) for row in value}
+            if len(widths) != 1 or 0 in widths:
+                raise self.error("matrix rows of unequal length", *path)
+            return Matrix([[self.expression(e, allowed, *path, i, j) for j, e in enumerate(row)]
+                           for i, row in enumerate(value)])
+        if not value or any(isinstance(e, list) for e in value):
+            raise self.error("expected an expression, a list of expressions or a list of rows",
+                             *path)
+        return Matrix([[self.expression(e, allowed, *path, i)] for i, e in enumerate(value)])
 
     def check_sympy(self, expr, allowed, *path) -> sp.Expr:
         names = {s.name for s in expr.free_symbols}
@@ -156,6 +198,10 @@ class _Builder:
             )
             if not ok:
                 raise self.error(f"{type(node).__name__} not allowed in expression {expr}", *path)
+        for s in expr.free_symbols:
+            if isinstance(allowed[s.name], Matrix):
+                raise self.error(f"definition {s.name!r} is a matrix: a SymPy expression may "
+                                 "not use it as a symbol", *path)
         return expr.xreplace({s: allowed[s.name] for s in expr.free_symbols})
 
     # -- the family --------------------------------------------------------------------------
@@ -187,11 +233,16 @@ class _Builder:
             for k, v in self.mapping(top.get("constants"), "constants", "constants").items()
         )
         base = {n: symbol(n) for n, _ in parameter + constants}
+        channel_specs = self.mapping(top["channels"], "channels", "channels", empty_ok=False)
+        components = {c: symbol(c) for spec in channel_specs.values()
+                      if isinstance(spec, Mapping) and isinstance(spec.get("components"), list)
+                      for c in spec["components"] if isinstance(c, str)}
+        defined = self.definitions(top.get("define"), {**base, **components}, declare)
         channels = tuple(
-            self.channel(cname, spec, base, declare)
-            for cname, spec in self.mapping(top["channels"], "channels", "channels",
-                                            empty_ok=False).items()
+            self.channel(cname, spec, base, declare, defined)
+            for cname, spec in channel_specs.items()
         )
+        base = {**base, **defined}
         by_channel = {c.name: c for c in channels}
         models_spec = self.mapping(top["models"], "models", "models", empty_ok=False)
         self.slacks, self.clauses = {}, {}
@@ -205,6 +256,7 @@ class _Builder:
             self.derived(dname, spec, base, declare)
             for dname, spec in self.mapping(top.get("derived"), "derived", "derived").items()
         )
+        self.check_model_extras(models, derived, parameter, constants, channels)
         null_model = top.get("null_model", models[0].name)
         if null_model not in models_spec:
             raise self.error(f"null_model {null_model!r} is not a declared model", "null_model")
@@ -221,7 +273,17 @@ class _Builder:
             sha256=self.digest,
         )
 
-    def channel(self, name, spec, base, declare) -> Channel:
+    def definitions(self, value, allowed, declare) -> dict[str, sp.Expr | Matrix]:
+        """Helper definitions (``define:``): named scalars, vectors and matrices of the
+        parameter, the constants, the channels' components and earlier definitions. They are
+        substituted where used; nothing of them reaches the IR."""
+        out: dict[str, sp.Expr | Matrix] = {}
+        for name, spec in self.mapping(value, "define", "define").items():
+            name = declare(name, "definition", "define", name)
+            out[name] = self.value(spec, {**allowed, **out}, "define", name)
+        return out
+
+    def channel(self, name, spec, base, declare, defined) -> Channel:
         path = ("channels", name)
         name = declare(name, "channel", *path)
         spec = self.mapping(spec, f"channel {name!r}", *path, empty_ok=False)
@@ -240,17 +302,19 @@ class _Builder:
         if len(set(exact)) == len(components):
             raise self.error(f"channel {name!r} has no component to correct (all are exact)",
                              *path, "exact")
-        allowed = {**base, **{c: symbol(c) for c in components}}
+        allowed = {**base, **{c: symbol(c) for c in components}, **defined}
         equations = self.equations(spec.get("equations"), allowed, *path, "equations")
         if not equations:
             raise self.error(f"channel {name!r} needs at least one equation", *path)
         return Channel(name, components, exact, equations)
 
     def equations(self, value, allowed, *path) -> tuple[sp.Expr, ...]:
-        return tuple(
-            self.expression(e, allowed, *path, i)
-            for i, e in enumerate(self.sequence(value, "equations", *path))
-        )
+        """Scalar equations; a vector or matrix expression stands for its entries."""
+        out = []
+        for i, e in enumerate(self.sequence(value, "equations", *path)):
+            expr = self.value(e, allowed, *path, i)
+            out.extend(expr if isinstance(expr, Matrix) else [expr])
+        return tuple(out)
 
     def model(self, name, spec, base, channels, all_models, declare) -> Model:
         path = ("models", name)
@@ -273,8 +337,16 @@ class _Builder:
         order = list(channels)
         overrides.sort(key=lambda item: order.index(item[0]))
         self.slacks[name] = slacks
+        derived = spec.get("derived")
+        if derived is not None:
+            derived = tuple(self.sequence(derived, "derived", *path, "derived"))
+        initializer = spec.get("initializer")
+        if initializer is not None and not isinstance(initializer, str):
+            raise self.error(f"initializer must be a name, got {initializer!r}", *path,
+                             "initializer")
         return Model(name, constraints, tuple(overrides),
-                     self.alternatives(spec.get("alternatives"), all_models, name, *path))
+                     self.alternatives(spec.get("alternatives"), all_models, name, *path),
+                     derived, initializer)
 
     def constraints(self, model, value, base, declare, *path):
         """Constraint equations of a model, formulas compiled (appendix F), and their slacks.
@@ -302,7 +374,8 @@ class _Builder:
                 clauses.extend(tuple(len(slacks) + i for i in c) for c in compiled.clauses)
                 slacks.extend(compiled.slacks)
             else:
-                equations.append(self.expression(text, base, *where))
+                value = self.value(text, base, *where)
+                equations.extend(value if isinstance(value, Matrix) else [value])
         self.clauses[model] = tuple(clauses)
         return tuple(equations), tuple(slacks)
 
@@ -340,8 +413,8 @@ class _Builder:
                     self.number(arg, f"argument of {word}", *path)
                 return value
         raise self.error(
-            f"cost factor {value!r} not understood (a number, 'aic', 'ftest', 'ftest:P' "
-            "or 'exp:kappa')",
+            f"cost factor {value!r} not understood (a number, 'aic', 'ftest', 'ftest:P', "
+            "'ess', 'ess:P' or 'exp:kappa')",
             *path,
         )
 
@@ -362,7 +435,7 @@ class _Builder:
             pins = tuple(symbol(sl.name) - v for (owner, sl), (_, v) in zip(owned, starts,
                                                                            strict=True)
                          if owner != m.name)
-            pinned.append(Model(m.name, m.constraints + pins, m.equations, m.alternatives))
+            pinned.append(replace(m, constraints=m.constraints + pins))
         offsets, total = {}, 0
         for m in models:
             offsets[m.name], total = total, total + len(self.slacks[m.name])
@@ -376,6 +449,30 @@ class _Builder:
                 for m in models if self.clauses[m.name]),
         }
         return parameter + starts, tuple(pinned), fields
+
+    def check_model_extras(self, models, derived, parameter, constants, channels):
+        """A model's ``derived`` names declared quantities; its ``initializer`` is a name of
+        the runtime's registry whose needs (parameter, constants, channel) the family meets."""
+        from ..runtime.initializers import INITIALIZERS  # names only: never executable text
+
+        names = {d.name for d in derived}
+        for m in models:
+            for i, d in enumerate(m.derived or ()):
+                if d not in names:
+                    raise self.error(f"model {m.name!r} reports an unknown derived quantity "
+                                     f"{d!r}", "models", m.name, "derived", i)
+            if m.initializer is None:
+                continue
+            where = ("models", m.name, "initializer")
+            entry = INITIALIZERS.get(m.initializer)
+            if entry is None:
+                raise self.error(f"unknown initializer {m.initializer!r} (known: "
+                                 f"{', '.join(sorted(INITIALIZERS))})", *where)
+            missing = entry.missing(parameter=[n for n, _ in parameter],
+                                    constants=[n for n, _ in constants],
+                                    channels={c.name: c.components for c in channels})
+            if missing:
+                raise self.error(f"initializer {m.initializer!r} needs {missing}", *where)
 
     def check_acyclic(self, models):
         edges = {m.name: [a.model for a in m.alternatives] for m in models}
@@ -399,18 +496,8 @@ class _Builder:
     def derived(self, name, spec, base, declare) -> Derived:
         path = ("derived", name)
         name = declare(name, "derived quantity", *path)
-        if isinstance(spec, list):
-            if spec and all(isinstance(row, list) for row in spec):
-                widths = {len(row) for row in spec}
-                if len(widths) != 1 or 0 in widths:
-                    raise self.error(f"derived matrix {name!r} has rows of unequal length",
-                                     *path)
-                exprs = tuple(self.expression(e, base, *path, i, j)
-                              for i, row in enumerate(spec) for j, e in enumerate(row))
-                return Derived(name, (len(spec), widths.pop()), exprs)
-            if not spec or any(isinstance(e, list) for e in spec):
-                raise self.error(f"derived {name!r} must be an expression, a list of "
-                                 "expressions or a list of rows", *path)
-            exprs = tuple(self.expression(e, base, *path, i) for i, e in enumerate(spec))
-            return Derived(name, (len(spec),), exprs)
-        return Derived(name, (), (self.expression(spec, base, *path),))
+        value = self.value(spec, base, *path)
+        if not isinstance(value, Matrix):
+            return Derived(name, (), (value,))
+        shape = (value.rows,) if value.cols == 1 else value.shape
+        return Derived(name, tuple(shape), tuple(value))

@@ -51,17 +51,49 @@ def coherence(fam: ModelFamily, model: str, q, data: Mapping, info: Mapping | No
 
 
 def coherence_errors(problem: Problem, q: np.ndarray, iterations: int | None = None,
-                     tol: float = 1e-10) -> tuple[np.ndarray, ...]:
-    """:func:`coherence` on a validated problem: per channel, the (M,) errors (eq. 24)."""
+                     tol: float = 1e-10, ranks: tuple[int, ...] | None = None,
+                     ) -> tuple[np.ndarray, ...]:
+    """:func:`coherence` on a validated problem: per channel, the (M,) errors (eq. 24).
+
+    ``ranks`` caps the equations counted per measure (``p•`` of eq. 24), per channel: the
+    rank on the equations' zero set, from :func:`manifold_ranks` (computed here when
+    ``iterations`` is 1 and a channel has several equations).
+    """
     with np.errstate(all="ignore"):
-        mt, violations, ranks, _ = project_measures(
+        mt, violations, kept, _ = project_measures(
             problem, q, tuple(ch.m for ch in problem.channels),
             iterations if iterations is not None else 50, tol)
+        if ranks is None and iterations == 1 and any(r.size and r.max() > 1 for r in kept):
+            ranks = manifold_ranks(problem, q)
     out = []
-    for ch, m, violation, rank in zip(problem.channels, mt, violations, ranks, strict=True):
+    for i, (ch, m, violation, rank) in enumerate(zip(problem.channels, mt, violations, kept,
+                                                     strict=True)):
+        if ranks is not None:
+            rank = np.minimum(rank, ranks[i])
         errors = (quadratic(m - ch.m, ch.Q) + violation) / np.maximum(rank, 1)
         out.append(np.where(np.isfinite(errors), errors, np.inf))
     return tuple(out)
+
+
+def manifold_ranks(problem: Problem, q: np.ndarray, sample: int = 8) -> tuple[int, ...]:
+    """Per channel, the independent equations of a measure on its equations' zero set: the
+    rank the reduced square root keeps at most of a few measures projected onto
+    ``c(q, ·) = 0``.
+
+    Equations may be dependent only on their zero set: ``p2 × H p1 = 0`` is three equations
+    of rank two there, but off it the identity ``p2 · (p2 × H p1) = 0`` makes the third
+    independent at second order, and a measure evaluated where it was observed would count
+    three. The first-order (Sampson) error divides by the rank on the zero set; the minimal
+    sample size counts it too.
+    """
+    rows = tuple(np.arange(min(sample, ch.size)) for ch in problem.channels)
+    sub = problem.subset(rows)
+    with np.errstate(all="ignore"):
+        _, _, kept, _ = project_measures(sub, q, tuple(ch.m for ch in sub.channels), 50,
+                                         1e-12)
+    # the most common rank: a measure whose projection stops short (a far outlier) keeps
+    # the extra equation, one at a singular point of the zero set loses one
+    return tuple(int(np.bincount(r).argmax()) if r.size else 0 for r in kept)
 
 
 @dataclass(frozen=True)

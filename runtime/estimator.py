@@ -11,13 +11,15 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .coherence import free_dof
+from .compare import general_wins, support
 from .family import ModelFamily
 from .fit import fit_problem
+from .initializers import model_initializers
 from .inputs import ChannelData, channel_data, parameter_vector, prior_information
 from .phi import phi as get_phi
 from .projector import Problem
@@ -27,9 +29,11 @@ from .scoring import samples_for_confidence
 from .scoring import scorer as get_scorer
 
 _RESUME_FRACTION = 10  # a re-queued model draws a tenth of a fresh search's samples
-_SUPPORT = 0.95  # a general model must keep this fraction of its parent's relevance
-_SAME_FIT = 1e-6  # relative cost difference below which two fits are the same fit
+_SUPPORT = 0.95  # a general model must keep this fraction of its parent's support
 _MORE_SUPPORT = 1.2  # ... and wins outright when it explains this much more
+_RELEVANT = 0.1  # a parent explaining fewer measures than this fraction is not a base
+_RANK_SAMPLE = 60  # corrected inliers of a parent used to count what they fix of a child
+_RANK_TOL = 1e-6  # relative singular value below which a direction is not fixed
 
 
 @dataclass(frozen=True)
@@ -53,11 +57,25 @@ class ModelState:
     derived: dict[str, DerivedValue] = field(default_factory=dict)
     status: str = "estimated"
     slacks: dict[str, float] = field(default_factory=dict)  # appendix F's added components
+    #: relevance over that of a perfect inlier population of the model's equations: about
+    #: the fraction of the measures it explains, comparable between models
+    support: float = float("nan")
 
     @property
     def estimated(self) -> bool:
         """False for the placeholder of the first moment (the null model at ``q0``)."""
         return self.samples > 0
+
+
+def _rank(rows: np.ndarray) -> int | None:
+    """Rank of a matrix of equations' gradients, each row scaled to unit norm (None when not
+    finite)."""
+    norms = np.linalg.norm(rows, axis=1)
+    rows = rows[norms > 0] / norms[norms > 0, None]
+    if not np.all(np.isfinite(rows)):
+        return None
+    sv = np.linalg.svd(rows, compute_uv=False)
+    return int(np.count_nonzero(sv > _RANK_TOL * sv[0])) if sv.size else 0
 
 
 class Estimator:
@@ -79,11 +97,20 @@ class Estimator:
         The channel samples are drawn from (default: the only one).
     samples_per_model : int, optional
         Samples per model (default: eq. 25 with ``confidence`` and ``inlier_ratio``).
+    adaptive : bool
+        Stop a model's search as soon as eq. 25 holds for the inlier ratio of its best
+        estimate so far (at least ``min_samples`` samples); the budget above still caps it.
     q0, Q0, constants : the prior and the constants, as for :func:`kanagen.fit`.
     model : str, optional
         Search this model only (no lattice); default: the lattice from the null model.
+    initializers : dict, optional
+        ``{model: name or callable or None}``: closed-form starts of the model's minimal
+        solves (:mod:`kanagen.runtime.initializers`), over the spec's ``initializer:``;
+        ``None`` switches one off.
     local : float in [0, 1]
-        Fraction of local (nearest-neighbour) samples, see :class:`ModelSearch`; default 0.
+        Fraction of local (nearest-neighbour) samples, see :class:`ModelSearch`, in the
+        searches over all the measures; default 0. A more general model's samples stay as
+        they are (extra measures among its parent's outliers).
 
     Examples
     --------
@@ -99,9 +126,10 @@ class Estimator:
     def __init__(self, fam: ModelFamily, scale: float = 1.0,
                  scorer: str | Callable = "relevance", phi=None, seed: int | None = 0,
                  channel: str | None = None, samples_per_model: int | None = None,
-                 confidence: float = 0.99, inlier_ratio: float = 0.5, window: float = 0.35,
+                 confidence: float = 0.99, inlier_ratio: float = 0.5, adaptive: bool = False,
+                 min_samples: int = 20, window: float = 0.35,
                  q0=None, Q0=None, constants=None, model: str | None = None,
-                 local: float = 0.0):
+                 initializers: dict | None = None, local: float = 0.0):
         if not scale > 0:
             raise ValueError(f"scale (L*) must be positive, got {scale}")
         get_scorer(scorer)  # validate now: a bad choice must not surface mid-run
@@ -116,6 +144,8 @@ class Estimator:
         self.samples_per_model = samples_per_model
         self.confidence = confidence
         self.inlier_ratio = inlier_ratio
+        self.adaptive = adaptive
+        self.min_samples = min_samples
         self.window = window
         if not 0.0 <= local <= 1.0:
             raise ValueError(f"local must be a fraction in [0, 1], got {local}")
@@ -123,6 +153,7 @@ class Estimator:
         if model is not None:
             fam.model(model)
         self.model = model  # a single model (no lattice), or None for the whole lattice
+        self.initializers = model_initializers(fam, initializers)
         self.q0 = parameter_vector(fam, q0)
         self.Q0 = prior_information(Q0, fam.n)
         self._constants = dict(constants or {})
@@ -160,14 +191,15 @@ class Estimator:
             return ids
 
     def remove_measures(self, ids) -> None:
-        """Remove measures by id (any time). Removing an inlier re-queues the parents."""
+        """Remove measures by id (any time). Removing an inlier of an accepted model
+        re-queues it and its parent."""
         with self._lock:
             gone = set(np.asarray(ids, dtype=int).tolist())
             for name in self._rows:
                 self._rows[name] = [r for r in self._rows[name] if r[0] not in gone]
             self._problem = None
             touched = [s for s in self._states.values()
-                       if gone & set(s.inliers.tolist())]
+                       if s.accepted and gone & set(s.inliers.tolist())]
             for state in touched:
                 self._requeue(state.parent or state.model)
                 self._requeue(state.model)
@@ -275,6 +307,11 @@ class Estimator:
         self._problem = None
         self.history = []
         self._states[self._root] = self._null_state()
+        self._skipped: dict[str, str | None] = {}  # too few measures to sample: -> its parent
+        self._shape: dict[str, tuple[int, int]] = {}  # equations per measure, free dof
+        self._corrected: dict[str, dict[str, np.ndarray]] = {}  # inliers, corrected
+        self._selected: dict[tuple, ModelState] = {}
+        self._reachable = self._lattice_from(self._root)
 
     def _restart_if_idle(self) -> None:
         if self._done or self._search is None:
@@ -314,6 +351,8 @@ class Estimator:
         return problem, ids, names.index(channel)
 
     def _budget(self, search: ModelSearch) -> int:
+        if search.free_dof() == 0:
+            return 1  # nothing to sample: the model's parameter is fixed
         if self.samples_per_model is not None:
             return self.samples_per_model
         return samples_for_confidence(self.confidence, self.inlier_ratio,
@@ -328,6 +367,9 @@ class Estimator:
         self._samples += 1
         previous = self.history[-1][1] if self.history else -np.inf
         self.history.append((self._samples, max(previous, self._best_relevance(search))))
+        if self.adaptive and search.samples >= self.min_samples:
+            needed = search.samples_needed(self.confidence)
+            budget = min(budget, needed) if needed is not None else budget
         if search.samples >= budget or search.exhausted:
             self._search = None
             self._conclude(model, parent, search)
@@ -348,17 +390,22 @@ class Estimator:
             parent_state = self._states.get(parent) if parent else None
             start = parent_state.q if parent_state is not None else self.q0
             pool = base = parent_free = None
-            if parent_state is not None:
+            if parent_state is not None and parent_state.samples and \
+                    parent_state.inliers.size >= _RELEVANT * sum(len(i) for i in ids):
                 # the extra measures among those not coherent with the parent (report §5),
-                # the rest of the sample among the parent's inliers
+                # the rest of the sample among the parent's inliers (a parent that explains
+                # next to nothing is no base: the child is searched afresh)
                 ch_ids = ids[channel]
                 pool = np.flatnonzero(np.isin(ch_ids, parent_state.outliers))
                 base = np.flatnonzero(np.isin(ch_ids, parent_state.inliers))
-                parent_free = self._free(parent, parent_state.q)
+                parent_free = self._fixed_by(parent_state, model, problem.channels[channel])
             search = ModelSearch(self.fam, model, problem, channel, start, self._rng,
                                  self.scale, self.scorer, pool=pool, parent_free=parent_free,
-                                 base=base, local=self.local)
+                                 base=base, initializer=self.initializers.get(model),
+                                 local=self.local if pool is None else 0.0)
             if search.exhausted:
+                self._skipped[model] = parent
+                self._queue_alternatives(model)
                 continue
             budget = self._budget(search)
             if resume is not None:  # re-queued: resume from its estimate, a few more samples
@@ -372,94 +419,181 @@ class Estimator:
     def _free(self, model: str, q: np.ndarray) -> int:
         return free_dof(lambda x: self.fam.c0(model, x, self._constants)[1], q)
 
+    def _fixed_by(self, parent: ModelState, model: str, channel) -> int:
+        """How many of ``model``'s free degrees of freedom the parent's inliers fix: at most
+        the parent's own, and at most the rank of ``model``'s equations at the parent's
+        estimate over its inliers corrected onto the parent (report §5's singular
+        configurations: matches on a plane fix 5 of a fundamental matrix's 7, not the 8 of
+        their homography, so the general model needs 2 matches off the plane, not 1)."""
+        free_parent = self._free(parent.model, parent.q)
+        corrected = self._corrected.get(parent.model, {}).get(channel.name)
+        if corrected is None or not len(corrected):
+            return free_parent
+        with np.errstate(all="ignore"):
+            _, C, _ = self.fam.measurement(model, channel.name, parent.q,
+                                           corrected[:_RANK_SAMPLE], self._constants)
+            C0 = self.fam.c0(model, parent.q, self._constants)[1]
+        both, alone = _rank(np.r_[C0, C.reshape(-1, self.fam.n)]), _rank(C0)
+        if both is None or alone is None:
+            return free_parent
+        return min(free_parent, max(both - alone, 0))
+
     def _conclude(self, model: str, parent: str | None, search: ModelSearch) -> None:
         estimate = search.finish(self.q0, self.Q0, self.window)
         if estimate is None or not np.all(np.isfinite(estimate.q)):
+            self._skipped[model] = parent
+            self._queue_alternatives(model)
             return
+        self._shape[model] = (max(search.ranks[search.channel], 1), search.free_dof(estimate.q))
+        self._corrected[model] = estimate.fit.measures
         _, _, ids = self._channels()
-        state = self._state(model, parent, estimate, ids)
+        state = self._state(model, parent, estimate, ids, self._shape[model][0])
         self._states[model] = state
+        self._skipped.pop(model, None)
         if state.accepted:
             best = self._best_state()
             if best is state:
                 for cb in self._on_model:
                     cb(state)
-        # the more general models next, against this one if it was accepted, else against
-        # its parent: a rejected model does not hide a more general one (a hyperbola is
-        # neither a circle nor an ellipse, but it is a conic)
-        against = model if state.accepted else parent
-        known = {m for m, _, _ in self._queue}
-        for alt, _ in ([] if self.model or against is None
-                       else self.fam.model(model).alternatives):
-            if alt not in known and alt not in self._states:
-                self._queue.append((alt, against, None))
-                self._declared_by[alt] = model  # the edge whose Φ decides
+        self._queue_alternatives(model)
 
-    def _state(self, model, parent, est: RobustEstimate, ids) -> ModelState:
+    # -- the lattice ---------------------------------------------------------------------------
+    def _lattice_from(self, root: str) -> set[str]:
+        seen, todo = {root}, [root]
+        while todo and not self.model:
+            for alt, _ in self.fam.model(todo.pop()).alternatives:
+                if alt not in seen:
+                    seen.add(alt)
+                    todo.append(alt)
+        return seen
+
+    def _lattice_parents(self, model: str) -> list[str]:
+        return [m for m in self.fam.models if m in self._reachable
+                and any(alt == model for alt, _ in self.fam.model(m).alternatives)]
+
+    def _anchor(self, model: str | None) -> str | None:
+        """The model itself if accepted, else the nearest accepted model it was compared
+        with: a rejected model does not hide a more general one (a hyperbola is neither a
+        circle nor an ellipse, but it is a conic)."""
+        seen = set()
+        while model is not None and model not in seen:
+            seen.add(model)
+            state = self._states.get(model)
+            if state is not None and state.accepted:
+                return model
+            model = state.parent if state is not None else self._skipped.get(model)
+        return None
+
+    def _queue_alternatives(self, model: str) -> None:
+        """Queue each more general model once all its parents in the lattice are settled
+        (report §5: a model is not estimated before its parents), against the best of their
+        accepted anchors."""
+        if self.model:
+            return
+        known = {m for m, _, _ in self._queue}
+        for alt, _ in self.fam.model(model).alternatives:
+            if alt in known or alt in self._states or alt in self._skipped:
+                continue
+            parents = self._lattice_parents(alt)
+            if not all(p in self._states or p in self._skipped for p in parents):
+                continue  # the others will queue it
+            anchors: dict[str, str] = {}
+            for p in parents:
+                anchor = self._anchor(p)
+                if anchor is not None:
+                    anchors.setdefault(anchor, p)
+            if not anchors:
+                continue
+            chosen = self._select([self._states[a] for a in anchors])
+            self._queue.append((alt, chosen.model, None))
+            self._declared_by[alt] = anchors[chosen.model]  # the edge whose Φ decides
+
+    def _state(self, model, parent, est: RobustEstimate, ids, rank: int) -> ModelState:
         names = list(est.inliers)
         channel_ids = dict(zip(self._channels()[0], ids, strict=True))
         inliers = np.concatenate([channel_ids[n][est.inliers[n]] for n in names])
         outliers = np.concatenate([channel_ids[n][est.outliers[n]] for n in names])
-        cost = est.fit.normalized_cost
-        accepted = True
+        state = ModelState(model, parent, est.params, est.q, est.fit.info, est.fit.covariance,
+                           np.sort(inliers), np.sort(outliers), est.fit.normalized_cost,
+                           est.fit.dof, est.relevance, est.samples, est.threshold, True,
+                           est.fit.derived,
+                           "estimated" if est.fit.success else est.fit.message,
+                           est.fit.slacks,
+                           support(est.relevance, get_scorer(self.scorer), self.scale, rank))
         if parent is not None:
             p = self._states.get(parent)
             if p is not None and p.samples and np.isfinite(p.cost):
-                accepted = self._beats(parent, p, model, est)
-        return ModelState(model, parent, est.params, est.q, est.fit.info, est.fit.covariance,
-                          np.sort(inliers), np.sort(outliers), cost, est.fit.dof,
-                          est.relevance, est.samples, est.threshold, accepted,
-                          est.fit.derived, "estimated" if est.fit.success else est.fit.message,
-                          est.fit.slacks)
+                state = replace(state, accepted=self._beats(p, state))
+        return state
 
-    def _beats(self, parent: str, p: ModelState, model: str, est: RobustEstimate) -> bool:
-        """Does the general model replace its parent? (report eq. 46, made comparable)
+    def _beats(self, p: ModelState, state: ModelState) -> bool:
+        """Does the general model replace its parent? (report eq. 36, made comparable)
 
-        A general model that explains clearly more measures (relevance up by a fifth) wins
-        on support; one that explains fewer loses (a general model fitted to a few measures
-        has a small cost for free). Otherwise both are refitted on the measures both take as
-        inliers and ``L̃'²/d' < Φ(d, d') L̃²/d`` decides: on common measures ``d' − d`` counts
-        only the extra freedom, as the F-test of appendix B presumes.
+        A general model that explains clearly more measures (support up by a fifth) wins
+        outright; one that explains fewer loses (a general model fitted to a few measures
+        has a small cost for free). Otherwise :meth:`_replaces` decides on the measures both
+        take as inliers.
         """
-        if est.relevance >= _MORE_SUPPORT * p.relevance:
+        if state.support >= _MORE_SUPPORT * p.support:
             return True
-        if est.relevance < _SUPPORT * p.relevance:
+        if state.support < _SUPPORT * p.support:
             return False
-        problem, ids, _ = self._problem_for(parent)
-        names = [ch.name for ch in problem.channels]
-        channel_ids = dict(zip(self._channels()[0], ids, strict=True))
-        common = tuple(est.inliers[n][np.isin(channel_ids[n][est.inliers[n]], p.inliers)]
-                       for n in names)
-        costs = []
-        for name, q in ((parent, p.q), (model, est.q)):
-            prob = self._problem_for(name)[0].subset(common)
-            costs.append(fit_problem(self.fam, name, prob, q_start=q))
-        general, specific = costs[1], costs[0]
-        if not (np.isfinite(specific.normalized_cost) and np.isfinite(general.normalized_cost)):
-            return False
-        factor = self._phi(parent, model)(specific.dof, general.dof)
-        # strictly better, beyond rounding: a model that only drops an inequality (ellipse
-        # -> conic, same d) reaches the very same fit when the inequality is not active
-        return bool(general.normalized_cost < factor * specific.normalized_cost
-                    * (1 - _SAME_FIT))
+        return self._replaces(p, state)
+
+    def _replaces(self, specific: ModelState, general: ModelState) -> bool:
+        """Both refitted on the measures both take as inliers, ``L̃'²/d' < Φ(d, d') L̃²/d``
+        (:func:`~kanagen.runtime.compare.general_wins`): on common measures ``d' − d``
+        counts only the extra freedom, as the F-test of appendix B presumes."""
+        _, _, ids = self._channels()
+        common = np.intersect1d(specific.inliers, general.inliers)
+        rows = tuple(np.flatnonzero(np.isin(ch_ids, common)) for ch_ids in ids)
+        fits = [fit_problem(self.fam, s.model, self._problem_for(s.model)[0].subset(rows),
+                            q_start=s.q) for s in (specific, general)]
+        free = (self._shape[specific.model][1], self._shape[general.model][1])
+        return general_wins(fits[0], fits[1], self._phi(specific.model, general.model), free)
 
     def _phi(self, parent: str, model: str):
+        """The factor of the edge that queued ``model``; between models with no edge (two
+        children of one parent), the extra-sum-of-squares test."""
         if self.phi is not None:
             return get_phi(self.phi)
         for alt, choice in self.fam.model(self._declared_by.get(model, parent)).alternatives:
             if alt == model:
                 return get_phi(choice)
-        return get_phi(1.0)
+        return get_phi("ess")
+
+    def _select(self, states: list[ModelState]) -> ModelState:
+        """The best of several accepted models: those not clearly out-supported (by a
+        fifth), then from the most specific (most equations per measure, fewest free
+        degrees of freedom) a more general one replaces it only if it passes
+        :meth:`_replaces` — the report's "most specific model of optimal cost"."""
+        if len(states) == 1:
+            return states[0]
+        key = tuple((s.model, s.samples, s.cost, s.relevance) for s in states)
+        if key in self._selected:
+            return self._selected[key]
+        supports = [s.support if np.isfinite(s.support) else -np.inf for s in states]
+        top = max(supports)
+        floor = top / _MORE_SUPPORT if top > 0 else top * _MORE_SUPPORT
+        cands = [s for s, v in zip(states, supports, strict=True) if v >= floor] or states
+        cands.sort(key=lambda s: (-self._shape.get(s.model, (1, 0))[0],
+                                  self._shape.get(s.model, (1, 0))[1], s.cost))
+        current = cands[0]
+        for other in cands[1:]:
+            if current.samples and other.samples and self._replaces(current, other):
+                current = other
+        self._selected[key] = current
+        return current
 
     def _best_state(self) -> ModelState | None:
-        """The least-cost accepted model that no accepted, more general model replaced."""
+        """The best accepted model that no accepted, more general model replaced."""
         accepted = [s for s in self._states.values() if s.accepted]
         if not accepted:
             return None
         replaced = {s.parent for s in accepted if s.parent is not None and s.samples}
         leaves = [s for s in accepted if s.model not in replaced]
         estimated = [s for s in leaves if s.samples] or leaves
-        return min(estimated, key=lambda s: (s.cost, -s.dof))
+        return self._select(estimated)
 
     def _coherent_with(self, state: ModelState, channel: str, ch: ChannelData) -> bool:
         from .coherence import coherence_errors

@@ -34,12 +34,15 @@ class ChannelInfo:
 
 @dataclass(frozen=True)
 class ModelInfo:
-    """A model of the family: its constraints (as text), alternatives and equation overrides."""
+    """A model of the family: its constraints (as text), alternatives, equation overrides,
+    the derived quantities it reports and the name of its closed-form initializer."""
 
     name: str
     constraints: tuple[str, ...]
     alternatives: tuple[tuple[str, float | str], ...]
     equations: Mapping[str, tuple[str, ...]]
+    derived: tuple[str, ...]
+    initializer: str | None = None
 
 
 class ModelFamily:
@@ -66,7 +69,8 @@ class ModelFamily:
         self.models = {
             name: ModelInfo(name, tuple(m["constraints"]),
                             tuple((a, phi) for a, phi in m["alternatives"]),
-                            {c: tuple(e) for c, e in m["equations"].items()})
+                            {c: tuple(e) for c, e in m["equations"].items()},
+                            tuple(m.get("derived", meta["derived"])), m.get("initializer"))
             for name, m in meta["models"].items()
         }
         self.derived_shapes = {k: tuple(v) for k, v in meta["derived"].items()}

@@ -136,7 +136,7 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
         status=out.status,
         message=out.message,
         ranks={ch.name: r for ch, r in zip(problem.channels, ranks, strict=True)},
-        derived=derived_values(fam, x.q, covariance, problem.k),
+        derived=derived_values(fam, x.q, covariance, problem.k, model),
         slacks=fam.slack_dict(x.q),
     )
 
@@ -154,11 +154,14 @@ def _feasible(x, start_violation: float, residual: float, ranks) -> bool:
 
 
 def derived_values(fam: ModelFamily, q: np.ndarray, covariance: np.ndarray,
-                   k: np.ndarray) -> dict[str, DerivedValue]:
-    """Derived quantities at ``q`` with covariances ``J Σ Jᵀ``."""
+                   k: np.ndarray, model: str | None = None) -> dict[str, DerivedValue]:
+    """Derived quantities at ``q`` with covariances ``J Σ Jᵀ`` (those ``model`` reports)."""
     out = {}
+    wanted = fam.model(model).derived if model is not None else None
     with np.errstate(all="ignore"):
         for name, (value, jac) in fam.derived(q, k).items():
+            if wanted is not None and name not in wanted:
+                continue
             J = jac.reshape(-1, fam.n)
             out[name] = DerivedValue(value, propagate(J, covariance), jac)
     return out

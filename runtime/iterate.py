@@ -203,6 +203,27 @@ def _iterate(problem: Problem, q_start: np.ndarray, max_iter: int, xtol: float) 
     return outcome(x, max_iter, MAX_ITER, lin, proj)
 
 
+def _second_order_correction(problem: Problem, trial: Point) -> Point | None:
+    """The trial point moved back onto the parameter constraints: ``q − C0⁺ c0(q)``, the
+    least-norm Gauss–Newton step on ``c0`` alone, its measures restored.
+
+    From a feasible point the projector step is tangent to the constraints and a curved one
+    (a unit norm) rises by ``O(‖Δq‖²)`` along it; the filter would then cut a good long step
+    down to the rounding level (the Maratos effect) and convergence would turn linear. The
+    second-order correction (Fletcher & Leyffer 2002; Nocedal & Wright §15.6) removes that
+    rise; the corrected point must pass the same filter.
+    """
+    if not trial.finite or not trial.c0.size or not np.any(trial.c0):
+        return None
+    try:
+        dq = np.linalg.lstsq(trial.C0, trial.c0, rcond=None)[0]
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(dq)):
+        return None
+    return _restored(problem, trial.q - dq, trial.mt)
+
+
 def _line_search(problem, lin, proj, x, mu, eps_delta, delta_cap, guard=None):
     """Find an acceptable point: the report's step (or the damped one the last iteration
     needed), halved back towards ``x`` a few times as eq. 18 does; if still refused, damp
@@ -218,6 +239,10 @@ def _line_search(problem, lin, proj, x, mu, eps_delta, delta_cap, guard=None):
             # once the model's inequalities hold, they hold at every later iterate
             if (guard is None or guard(q)) and _acceptable(trial, x, eps_delta, delta_cap):
                 return trial, mu, alpha
+            corrected = _second_order_correction(problem, trial)
+            if corrected is not None and (guard is None or guard(corrected.q)) and \
+                    _acceptable(corrected, x, eps_delta, delta_cap):
+                return corrected, mu, alpha
             alpha /= 2
         if mu >= _MU_MAX:
             return None

@@ -17,9 +17,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .coherence import coherence_errors, free_dof, solve_minimal
+from .coherence import coherence_errors, free_dof, manifold_ranks, solve_minimal
 from .family import ModelFamily
 from .fit import fit_problem, make_problem
+from .initializers import InitializerFn, model_initializers, start_from
 from .projector import Problem
 from .results import FitResult
 from .scoring import samples_for_confidence
@@ -127,19 +128,27 @@ class ModelSearch:
     sample_size : int, optional
         Measures per sample (default: the minimal size for the model's free degrees of
         freedom, or for the extra ones over ``parent_free``).
+    initializer : callable, optional
+        Closed-form starts for the minimal solves (:mod:`~kanagen.runtime.initializers`):
+        ``f(rows, constants) -> [{name: value}, ...]``; each candidate starts one solve.
     local : float in [0, 1]
         Fraction of the samples drawn locally (NAPSAC, Nasuto & Craddock 2002): one measure
         at random, the others among its nearest measures (Euclidean distance of the data
         rows). Structures in clustered data are spatially coherent: a local sample is far
         likelier to be outlier-free than a uniform one when each structure holds a small
         share of the measures. 0: uniform samples only.
+
+    A sample whose independent equations outnumber the free degrees of freedom (a zoom from
+    one match: two equations, one unknown; the null model: none) cannot be passed through
+    exactly: its estimate is the full estimator's on the sample (measures corrected).
     """
 
     def __init__(self, fam: ModelFamily, model: str, problem: Problem, channel: int,
                  start: np.ndarray, rng: np.random.Generator, scale: float = 1.0,
                  scorer: str | Callable = "relevance", pool: np.ndarray | None = None,
                  sample_size: int | None = None, parent_free: int | None = None,
-                 base: np.ndarray | None = None, local: float = 0.0):
+                 base: np.ndarray | None = None, initializer: InitializerFn | None = None,
+                 local: float = 0.0):
         if not 0.0 <= local <= 1.0:
             raise ValueError(f"local must be a fraction in [0, 1], got {local}")
         self.fam = fam
@@ -150,6 +159,8 @@ class ModelSearch:
         self.rng = rng
         self.scale = float(scale)
         self.score_fn = get_scorer(scorer)
+        self.initializer = initializer
+        self.ranks = manifold_ranks(problem, self.start)  # equations per measure, per channel
         size = problem.channels[channel].size
         self.pool = np.arange(size) if pool is None else np.asarray(pool, dtype=int)
         self.sample_size = sample_size or self._minimal(parent_free)
@@ -158,9 +169,9 @@ class ModelSearch:
         self.base = None if base is None else np.asarray(base, dtype=int)
         self.base_size = self._minimal(None) - self.sample_size if base is not None else 0
         # a sample must fix this many equations (constraints + sampled), else it is degenerate
-        self.full_rank = min(fam.n, fam.n - self.free_dof()
-                             + (self.sample_size + self.base_size)
-                             * self._equations_per_measure())
+        equations = (self.sample_size + self.base_size) * self._equations_per_measure()
+        self.full_rank = min(fam.n, fam.n - self.free_dof() + equations)
+        self.overdetermined = equations > self.free_dof()
         self.local = float(local)
         self._neighbours: np.ndarray | None = None
         self.samples = 0
@@ -176,10 +187,8 @@ class ModelSearch:
                         self.start if q is None else q)
 
     def _equations_per_measure(self) -> int:
-        width = len(self.fam.channel(self.problem.channels[self.channel].name).components)
-        c, _, _ = self.problem.measures[self.channel](self.start, np.zeros((0, width)),
-                                                      self.problem.k)
-        return max(c.shape[1], 1)
+        """Independent equations of one measure (on its equations' zero set)."""
+        return max(self.ranks[self.channel], 1)
 
     def _minimal(self, parent_free: int | None) -> int:
         free = self.free_dof()
@@ -189,10 +198,27 @@ class ModelSearch:
     def seed_estimate(self, q: np.ndarray) -> None:
         """Start from a known estimate (a re-queued model): it is the best so far."""
         with np.errstate(all="ignore"):
-            errors = coherence_errors(self.problem, np.asarray(q, dtype=float), iterations=1)
+            errors = coherence_errors(self.problem, np.asarray(q, dtype=float), iterations=1,
+                                      ranks=self.ranks)
         self.best_q = np.asarray(q, dtype=float)
         self.best_errors = errors
         self.best_score = self.score_fn(np.concatenate(errors), self.scale)
+
+    def samples_needed(self, confidence: float) -> int | None:
+        """Eq. 25 with the inlier fractions (errors below ``L*``) of the best estimate so far
+        in the pools the samples are drawn from — adaptive stopping (None before any
+        estimate, or when no sample can be all inliers)."""
+        if self.best_errors is None or not self.pool.size:
+            return None
+        good = self.best_errors[self.channel] < self.scale
+        p = float(np.mean(good[self.pool])) ** self.sample_size
+        if self.base_size:
+            p *= float(np.mean(good[self.base])) ** self.base_size
+        if p <= 0.0:
+            return None
+        if p >= 1.0:
+            return 1
+        return math.ceil(math.log1p(-confidence) / math.log1p(-p))
 
     @property
     def exhausted(self) -> bool:
@@ -211,20 +237,22 @@ class ModelSearch:
         picked = tuple(rows if i == self.channel else np.zeros(0, dtype=int)
                        for i in range(len(self.problem.channels)))
         improved = False
+        solutions = 0
         try:
             with np.errstate(all="ignore"):
-                sol = solve_minimal(self.problem.subset(picked), self.start)
-                if not sol.success or sol.rank < self.full_rank:
-                    self.degenerate += 1
-                else:
-                    errors = coherence_errors(self.problem, sol.q, iterations=1)
+                sample = self.problem.subset(picked)
+                for q in self._solutions(sample, rows):
+                    solutions += 1
+                    errors = coherence_errors(self.problem, q, iterations=1, ranks=self.ranks)
                     score = self.score_fn(np.concatenate(errors), self.scale)
                     if score > self.best_score:
-                        self.best_q, self.best_score, self.best_errors = sol.q, score, errors
-                        self._local_optimisation()
+                        self.best_q, self.best_score, self.best_errors = q, score, errors
                         improved = True
+                if improved:
+                    self._local_optimisation()
         except (np.linalg.LinAlgError, ValueError, FloatingPointError, ZeroDivisionError):
-            self.degenerate += 1
+            solutions = 0
+        self.degenerate += solutions == 0
         self.history.append((self.samples, self.best_score))
         return improved
 
@@ -243,6 +271,35 @@ class ModelSearch:
             return np.r_[near[0], self.rng.choice(near[1:], size=size - 1, replace=False)]
         return self.rng.choice(self.pool, size=size, replace=False)
 
+    def _starts(self, rows: np.ndarray) -> list[np.ndarray]:
+        """Starting values of the sample's solves: the initializer's candidates, else the
+        parent's estimate."""
+        if self.initializer is None:
+            return [self.start]
+        ch = self.problem.channels[self.channel]
+        constants = dict(zip(self.fam.constant_names, self.problem.k.tolist(), strict=True))
+        starts = []
+        for cand in self.initializer(ch.X[rows], constants):
+            q = start_from(self.fam, cand, self.start)
+            if q is not None:
+                starts.append(self.fam.with_slacks(q, self.problem.k, self.model))
+        return starts or [self.start]
+
+    def _solutions(self, sample: Problem, rows: np.ndarray) -> list[np.ndarray]:
+        """The sample's estimates that pass: minimal solves (eq. 21) of full rank from each
+        start, or the full estimator on an over-determined sample."""
+        out = []
+        for start in self._starts(rows):
+            if self.overdetermined:
+                fit = fit_problem(self.fam, self.model, sample, q_start=start, max_iter=20)
+                if fit.success and np.all(np.isfinite(fit.q)):
+                    out.append(fit.q)
+                continue
+            sol = solve_minimal(sample, start)
+            if sol.success and sol.rank >= self.full_rank:
+                out.append(sol.q)
+        return out
+
     def _local_optimisation(self, max_iter: int = 10) -> None:
         """LO-RANSAC (Chum, Matas & Kittler 2003): a sample that beats the best is refined
         at once on the measures it explains, and the refined estimate kept if it scores
@@ -257,7 +314,7 @@ class ModelSearch:
                           max_iter=max_iter)
         if not np.all(np.isfinite(fit.q)):
             return
-        refined = coherence_errors(self.problem, fit.q, iterations=1)
+        refined = coherence_errors(self.problem, fit.q, iterations=1, ranks=self.ranks)
         score = self.score_fn(np.concatenate(refined), self.scale)
         if score > self.best_score:
             self.best_q, self.best_score, self.best_errors = fit.q, score, refined
@@ -313,12 +370,15 @@ def robust_fit(fam: ModelFamily, model: str | None = None, data: Mapping | None 
                max_samples: int = 500, confidence: float | None = None,
                inlier_ratio: float | None = None, no_gain: int | None = None,
                time_budget: float | None = None, stop: Callable | None = None,
-               window: float = 0.35, q0=None, Q0=None, constants=None) -> RobustEstimate | None:
+               window: float = 0.35, q0=None, Q0=None, constants=None,
+               initializers: dict | None = None) -> RobustEstimate | None:
     """Robust estimate of one model: random minimal samples, threshold, refinement.
 
     Stopping: ``max_samples``; eq. 25 when ``confidence`` and ``inlier_ratio`` are given;
     ``no_gain`` samples without a better estimate; ``time_budget`` seconds; or
     ``stop(history)`` returning True (history: list of (samples, best score)).
+    ``initializers``: ``{model: name or callable or None}`` over the spec's closed-form
+    initializer (see :class:`~kanagen.Estimator`).
 
     Examples
     --------
@@ -346,7 +406,8 @@ def robust_fit(fam: ModelFamily, model: str | None = None, data: Mapping | None 
     if not scale > 0:
         raise ValueError(f"scale (L*) must be positive, got {scale}")
     search = ModelSearch(fam, model, problem, names.index(channel), problem.q0,
-                         np.random.default_rng(seed), scale, scorer)
+                         np.random.default_rng(seed), scale, scorer,
+                         initializer=model_initializers(fam, initializers).get(model))
     budget = max_samples
     if confidence is not None and inlier_ratio is not None:
         budget = min(budget, samples_for_confidence(confidence, inlier_ratio,

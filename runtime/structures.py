@@ -19,7 +19,7 @@ from .scoring import scorer as get_scorer
 def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None,
                     max_structures: int = 5, model: str | None = None,
                     min_inliers: int | None = None, max_samples: int = 2000,
-                    reassign: int = 5, local: float = 0.5, **options) -> list[ModelState]:
+                    reassign: int = 5, local: float = 0.0, **options) -> list[ModelState]:
     """Several structures in the same data (report §4, clustered data): find one, take its
     inliers out, search again, until nothing relevant is left or ``max_structures``; then
     (``reassign`` rounds) give each measure to the structure with the least coherence
@@ -43,8 +43,9 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
         Rounds of assignment and refit at most (0: the greedy result as found).
     local : float in [0, 1]
         Share of local samples (a measure and its nearest neighbours, see
-        :class:`~kanagen.runtime.robust.ModelSearch`): structures of clustered data are
-        spatially coherent, and a small one is out of reach of uniform samples.
+        :class:`~kanagen.runtime.robust.ModelSearch`); default 0 (uniform). Structures of
+        clustered data are spatially coherent and a small one is out of reach of uniform
+        samples: 0.5 there (``experiments/adelaide.py``).
     options : the :class:`Estimator` options (``scale``, ``scorer``, ``phi``, ``seed``,
         ``channel``, ``constants``, ...).
 

@@ -1,0 +1,230 @@
+"""Generated two-view scenes with ground truth: 3-D points, two cameras, a motion class,
+noise and outliers (for tests, examples and benchmarks of the ``two_view`` family).
+
+Motion classes, named as the family's models: ``none`` (the same camera), ``zoom`` (the
+focal length changes), ``rotation`` (about the optical centre), ``translation`` (pure, same
+camera), ``planar`` (any motion, a planar scene), ``general`` (any motion and focal
+lengths, a 3-D scene). Camera 1 sits at the origin; ``X2 = R X1 + t``.
+
+Examples
+--------
+>>> s = two_view_scene("rotation", n=50, outliers=0.2, seed=3)
+>>> s.data.shape, int(s.inliers.sum())
+((62, 4), 50)
+>>> s.H.shape, s.F is None
+((3, 3), True)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .runtime import geometry as g
+
+MOTIONS = ("none", "zoom", "rotation", "translation", "planar", "general")
+_H_TYPE = ("none", "zoom", "rotation")  # no translation: F is undefined
+
+
+@dataclass(frozen=True)
+class TwoViewScene:
+    """A generated pair of views with everything known."""
+
+    motion: str
+    data: np.ndarray  # (N, 4) matches [u, v, u2, v2] in pixels, noisy, outliers included
+    clean: np.ndarray  # (N, 4) the inliers without noise (outlier rows: their data)
+    inliers: np.ndarray  # (N,) bool
+    K1: np.ndarray
+    K2: np.ndarray
+    R: np.ndarray
+    t: np.ndarray  # translation (scene units); zero for none/zoom/rotation
+    points: np.ndarray  # (n, 3) the inliers' 3-D points in camera 1's frame
+    plane: tuple[np.ndarray, float] | None  # (n, d) with nᵀX = d, for planar scenes
+    F: np.ndarray | None  # fundamental matrix (pixels, unit norm); None without translation
+    H: np.ndarray | None  # homography (pixels, unit norm); None for a 3-D scene that moves
+    size: tuple[int, int]  # image (width, height)
+    sigma: float
+
+    @property
+    def x1(self) -> np.ndarray:
+        return self.data[:, :2]
+
+    @property
+    def x2(self) -> np.ndarray:
+        return self.data[:, 2:]
+
+    @property
+    def constants(self) -> dict[str, float]:
+        """The family's constants for these images: principal point at the centre and the
+        nominal focal length (and conditioning scale) ``f0`` = the image width."""
+        return image_constants(*self.size)
+
+    def params(self) -> dict[str, float]:
+        """The true parameter of the two_view family (with :attr:`constants`), as the model
+        of the scene's motion class writes it (pinned components at their nominal values).
+        The plane comes in units of ``‖t‖``. Where focal lengths are not observable they
+        are pinned at ``f0`` (``none``, ``translation``, ``planar``; the first one under
+        ``zoom``), and the direction and plane are those of the nominal calibration."""
+        f0 = self.constants["f0"]
+        f1, f2 = self.K1[0, 0] / f0, self.K2[0, 0] / f0
+        R, t, w = self.R, self.t, np.zeros(3)
+        norm = np.linalg.norm(t)
+        if self.motion in ("none", "zoom"):
+            f1, f2 = 1.0, f2 / f1  # only the ratio is observable
+        elif self.motion in ("translation", "planar"):
+            # re-expressed at the nominal focal length: same F / H in pixels
+            A1, A2 = np.diag([f1, f1, 1.0]), np.diag([f2, f2, 1.0])
+            if self.motion == "translation":
+                t = A2 @ t  # K t is the epipole: t ∝ K⁻¹ e at f = 1
+            else:
+                Hn = A2 @ (R + np.outer(t, self.plane[0]) / self.plane[1]) @ np.linalg.inv(A1)
+                R, t, w = g.homography_poses(Hn, *self._rays())[0]
+            f1 = f2 = 1.0
+            norm = np.linalg.norm(t)
+        elif self.plane is not None and norm > 0:
+            w = self.plane[0] / self.plane[1] * norm
+        q = g.quaternion_from_rotation(R)
+        t = t / norm if norm > 0 else np.array([1.0, 0.0, 0.0])
+        return {"f1": f1, "f2": f2, "qw": q[0], "qx": q[1], "qy": q[2], "qz": q[3],
+                "tx": t[0], "ty": t[1], "tz": t[2], "wx": w[0], "wy": w[1], "wz": w[2]}
+
+    def _rays(self):
+        c = self.constants
+        x = self.clean[self.inliers]
+        y1 = np.c_[(x[:, 0] - c["cx"]) / c["f0"], (x[:, 1] - c["cy"]) / c["f0"], np.ones(len(x))]
+        y2 = np.c_[(x[:, 2] - c["cx"]) / c["f0"], (x[:, 3] - c["cy"]) / c["f0"], np.ones(len(x))]
+        return y1, y2
+
+
+def image_constants(width: float, height: float) -> dict[str, float]:
+    """``cx, cy`` at the image centre and ``f0`` = the width (a 53° field of view)."""
+    return {"cx": width / 2.0, "cy": height / 2.0, "f0": float(max(width, height))}
+
+
+def _camera(focal: float, size) -> np.ndarray:
+    return np.array([[focal, 0.0, size[0] / 2.0], [0.0, focal, size[1] / 2.0], [0.0, 0.0, 1.0]])
+
+
+def _project(K: np.ndarray, X: np.ndarray) -> np.ndarray:
+    p = X @ K.T
+    return p[:, :2] / p[:, 2:]
+
+
+def _inside(x: np.ndarray, size, margin: float = 0.0) -> np.ndarray:
+    return np.all((x >= margin) & (x <= np.array(size) - margin), axis=1)
+
+
+def _rotation(rng, low_deg: float, high_deg: float) -> np.ndarray:
+    axis = rng.normal(size=3)
+    return g.rotation_about(axis, np.radians(rng.uniform(low_deg, high_deg)))
+
+
+def _unit(v):
+    return v / np.linalg.norm(v)
+
+
+def two_view_scene(motion: str, n: int = 200, outliers: float = 0.0, sigma: float = 0.5,
+                   size: tuple[int, int] = (640, 480), seed: int | None = 0,
+                   depth: tuple[float, float] = (4.0, 12.0)) -> TwoViewScene:
+    """A random scene of one motion class.
+
+    Parameters
+    ----------
+    motion : str
+        One of :data:`MOTIONS`.
+    n : int
+        Inlier matches (points seen in both images).
+    outliers : float
+        Fraction of the returned matches that are outliers (random pairs of points), in
+        [0, 1).
+    sigma : float
+        Standard deviation of the Gaussian pixel noise on each coordinate.
+    size : (width, height)
+        Image size in pixels; the principal points are at the centre.
+    seed : int
+        Random seed (same seed, same scene).
+    depth : (near, far)
+        Depths of the 3-D points in camera 1 (the translation has norm 1 to 2).
+
+    Returns
+    -------
+    TwoViewScene
+    """
+    if motion not in MOTIONS:
+        raise ValueError(f"unknown motion {motion!r} (one of {', '.join(MOTIONS)})")
+    if not 0.0 <= outliers < 1.0:
+        raise ValueError(f"outliers is a fraction in [0, 1), got {outliers}")
+    if n < 1 or sigma < 0:
+        raise ValueError("n must be positive and sigma non-negative")
+    rng = np.random.default_rng(seed)
+    width = float(size[0])
+    focal1 = width * rng.uniform(0.8, 1.4)
+    focal2 = focal1
+    R, t, plane = np.eye(3), np.zeros(3), None
+    if motion == "zoom":
+        focal2 = focal1 * np.exp(rng.choice([-1, 1]) * rng.uniform(np.log(1.15), np.log(1.5)))
+    elif motion == "rotation":
+        R = _rotation(rng, 5.0, 20.0)
+    elif motion == "translation":
+        t = _unit(rng.normal(size=3)) * rng.uniform(1.0, 2.0)
+    elif motion in ("planar", "general"):
+        R = _rotation(rng, 3.0, 15.0)
+        t = _unit(rng.normal(size=3)) * rng.uniform(1.0, 2.0)
+        if motion == "general":
+            focal2 = focal1 * rng.uniform(0.8, 1.25)
+        else:
+            normal = _unit(np.array([0.0, 0.0, 1.0]) + 0.5 * rng.normal(size=3))
+            plane = (normal, float(rng.uniform(*depth)))
+    K1, K2 = _camera(focal1, size), _camera(focal2, size)
+    points = np.zeros((0, 3))
+    for _ in range(100):
+        m = 4 * n
+        x1 = rng.uniform([0, 0], size, size=(m, 2))
+        rays = np.c_[x1, np.ones(m)] @ np.linalg.inv(K1).T
+        if plane is None:
+            lam = rng.uniform(*depth, size=m)
+        else:
+            lam = plane[1] / (rays @ plane[0])
+        X = rays * lam[:, None]
+        X2 = X @ R.T + t
+        ok = (lam > 0) & (X2[:, 2] > 0.1)
+        ok[ok] &= _inside(_project(K2, X2[ok]), size)
+        points = np.r_[points, X[ok]][:n]
+        if len(points) == n:
+            break
+    else:
+        raise ValueError(f"could not place {n} points in both images for {motion!r}")
+    clean = np.c_[_project(K1, points), _project(K2, points @ R.T + t)]
+    noisy = clean + rng.normal(scale=sigma, size=clean.shape)
+    n_out = int(round(outliers * n / (1.0 - outliers)))
+    junk = np.c_[rng.uniform([0, 0], size, size=(n_out, 2)),
+                 rng.uniform([0, 0], size, size=(n_out, 2))]
+    order = rng.permutation(n + n_out)
+    data = np.r_[noisy, junk][order]
+    truth = np.r_[np.ones(n, bool), np.zeros(n_out, bool)][order]
+    clean_all = np.r_[clean, junk][order]
+    F = H = None
+    if motion not in _H_TYPE:
+        F = _unit(np.linalg.inv(K2).T @ g.skew(t) @ R @ np.linalg.inv(K1))
+    if motion in _H_TYPE or plane is not None:
+        Hc = R if plane is None else R + np.outer(t, plane[0]) / plane[1]
+        H = _unit(K2 @ Hc @ np.linalg.inv(K1))
+    return TwoViewScene(motion, data, clean_all, truth, K1, K2, R, t, points, plane, F, H,
+                        (int(size[0]), int(size[1])), float(sigma))
+
+
+def sampson_rms(F: np.ndarray, matches: np.ndarray) -> float:
+    """RMS Sampson distance (pixels) of matches ``[u, v, u2, v2]`` to ``p2ᵀ F p1 = 0``."""
+    p1, p2 = g.homogeneous(matches[:, :2]), g.homogeneous(matches[:, 2:])
+    Fp1, Ftp2 = p1 @ F.T, p2 @ F
+    num = np.einsum("ni,ni->n", p2, Fp1) ** 2
+    den = Fp1[:, 0] ** 2 + Fp1[:, 1] ** 2 + Ftp2[:, 0] ** 2 + Ftp2[:, 1] ** 2
+    return float(np.sqrt(np.mean(num / den)))
+
+
+def transfer_rms(H: np.ndarray, matches: np.ndarray) -> float:
+    """RMS transfer distance (pixels) from ``H p1`` to ``p2``."""
+    y = g.homogeneous(matches[:, :2]) @ H.T
+    return float(np.sqrt(np.mean(np.sum((y[:, :2] / y[:, 2:] - matches[:, 2:]) ** 2,
+                                        axis=1))))
