@@ -126,7 +126,8 @@ def _unit(v):
 
 def two_view_scene(motion: str, n: int = 200, outliers: float = 0.0, sigma: float = 0.5,
                    size: tuple[int, int] = (640, 480), seed: int | None = 0,
-                   depth: tuple[float, float] = (4.0, 12.0)) -> TwoViewScene:
+                   depth: tuple[float, float] = (4.0, 12.0),
+                   on_plane: float = 0.0) -> TwoViewScene:
     """A random scene of one motion class.
 
     Parameters
@@ -146,6 +147,9 @@ def two_view_scene(motion: str, n: int = 200, outliers: float = 0.0, sigma: floa
         Random seed (same seed, same scene).
     depth : (near, far)
         Depths of the 3-D points in camera 1 (the translation has norm 1 to 2).
+    on_plane : float
+        For ``general``: the fraction of the inliers on one plane (a dominant plane and
+        some parallax, as in many real scenes); :attr:`TwoViewScene.plane` is that plane.
 
     Returns
     -------
@@ -157,6 +161,8 @@ def two_view_scene(motion: str, n: int = 200, outliers: float = 0.0, sigma: floa
         raise ValueError(f"outliers is a fraction in [0, 1), got {outliers}")
     if n < 1 or sigma < 0:
         raise ValueError("n must be positive and sigma non-negative")
+    if not 0.0 <= on_plane <= 1.0 or (on_plane and motion != "general"):
+        raise ValueError("on_plane is a fraction in [0, 1], for general scenes only")
     rng = np.random.default_rng(seed)
     width = float(size[0])
     focal1 = width * rng.uniform(0.8, 1.4)
@@ -173,28 +179,13 @@ def two_view_scene(motion: str, n: int = 200, outliers: float = 0.0, sigma: floa
         t = _unit(rng.normal(size=3)) * rng.uniform(1.0, 2.0)
         if motion == "general":
             focal2 = focal1 * rng.uniform(0.8, 1.25)
-        else:
+        if motion == "planar" or on_plane:
             normal = _unit(np.array([0.0, 0.0, 1.0]) + 0.5 * rng.normal(size=3))
             plane = (normal, float(rng.uniform(*depth)))
+    planar_count = n if motion == "planar" else int(round(on_plane * n))
     K1, K2 = _camera(focal1, size), _camera(focal2, size)
-    points = np.zeros((0, 3))
-    for _ in range(100):
-        m = 4 * n
-        x1 = rng.uniform([0, 0], size, size=(m, 2))
-        rays = np.c_[x1, np.ones(m)] @ np.linalg.inv(K1).T
-        if plane is None:
-            lam = rng.uniform(*depth, size=m)
-        else:
-            lam = plane[1] / (rays @ plane[0])
-        X = rays * lam[:, None]
-        X2 = X @ R.T + t
-        ok = (lam > 0) & (X2[:, 2] > 0.1)
-        ok[ok] &= _inside(_project(K2, X2[ok]), size)
-        points = np.r_[points, X[ok]][:n]
-        if len(points) == n:
-            break
-    else:
-        raise ValueError(f"could not place {n} points in both images for {motion!r}")
+    points = np.r_[_visible(rng, K1, K2, R, t, size, depth, plane, planar_count),
+                   _visible(rng, K1, K2, R, t, size, depth, None, n - planar_count)]
     clean = np.c_[_project(K1, points), _project(K2, points @ R.T + t)]
     noisy = clean + rng.normal(scale=sigma, size=clean.shape)
     n_out = int(round(outliers * n / (1.0 - outliers)))
@@ -207,11 +198,31 @@ def two_view_scene(motion: str, n: int = 200, outliers: float = 0.0, sigma: floa
     F = H = None
     if motion not in _H_TYPE:
         F = _unit(np.linalg.inv(K2).T @ g.skew(t) @ R @ np.linalg.inv(K1))
-    if motion in _H_TYPE or plane is not None:
+    if motion in _H_TYPE or motion == "planar":
         Hc = R if plane is None else R + np.outer(t, plane[0]) / plane[1]
         H = _unit(K2 @ Hc @ np.linalg.inv(K1))
     return TwoViewScene(motion, data, clean_all, truth, K1, K2, R, t, points, plane, F, H,
                         (int(size[0]), int(size[1])), float(sigma))
+
+
+def _visible(rng, K1, K2, R, t, size, depth, plane, n: int) -> np.ndarray:
+    """``n`` 3-D points seen in both images: on ``plane`` if given, else at random depths."""
+    points = np.zeros((0, 3))
+    for _ in range(100):
+        if len(points) == n:
+            return points
+        m = 4 * n
+        x1 = rng.uniform([0, 0], size, size=(m, 2))
+        rays = np.c_[x1, np.ones(m)] @ np.linalg.inv(K1).T
+        lam = rng.uniform(*depth, size=m) if plane is None else plane[1] / (rays @ plane[0])
+        X = rays * lam[:, None]
+        X2 = X @ R.T + t
+        ok = (lam > 0) & (X2[:, 2] > 0.1)
+        ok[ok] &= _inside(_project(K2, X2[ok]), size)
+        points = np.r_[points, X[ok]][:n]
+    if len(points) == n:
+        return points
+    raise ValueError(f"could not place {n} points in both images")
 
 
 def sampson_rms(F: np.ndarray, matches: np.ndarray) -> float:

@@ -31,7 +31,7 @@ _TOP_KEYS = ("name", "description", "constants", "parameter", "define", "channel
 _CHANNEL_KEYS = ("components", "exact", "equations", "description")
 _MODEL_KEYS = ("constraints", "equations", "alternatives", "derived", "initializer",
                "description")
-_PHI_WORDS = ("aic", "ftest", "ess", "exp")
+_PHI_WORDS = ("aic", "ftest", "exp")
 _SYMPY_FUNCS = tuple(f for f in FUNCTIONS.values() if isinstance(f, type))  # sqrt is a Pow
 
 
@@ -408,13 +408,16 @@ class _Builder:
             return float(value)
         if isinstance(value, str):
             word, _, arg = value.partition(":")
-            if word in _PHI_WORDS and (word != "exp" or arg) and (word != "aic" or not arg):
-                if arg:
-                    self.number(arg, f"argument of {word}", *path)
+            if word in _PHI_WORDS and (word != "exp" or arg) and (word != "aic" or not arg) \
+                    and (not value.endswith(":")):
+                number = self.number(arg, f"argument of {word}", *path) if arg else None
+                if word == "ftest" and number is not None and not 0 < number < 1:
+                    raise self.error(f"the confidence P of {word}:P is in (0, 1), got {arg}",
+                                     *path)
                 return value
         raise self.error(
-            f"cost factor {value!r} not understood (a number, 'aic', 'ftest', 'ftest:P', "
-            "'ess', 'ess:P' or 'exp:kappa')",
+            f"cost factor {value!r} not understood (a number, 'aic', 'ftest', 'ftest:P' "
+            "or 'exp:kappa')",
             *path,
         )
 

@@ -15,8 +15,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from . import lattice
 from .coherence import free_dof
-from .compare import general_wins, support
 from .family import ModelFamily
 from .fit import fit_problem
 from .initializers import model_initializers
@@ -29,11 +29,6 @@ from .scoring import samples_for_confidence
 from .scoring import scorer as get_scorer
 
 _RESUME_FRACTION = 10  # a re-queued model draws a tenth of a fresh search's samples
-_SUPPORT = 0.95  # a general model must keep this fraction of its parent's support
-_MORE_SUPPORT = 1.2  # ... and wins outright when it explains this much more
-_RELEVANT = 0.1  # a parent explaining fewer measures than this fraction is not a base
-_RANK_SAMPLE = 60  # corrected inliers of a parent used to count what they fix of a child
-_RANK_TOL = 1e-6  # relative singular value below which a direction is not fixed
 
 
 @dataclass(frozen=True)
@@ -57,25 +52,11 @@ class ModelState:
     derived: dict[str, DerivedValue] = field(default_factory=dict)
     status: str = "estimated"
     slacks: dict[str, float] = field(default_factory=dict)  # appendix F's added components
-    #: relevance over that of a perfect inlier population of the model's equations: about
-    #: the fraction of the measures it explains, comparable between models
-    support: float = float("nan")
 
     @property
     def estimated(self) -> bool:
         """False for the placeholder of the first moment (the null model at ``q0``)."""
         return self.samples > 0
-
-
-def _rank(rows: np.ndarray) -> int | None:
-    """Rank of a matrix of equations' gradients, each row scaled to unit norm (None when not
-    finite)."""
-    norms = np.linalg.norm(rows, axis=1)
-    rows = rows[norms > 0] / norms[norms > 0, None]
-    if not np.all(np.isfinite(rows)):
-        return None
-    sv = np.linalg.svd(rows, compute_uv=False)
-    return int(np.count_nonzero(sv > _RANK_TOL * sv[0])) if sv.size else 0
 
 
 class Estimator:
@@ -311,7 +292,8 @@ class Estimator:
         self._shape: dict[str, tuple[int, int]] = {}  # equations per measure, free dof
         self._corrected: dict[str, dict[str, np.ndarray]] = {}  # inliers, corrected
         self._selected: dict[tuple, ModelState] = {}
-        self._reachable = self._lattice_from(self._root)
+        self._reachable = {self._root} if self.model else lattice.reachable(self.fam,
+                                                                             self._root)
 
     def _restart_if_idle(self) -> None:
         if self._done or self._search is None:
@@ -350,11 +332,25 @@ class Estimator:
             raise ValueError(f"channel= is required: measures in {names}")
         return problem, ids, names.index(channel)
 
-    def _budget(self, search: ModelSearch) -> int:
+    def _budget(self, search: ModelSearch, parent: ModelState | None) -> int:
+        """Samples for the search: eq. 25 (``inlier_ratio``, or ``samples_per_model``).
+
+        A child with fewer equations per measure than its parent wins only by explaining a
+        fifth more measures (:func:`~kanagen.runtime.lattice.explains_more`): its extra
+        measures must then be at least that share of the parent's outliers it samples, and
+        eq. 25 is taken at that inlier ratio when it is higher — enough samples to find any
+        estimate that could win.
+        """
         if search.free_dof() == 0:
             return 1  # nothing to sample: the model's parameter is fixed
         if self.samples_per_model is not None:
             return self.samples_per_model
+        if parent is not None and search.base is not None and parent.model in self._shape \
+                and self._shape[parent.model][0] != max(search.ranks[search.channel], 1):
+            needed = (lattice.MORE_SUPPORT - 1) * parent.inliers.size / max(search.pool.size, 1)
+            return samples_for_confidence(self.confidence,
+                                          min(1.0, max(needed, self.inlier_ratio)),
+                                          search.sample_size)
         return samples_for_confidence(self.confidence, self.inlier_ratio,
                                       search.sample_size + search.base_size)
 
@@ -391,14 +387,17 @@ class Estimator:
             start = parent_state.q if parent_state is not None else self.q0
             pool = base = parent_free = None
             if parent_state is not None and parent_state.samples and \
-                    parent_state.inliers.size >= _RELEVANT * sum(len(i) for i in ids):
+                    parent_state.inliers.size >= lattice.RELEVANT * sum(len(i) for i in ids):
                 # the extra measures among those not coherent with the parent (report §5),
                 # the rest of the sample among the parent's inliers (a parent that explains
                 # next to nothing is no base: the child is searched afresh)
                 ch_ids = ids[channel]
                 pool = np.flatnonzero(np.isin(ch_ids, parent_state.outliers))
                 base = np.flatnonzero(np.isin(ch_ids, parent_state.inliers))
-                parent_free = self._fixed_by(parent_state, model, problem.channels[channel])
+                name = problem.channels[channel].name
+                parent_free = lattice.fixed_by(
+                    self.fam, parent_state, self._free(parent, parent_state.q), model, name,
+                    self._corrected.get(parent, {}).get(name), self._constants)
             search = ModelSearch(self.fam, model, problem, channel, start, self._rng,
                                  self.scale, self.scorer, pool=pool, parent_free=parent_free,
                                  base=base, initializer=self.initializers.get(model),
@@ -407,7 +406,7 @@ class Estimator:
                 self._skipped[model] = parent
                 self._queue_alternatives(model)
                 continue
-            budget = self._budget(search)
+            budget = self._budget(search, parent_state)
             if resume is not None:  # re-queued: resume from its estimate, a few more samples
                 search.seed_estimate(resume)
                 budget = max(1, budget // _RESUME_FRACTION)
@@ -419,25 +418,6 @@ class Estimator:
     def _free(self, model: str, q: np.ndarray) -> int:
         return free_dof(lambda x: self.fam.c0(model, x, self._constants)[1], q)
 
-    def _fixed_by(self, parent: ModelState, model: str, channel) -> int:
-        """How many of ``model``'s free degrees of freedom the parent's inliers fix: at most
-        the parent's own, and at most the rank of ``model``'s equations at the parent's
-        estimate over its inliers corrected onto the parent (report §5's singular
-        configurations: matches on a plane fix 5 of a fundamental matrix's 7, not the 8 of
-        their homography, so the general model needs 2 matches off the plane, not 1)."""
-        free_parent = self._free(parent.model, parent.q)
-        corrected = self._corrected.get(parent.model, {}).get(channel.name)
-        if corrected is None or not len(corrected):
-            return free_parent
-        with np.errstate(all="ignore"):
-            _, C, _ = self.fam.measurement(model, channel.name, parent.q,
-                                           corrected[:_RANK_SAMPLE], self._constants)
-            C0 = self.fam.c0(model, parent.q, self._constants)[1]
-        both, alone = _rank(np.r_[C0, C.reshape(-1, self.fam.n)]), _rank(C0)
-        if both is None or alone is None:
-            return free_parent
-        return min(free_parent, max(both - alone, 0))
-
     def _conclude(self, model: str, parent: str | None, search: ModelSearch) -> None:
         estimate = search.finish(self.q0, self.Q0, self.window)
         if estimate is None or not np.all(np.isfinite(estimate.q)):
@@ -447,7 +427,7 @@ class Estimator:
         self._shape[model] = (max(search.ranks[search.channel], 1), search.free_dof(estimate.q))
         self._corrected[model] = estimate.fit.measures
         _, _, ids = self._channels()
-        state = self._state(model, parent, estimate, ids, self._shape[model][0])
+        state = self._state(model, parent, estimate, ids)
         self._states[model] = state
         self._skipped.pop(model, None)
         if state.accepted:
@@ -458,32 +438,6 @@ class Estimator:
         self._queue_alternatives(model)
 
     # -- the lattice ---------------------------------------------------------------------------
-    def _lattice_from(self, root: str) -> set[str]:
-        seen, todo = {root}, [root]
-        while todo and not self.model:
-            for alt, _ in self.fam.model(todo.pop()).alternatives:
-                if alt not in seen:
-                    seen.add(alt)
-                    todo.append(alt)
-        return seen
-
-    def _lattice_parents(self, model: str) -> list[str]:
-        return [m for m in self.fam.models if m in self._reachable
-                and any(alt == model for alt, _ in self.fam.model(m).alternatives)]
-
-    def _anchor(self, model: str | None) -> str | None:
-        """The model itself if accepted, else the nearest accepted model it was compared
-        with: a rejected model does not hide a more general one (a hyperbola is neither a
-        circle nor an ellipse, but it is a conic)."""
-        seen = set()
-        while model is not None and model not in seen:
-            seen.add(model)
-            state = self._states.get(model)
-            if state is not None and state.accepted:
-                return model
-            model = state.parent if state is not None else self._skipped.get(model)
-        return None
-
     def _queue_alternatives(self, model: str) -> None:
         """Queue each more general model once all its parents in the lattice are settled
         (report §5: a model is not estimated before its parents), against the best of their
@@ -494,12 +448,12 @@ class Estimator:
         for alt, _ in self.fam.model(model).alternatives:
             if alt in known or alt in self._states or alt in self._skipped:
                 continue
-            parents = self._lattice_parents(alt)
+            parents = lattice.lattice_parents(self.fam, alt, self._reachable)
             if not all(p in self._states or p in self._skipped for p in parents):
                 continue  # the others will queue it
             anchors: dict[str, str] = {}
             for p in parents:
-                anchor = self._anchor(p)
+                anchor = lattice.anchor(self._states, self._skipped, p)
                 if anchor is not None:
                     anchors.setdefault(anchor, p)
             if not anchors:
@@ -508,7 +462,7 @@ class Estimator:
             self._queue.append((alt, chosen.model, None))
             self._declared_by[alt] = anchors[chosen.model]  # the edge whose Φ decides
 
-    def _state(self, model, parent, est: RobustEstimate, ids, rank: int) -> ModelState:
+    def _state(self, model, parent, est: RobustEstimate, ids) -> ModelState:
         names = list(est.inliers)
         channel_ids = dict(zip(self._channels()[0], ids, strict=True))
         inliers = np.concatenate([channel_ids[n][est.inliers[n]] for n in names])
@@ -518,72 +472,40 @@ class Estimator:
                            est.fit.dof, est.relevance, est.samples, est.threshold, True,
                            est.fit.derived,
                            "estimated" if est.fit.success else est.fit.message,
-                           est.fit.slacks,
-                           support(est.relevance, get_scorer(self.scorer), self.scale, rank))
+                           est.fit.slacks)
         if parent is not None:
             p = self._states.get(parent)
             if p is not None and p.samples and np.isfinite(p.cost):
-                state = replace(state, accepted=self._beats(p, state))
+                state = replace(state, accepted=lattice.beats(p, state, self._shape,
+                                                              self._replaces))
         return state
-
-    def _beats(self, p: ModelState, state: ModelState) -> bool:
-        """Does the general model replace its parent? (report eq. 36, made comparable)
-
-        A general model that explains clearly more measures (support up by a fifth) wins
-        outright; one that explains fewer loses (a general model fitted to a few measures
-        has a small cost for free). Otherwise :meth:`_replaces` decides on the measures both
-        take as inliers.
-        """
-        if state.support >= _MORE_SUPPORT * p.support:
-            return True
-        if state.support < _SUPPORT * p.support:
-            return False
-        return self._replaces(p, state)
 
     def _replaces(self, specific: ModelState, general: ModelState) -> bool:
         """Both refitted on the measures both take as inliers, ``L̃'²/d' < Φ(d, d') L̃²/d``
-        (:func:`~kanagen.runtime.compare.general_wins`): on common measures ``d' − d``
-        counts only the extra freedom, as the F-test of appendix B presumes."""
+        (:func:`~kanagen.runtime.lattice.general_wins`)."""
         _, _, ids = self._channels()
         common = np.intersect1d(specific.inliers, general.inliers)
         rows = tuple(np.flatnonzero(np.isin(ch_ids, common)) for ch_ids in ids)
         fits = [fit_problem(self.fam, s.model, self._problem_for(s.model)[0].subset(rows),
                             q_start=s.q) for s in (specific, general)]
-        free = (self._shape[specific.model][1], self._shape[general.model][1])
-        return general_wins(fits[0], fits[1], self._phi(specific.model, general.model), free)
+        return lattice.general_wins(fits[0], fits[1], self._phi(specific.model, general.model))
 
     def _phi(self, parent: str, model: str):
         """The factor of the edge that queued ``model``; between models with no edge (two
-        children of one parent), the extra-sum-of-squares test."""
+        children of one parent), the F-test factor."""
         if self.phi is not None:
             return get_phi(self.phi)
         for alt, choice in self.fam.model(self._declared_by.get(model, parent)).alternatives:
             if alt == model:
                 return get_phi(choice)
-        return get_phi("ess")
+        return get_phi("ftest")
 
     def _select(self, states: list[ModelState]) -> ModelState:
-        """The best of several accepted models: those not clearly out-supported (by a
-        fifth), then from the most specific (most equations per measure, fewest free
-        degrees of freedom) a more general one replaces it only if it passes
-        :meth:`_replaces` — the report's "most specific model of optimal cost"."""
-        if len(states) == 1:
-            return states[0]
+        """:func:`~kanagen.runtime.lattice.select`, remembered (its cost tests refit)."""
         key = tuple((s.model, s.samples, s.cost, s.relevance) for s in states)
-        if key in self._selected:
-            return self._selected[key]
-        supports = [s.support if np.isfinite(s.support) else -np.inf for s in states]
-        top = max(supports)
-        floor = top / _MORE_SUPPORT if top > 0 else top * _MORE_SUPPORT
-        cands = [s for s, v in zip(states, supports, strict=True) if v >= floor] or states
-        cands.sort(key=lambda s: (-self._shape.get(s.model, (1, 0))[0],
-                                  self._shape.get(s.model, (1, 0))[1], s.cost))
-        current = cands[0]
-        for other in cands[1:]:
-            if current.samples and other.samples and self._replaces(current, other):
-                current = other
-        self._selected[key] = current
-        return current
+        if key not in self._selected:
+            self._selected[key] = lattice.select(states, self._shape, self._replaces)
+        return self._selected[key]
 
     def _best_state(self) -> ModelState | None:
         """The best accepted model that no accepted, more general model replaced."""

@@ -12,6 +12,9 @@ An initializer is ``f(rows, constants) -> [ {parameter name: value}, ... ]``: ``
 the sample's measures of the sampled channel (data columns in the spec's order),
 ``constants`` the run-time constants by name. Each candidate (components it does not name
 keep the parent's values) starts one minimal solve; every solution that passes is scored.
+No candidate means that no parameter of the model passes through the sample (a seven-point
+F whose focal lengths are imaginary): the sample is skipped. The final refinement on the
+inliers also starts from the candidates and keeps the fit of least cost.
 """
 
 from __future__ import annotations

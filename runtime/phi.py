@@ -9,18 +9,6 @@ factor ``"ftest"`` / ``"ftest:P"`` (default P = 0.95)::
 
 computed from the F distribution, never from the report's fitted κ values. A callable
 ``f(d, d_general) -> float`` is accepted too.
-
-``"ess"`` / ``"ess:P"`` (default P = 0.999) is the extra-sum-of-squares F-test itself
-(report eq. 51) on the *residual* degrees of freedom ``r = Σ p_i − (n − p)``, for an edge
-where the general model has fewer equations per measure (two views: a homography, 2 per
-match, to a fundamental matrix, 1 per match), so that ``d' < d`` and the factors above do
-not apply. The general model has fewer residual degrees of freedom ``r' < r`` and wins iff
-``((L̃² − L̃'²)/(r − r')) / (L̃'²/r') > F⁻¹_{r−r', r'}(P)``, that is ``L̃'²/r' < Φ L̃²/r``
-with ``Φ = (r/r') / (1 + F⁻¹_{r−r', r'}(P) (r − r')/r')``. Such a factor carries
-``residual = True``: the estimator gives it ``(r, r')`` and compares ``L̃²/r``. Its default
-P is strict: the numerator has as many degrees of freedom as measures (the quantile stays
-near 1: 1.55 for r − r' = r' = 200 at 0.999) while a lattice runs the test several times per
-search, and a real effect (a pixel of parallax off a plane) gives ratios far above it.
 """
 
 from __future__ import annotations
@@ -32,7 +20,6 @@ from scipy import stats
 
 Phi = Callable[[int, int], float]
 DEFAULT_CONFIDENCE = 0.95
-ESS_CONFIDENCE = 0.999
 
 
 def constant(value: float) -> Phi:
@@ -68,27 +55,6 @@ def ftest(confidence: float = DEFAULT_CONFIDENCE) -> Phi:
     return phi
 
 
-def extra_sum_of_squares(confidence: float = ESS_CONFIDENCE) -> Phi:
-    """The F-test of report eq. 51 on residual degrees of freedom ``(r, r')``, ``r > r'``.
-
-    Examples
-    --------
-    >>> phi = extra_sum_of_squares(0.95)
-    >>> phi.residual, round(phi(400, 200), 3)     # 200 more equations must pay for themselves
-    (True, 0.884)
-    """
-
-    def phi(r: int, r_general: int) -> float:
-        extra = r - r_general
-        if extra <= 0 or r_general <= 0:
-            return 1.0
-        quantile = stats.f.ppf(confidence, extra, r_general)
-        return float((r / r_general) / (1.0 + quantile * extra / r_general))
-
-    phi.residual = True
-    return phi
-
-
 def phi(choice: float | str | Phi) -> Phi:
     """The Φ function for a spec's or a user's choice."""
     if callable(choice):
@@ -102,9 +68,7 @@ def phi(choice: float | str | Phi) -> Phi:
         return aic
     if word == "ftest":
         return ftest(float(arg) if arg else DEFAULT_CONFIDENCE)
-    if word == "ess":
-        return extra_sum_of_squares(float(arg) if arg else ESS_CONFIDENCE)
     if word == "exp" and arg:
         return exponential(float(arg))
     raise ValueError(f"unknown cost factor {choice!r} (a number, 'aic', 'ftest', 'ftest:P', "
-                     "'ess', 'ess:P', 'exp:kappa' or a callable f(d, d_general))")
+                     "'exp:kappa' or a callable f(d, d_general))")

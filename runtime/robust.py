@@ -272,7 +272,8 @@ class ModelSearch:
         return self.rng.choice(self.pool, size=size, replace=False)
 
     def _starts(self, rows: np.ndarray) -> list[np.ndarray]:
-        """Starting values of the sample's solves: the initializer's candidates, else the
+        """Starting values of solves on ``rows``: the initializer's candidates (none: no
+        parameter of the model passes through the sample, which is skipped), else the
         parent's estimate."""
         if self.initializer is None:
             return [self.start]
@@ -283,7 +284,7 @@ class ModelSearch:
             q = start_from(self.fam, cand, self.start)
             if q is not None:
                 starts.append(self.fam.with_slacks(q, self.problem.k, self.model))
-        return starts or [self.start]
+        return starts
 
     def _solutions(self, sample: Problem, rows: np.ndarray) -> list[np.ndarray]:
         """The sample's estimates that pass: minimal solves (eq. 21) of full rank from each
@@ -323,7 +324,10 @@ class ModelSearch:
                max_iter: int = 100) -> RobustEstimate | None:
         """Threshold, refine on the inliers, threshold again, ... (report §4), until the
         inliers stop changing (at most ``_REFINE_ROUNDS`` refinements): the reported
-        estimate (its cost, d, Q̃) is the fit on the reported inliers.
+        estimate (its cost, d, Q̃) is the fit on the reported inliers. With an initializer,
+        the first refinement also starts from its closed form on the inliers (the
+        eight-point F on all of them, say) and keeps the fit of least cost: a minimal
+        sample's estimate can sit in another basin of a non-linear cost.
 
         Returns None when no sample gave an estimate.
         """
@@ -333,9 +337,12 @@ class ModelSearch:
         threshold = outlier_threshold(np.concatenate(errors), self.scale, window)
         rows = tuple(np.flatnonzero(e < threshold) for e in errors)
         result = None
-        for _ in range(_REFINE_ROUNDS):
-            result = fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=q,
-                                 q0=q0, Q0=Q0, max_iter=max_iter)
+        for round_ in range(_REFINE_ROUNDS):
+            starts = [q] + (self._starts(rows[self.channel])
+                            if round_ == 0 and self.initializer is not None else [])
+            fits = [fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=start,
+                                q0=q0, Q0=Q0, max_iter=max_iter) for start in starts]
+            result = min(fits, key=lambda f: f.cost if np.isfinite(f.cost) else np.inf)
             if not np.all(np.isfinite(result.q)):
                 break
             q = result.q

@@ -1,0 +1,263 @@
+"""The two-view family (report §1, §7): each model on its own scenes, the derived F and H
+against the ground truth and their equations, invariances, and the lattice on easy scenes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import kanagen
+from kanagen.runtime import geometry as g
+from kanagen.runtime.coherence import coherence_errors, manifold_ranks
+from kanagen.runtime.fit import make_problem
+from kanagen.scenes import MOTIONS, sampson_rms, transfer_rms, two_view_scene
+
+F_TYPE = ("translation", "general")
+FREE = {"none": 0, "zoom": 1, "rotation": 4, "translation": 2, "planar": 8, "general": 7}
+
+
+@pytest.fixture(scope="module")
+def fam():
+    return kanagen.load("two_view")
+
+
+def _truth(fam, scene):
+    p = scene.params()
+    return np.array([p[n] for n in fam.parameter_names])
+
+
+def _close_up_to_sign(A, B, atol):
+    A, B = np.asarray(A) / np.linalg.norm(A), np.asarray(B) / np.linalg.norm(B)
+    assert min(np.abs(A - B).max(), np.abs(A + B).max()) <= atol
+
+
+def test_family_shape(fam):
+    assert list(fam.models) == list(MOTIONS)
+    assert fam.null_model == "none"
+    assert fam.channel("match").components == ("u", "v", "u2", "v2")
+    k = fam.constant_vector()
+    for model, free in FREE.items():
+        jac = fam.c0(model, fam.q0, k)[1]
+        assert fam.n - np.linalg.matrix_rank(jac) == free, model
+    edges = {m: {a for a, _ in fam.model(m).alternatives} for m in fam.models}
+    assert edges == {"none": {"zoom", "rotation", "translation"}, "zoom": {"planar"},
+                     "rotation": {"planar"}, "translation": {"general"},
+                     "planar": {"general"}, "general": set()}
+    assert {"F"} <= set(fam.model("general").derived) and "H" not in fam.model("general").derived
+    assert {"H"} <= set(fam.model("planar").derived) and "F" not in fam.model("planar").derived
+
+
+@pytest.mark.parametrize("motion", MOTIONS)
+def test_each_model_fits_its_noise_free_scene(fam, motion):
+    s = two_view_scene(motion, n=25, sigma=0.0, seed=3)
+    q = _truth(fam, s)
+    # start away from the truth: the model's own constraints bring it back
+    start = q + np.random.default_rng(0).normal(0, 1e-3, q.size)
+    res = kanagen.fit(fam, motion, data={"match": s.data}, info={"match": 4.0}, q0=start,
+                      constants=s.constants)
+    assert res.success, res.message
+    assert res.cost < 1e-12
+    kind = "F" if motion in F_TYPE else "H"
+    M = res.derived[kind].value
+    assert M.shape == (3, 3)
+    _close_up_to_sign(M, s.F if kind == "F" else s.H, 1e-9)
+    clean = s.clean[s.inliers]
+    assert (sampson_rms(M, clean) if kind == "F" else transfer_rms(M, clean)) < 1e-9
+    if kind == "F":  # p2ᵀ F p1 = 0 in pixels
+        assert np.abs(np.einsum("ni,ij,nj->n", g.homogeneous(clean[:, 2:]), M,
+                                g.homogeneous(clean[:, :2]))).max() < 1e-9
+
+
+@pytest.mark.parametrize("motion", ["rotation", "zoom", "general"])
+def test_physical_parameters_and_their_std(fam, motion):
+    """Noisy matches: the physical parameters near the truth, within a few propagated
+    standard deviations, and the std of derived quantities is J Σ Jᵀ."""
+    s = two_view_scene(motion, n=150, sigma=0.5, seed=4)
+    res = kanagen.fit(fam, motion, data={"match": s.data}, info={"match": 4.0},
+                      q0=_truth(fam, s), constants=s.constants)
+    assert res.success
+    focal = res.derived["focal"]
+    truth = np.array([s.K1[0, 0], s.K2[0, 0]])
+    if motion == "zoom":  # f1 pinned at f0: only the ratio is observable
+        ratio = res.derived["zoom_factor"]
+        assert abs(ratio.value - truth[1] / truth[0]) < 5 * ratio.std + 1e-12
+        assert ratio.std < 1e-2
+    else:
+        assert np.all(np.abs(focal.value - truth) < 5 * focal.std)
+    if motion in ("rotation", "general"):
+        angle = res.derived["rotation_angle"]
+        true_angle = np.degrees(np.arccos((np.trace(s.R) - 1) / 2))
+        assert abs(angle.value - true_angle) < 5 * angle.std and angle.std < 0.5
+    J = res.derived["focal"].jacobian.reshape(2, -1)
+    np.testing.assert_allclose(focal.covariance, J @ res.covariance @ J.T, rtol=1e-9)
+
+
+def test_swapping_the_views_inverts_the_motion(fam):
+    s = two_view_scene("rotation", n=80, sigma=0.3, seed=6)
+    swapped = np.c_[s.data[:, 2:], s.data[:, :2]]
+    a = kanagen.fit(fam, "rotation", {"match": s.data}, {"match": 4.0}, q0=_truth(fam, s),
+                    constants=s.constants)
+    q_inv = _truth(fam, s)
+    q_inv[3:6] *= -1  # the inverse rotation
+    b = kanagen.fit(fam, "rotation", {"match": swapped}, {"match": 4.0}, q0=q_inv,
+                    constants=s.constants)
+    assert a.success and b.success
+    assert a.cost == pytest.approx(b.cost, rel=1e-8)
+    assert a.derived["rotation_angle"].value == pytest.approx(
+        b.derived["rotation_angle"].value, rel=1e-8)
+    H, H_swapped = a.derived["H"].value, b.derived["H"].value
+    _close_up_to_sign(np.linalg.inv(H), H_swapped, 1e-8)
+    s = two_view_scene("general", n=80, sigma=0.3, seed=6)
+    a = kanagen.fit(fam, "general", {"match": s.data}, {"match": 4.0}, q0=_truth(fam, s),
+                    constants=s.constants)
+    swapped = np.c_[s.data[:, 2:], s.data[:, :2]]
+    R, t = s.R.T, -s.R.T @ s.t  # camera 2 becomes camera 1
+    q = g.quaternion_from_rotation(R)
+    p = s.params()
+    start = np.array([p["f2"], p["f1"], *q, *(t / np.linalg.norm(t)), 0, 0, 0])
+    b = kanagen.fit(fam, "general", {"match": swapped}, {"match": 4.0}, q0=start,
+                    constants=s.constants)
+    assert a.cost == pytest.approx(b.cost, rel=1e-7)
+    _close_up_to_sign(a.derived["F"].value.T, b.derived["F"].value, 1e-7)
+
+
+def test_the_conditioning_scale_changes_nothing_in_pixels(fam):
+    """f0 only conditions the problem and sets the nominal focal length: the general
+    model's F and focal lengths in pixels do not depend on it."""
+    s = two_view_scene("general", n=100, sigma=0.5, seed=8)
+    out = []
+    for f0 in (640.0, 900.0):
+        k = dict(s.constants, f0=f0)
+        q = _truth(fam, s)
+        q[:2] *= s.constants["f0"] / f0
+        res = kanagen.fit(fam, "general", {"match": s.data}, {"match": 4.0}, q0=q,
+                          constants=k)
+        assert res.success
+        out.append(res)
+    assert out[0].cost == pytest.approx(out[1].cost, rel=1e-8)
+    _close_up_to_sign(out[0].derived["F"].value, out[1].derived["F"].value, 1e-8)
+    np.testing.assert_allclose(out[0].derived["focal"].value, out[1].derived["focal"].value,
+                               rtol=1e-7)
+    np.testing.assert_allclose(out[0].derived["focal"].std, out[1].derived["focal"].std,
+                               rtol=1e-5)
+
+
+def test_three_cross_product_equations_count_two(fam):
+    """p2 × H p1 = 0: three equations of rank two on their zero set; the first-order
+    (Sampson) error is the classical one of the two independent rows (an independent
+    reference, Hartley & Zisserman eq. 4.13), not the error over three."""
+    s = two_view_scene("planar", n=40, outliers=0.2, sigma=0.5, seed=9)
+    q = _truth(fam, s)
+    problem = make_problem(fam, "planar", {"match": s.data}, {"match": 4.0},
+                           constants=s.constants)
+    assert manifold_ranks(problem, q) == (2,)
+    e = coherence_errors(problem, q, iterations=1)[0]
+    # reference: Sampson error of A(x) h = 0 (two rows), Q = 4 I on (u, v, u2, v2)
+    H = s.H
+    ref = []
+    for u, v, u2, v2 in s.data:
+        p1 = np.array([u, v, 1.0])
+        hp = H @ p1
+        c = np.array([v2 * hp[2] - hp[1], hp[0] - u2 * hp[2]])
+        J = np.array([[v2 * H[2, 0] - H[1, 0], v2 * H[2, 1] - H[1, 1], 0.0, hp[2]],
+                      [H[0, 0] - u2 * H[2, 0], H[0, 1] - u2 * H[2, 1], -hp[2], 0.0]])
+        ref.append(c @ np.linalg.solve(J @ J.T / 4.0, c) / 2)
+    np.testing.assert_allclose(e, ref, rtol=2e-2)
+    e_geo = coherence_errors(problem, q)[0]
+    assert np.all(e_geo <= e * 1.05 + 1e-12)
+    problem = make_problem(fam, "general", {"match": s.data}, constants=s.constants)
+    assert manifold_ranks(problem, q) == (1,)
+
+
+@pytest.mark.parametrize("motion", MOTIONS)
+def test_the_lattice_names_the_motion(fam, motion):
+    s = two_view_scene(motion, n=60, outliers=0.2, sigma=0.5, seed=11)
+    est = kanagen.Estimator(fam, scale=9.0, seed=0, constants=s.constants, adaptive=True)
+    ids = est.add_measures("match", s.data, info=4.0)
+    best = est.run(max_samples=3000)
+    assert best.model == motion, [(st.model, st.accepted, st.inliers.size)
+                                  for st in est.states()]
+    found = np.isin(ids, best.inliers)
+    assert np.count_nonzero(found & s.inliers) >= 0.95 * s.inliers.sum()
+    assert np.count_nonzero(found & ~s.inliers) <= 2
+    kind = "F" if motion in F_TYPE else "H"
+    assert best.derived[kind].value.shape == (3, 3)
+    assert ("H" if kind == "F" else "F") not in best.derived
+
+
+def test_initializers_hook(fam):
+    s = two_view_scene("general", n=60, outliers=0.2, sigma=0.5, seed=12)
+    calls = []
+
+    def counted(rows, constants):
+        from kanagen.runtime.initializers import two_view_fundamental
+
+        calls.append(len(rows))
+        return two_view_fundamental(rows, constants)
+
+    est = kanagen.robust_fit(fam, "general", {"match": s.data}, {"match": 4.0}, scale=9.0,
+                             constants=s.constants, max_samples=60,
+                             initializers={"general": counted})
+    assert calls and set(calls) <= {7, est.inliers["match"].size} and 7 in calls
+    assert np.count_nonzero(s.inliers[est.inliers["match"]]) >= 55
+    with pytest.raises(ValueError, match="unknown initializer"):
+        kanagen.Estimator(fam, initializers={"general": "eight_point"})
+    with pytest.raises(ValueError, match="unknown model"):
+        kanagen.Estimator(fam, initializers={"generic": None})
+    off = kanagen.robust_fit(fam, "general", {"match": s.data}, {"match": 4.0}, scale=9.0,
+                             constants=s.constants, max_samples=30,
+                             initializers={"general": None})
+    # from the spec's default start alone the minimal solves of 7 matches do not reach a
+    # fundamental matrix (what the initializer is for) — no estimate, and no error
+    assert off is None or np.count_nonzero(s.inliers[off.inliers["match"]]) < 55
+
+
+def test_a_dominant_plane_guards_the_general_model(fam):
+    """Report §5: the planar model is the singular configuration of the general one. From
+    it, general samples draw 2 matches off the plane and 5 on it (matches on a plane fix 5
+    of F's 7 degrees of freedom — not 1 off and 6 on, which is always degenerate)."""
+    from kanagen.runtime import robust
+
+    s = two_view_scene("general", n=200, outliers=0.2, sigma=0.5, seed=21, on_plane=0.7)
+    sizes = {}
+    original = robust.ModelSearch.__init__
+
+    def spy(self, *args, **kwargs):
+        original(self, *args, **kwargs)
+        sizes[self.model] = (self.sample_size, self.base_size)
+
+    robust.ModelSearch.__init__ = spy
+    try:
+        est = kanagen.Estimator(fam, scale=9.0, seed=0, constants=s.constants, adaptive=True)
+        est.add_measures("match", s.data, info=4.0)
+        best = est.run(max_samples=5000)
+    finally:
+        robust.ModelSearch.__init__ = original
+    planar = next(st for st in est.states() if st.model == "planar")
+    assert planar.accepted and planar.inliers.size >= 0.95 * 140
+    assert best.model == "general" and best.parent == "planar"
+    assert sizes["general"] == (2, 5)
+
+
+def test_feasible_starts_converge_fast(fam):
+    """A fit from the (feasible) truth: the unit-norm constraints rise at second order along
+    a step and the second-order correction removes it, so steps are not cut to the rounding
+    level (before it: 51 iterations for the translation model, none converged for planar
+    and general in 100)."""
+    for motion in ("translation", "planar", "general"):
+        s = two_view_scene(motion, n=100, sigma=0.5, seed=2)
+        res = kanagen.fit(fam, motion, {"match": s.data}, {"match": 4.0}, q0=_truth(fam, s),
+                          constants=s.constants)
+        assert res.success and res.iterations <= 12, (motion, res.iterations)
+
+
+def test_adaptive_budgets_stop_early(fam):
+    s = two_view_scene("general", n=120, outliers=0.2, sigma=0.5, seed=13)
+    runs = {}
+    for adaptive in (False, True):
+        est = kanagen.Estimator(fam, scale=9.0, seed=1, constants=s.constants,
+                                adaptive=adaptive)
+        est.add_measures("match", s.data, info=4.0)
+        runs[adaptive] = (est.run(max_samples=5000).model, est.samples)
+    assert runs[True][0] == runs[False][0] == "general"
+    assert runs[True][1] < 0.8 * runs[False][1]
