@@ -40,11 +40,14 @@ MAGSAC_THRESHOLDS = (1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 8.0)
 #: Progressive-X's published mean misclassification on the AdelaideRMF H scenes (%).
 PROGRESSIVE_X_H = 6.6
 #: kanagen's settings: L* (squared px over the equations of a match, info = 1 / px²), the
-#: random samples per structure, the share of local samples, the assignment rounds.
+#: random samples per structure, the share of local samples, the assignment rounds, and the
+#: ceiling of a structure's outlier threshold in units of L* (neighbouring planes of one
+#: facade leave no minimum in the error histogram between them).
 SCALE = 4.0
 SAMPLES = 1000
 LOCAL = 0.5
 REASSIGN = 5
+CEILING = 2.0
 
 
 @dataclass(frozen=True)
@@ -63,7 +66,7 @@ class SceneResult:
 
 def kanagen_labels(fam, scene: datasets.MultiStructureScene, samples: int = SAMPLES,
                    scale: float = SCALE, local: float = LOCAL, reassign: int = REASSIGN,
-                   seed: int = 0) -> tuple[np.ndarray, int]:
+                   ceiling: float = CEILING, seed: int = 0) -> tuple[np.ndarray, int]:
     """Per-match classes from :func:`kanagen.find_structures` (0 = outlier), and the number
     of structures found."""
     cx, cy = scene.centre
@@ -72,7 +75,8 @@ def kanagen_labels(fam, scene: datasets.MultiStructureScene, samples: int = SAMP
         fam, data={"match": scene.matches}, info={"match": 1.0},
         max_structures=scene.structures, model=MODEL[scene.kind], scale=scale,
         samples_per_model=samples, max_samples=samples * 10, local=local, reassign=reassign,
-        seed=seed, constants={"cx": cx, "cy": cy, "f0": float(max(width, height))})
+        max_threshold=ceiling * scale, seed=seed,
+        constants={"cx": cx, "cy": cy, "f0": float(max(width, height))})
     return labels_from_structures(len(scene.matches), [s.inliers for s in found]), len(found)
 
 
@@ -158,6 +162,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--scale", type=float, default=SCALE, help="L*")
     parser.add_argument("--local", type=float, default=LOCAL, help="share of local samples")
     parser.add_argument("--reassign", type=int, default=REASSIGN, help="assignment rounds")
+    parser.add_argument("--ceiling", type=float, default=CEILING,
+                        help="ceiling of the outlier threshold, in units of L*")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", help="write the per-scene results here")
     args = parser.parse_args(argv)
@@ -171,7 +177,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 continue
             scene = datasets.adelaide_scene(kind, name)
             r = run_scene(fam, scene, samples=args.samples, scale=args.scale,
-                          local=args.local, reassign=args.reassign, seed=args.seed)
+                          local=args.local, reassign=args.reassign, ceiling=args.ceiling,
+                          seed=args.seed)
             results.append(r)
             print(f"{kind} {name}: kanagen {100 * r.kanagen:.1f} % ({r.kanagen_seconds:.1f} s), "
                   f"MAGSAC " + ", ".join(f"{t}: {100 * v:.1f} %" for t, v in r.magsac.items()),

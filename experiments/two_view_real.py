@@ -50,7 +50,7 @@ GROUPS = tuple(EXPECTED)
 #: Below this RMS (px) of the identity on the annotated points, "no motion" is the truth too.
 STILL = 1.0
 #: Pixel noise assumed for SIFT matches, and L* of the search.
-SIGMA = 1.0
+SIGMA = 0.5
 SCALE = 9.0
 H_MODELS = {"none", "zoom", "rotation", "planar"}
 

@@ -92,6 +92,9 @@ class Estimator:
         Fraction of local (nearest-neighbour) samples, see :class:`ModelSearch`, in the
         searches over all the measures; default 0. A more general model's samples stay as
         they are (extra measures among its parent's outliers).
+    max_threshold : float, optional
+        A ceiling on the outlier threshold of the error histogram (error units, at least
+        ``scale``); default none.
 
     Examples
     --------
@@ -110,7 +113,8 @@ class Estimator:
                  confidence: float = 0.99, inlier_ratio: float = 0.5, adaptive: bool = False,
                  min_samples: int = 20, window: float = 0.35,
                  q0=None, Q0=None, constants=None, model: str | None = None,
-                 initializers: dict | None = None, local: float = 0.0):
+                 initializers: dict | None = None, local: float = 0.0,
+                 max_threshold: float | None = None):
         if not scale > 0:
             raise ValueError(f"scale (L*) must be positive, got {scale}")
         get_scorer(scorer)  # validate now: a bad choice must not surface mid-run
@@ -131,6 +135,10 @@ class Estimator:
         if not 0.0 <= local <= 1.0:
             raise ValueError(f"local must be a fraction in [0, 1], got {local}")
         self.local = float(local)
+        if max_threshold is not None and not max_threshold >= scale:
+            raise ValueError(f"max_threshold must be at least scale (L* = {scale}), got "
+                             f"{max_threshold}")
+        self.max_threshold = max_threshold
         if model is not None:
             fam.model(model)
         self.model = model  # a single model (no lattice), or None for the whole lattice
@@ -401,7 +409,8 @@ class Estimator:
             search = ModelSearch(self.fam, model, problem, channel, start, self._rng,
                                  self.scale, self.scorer, pool=pool, parent_free=parent_free,
                                  base=base, initializer=self.initializers.get(model),
-                                 local=self.local if pool is None else 0.0)
+                                 local=self.local if pool is None else 0.0,
+                                 max_threshold=self.max_threshold)
             if search.exhausted:
                 self._skipped[model] = parent
                 self._queue_alternatives(model)

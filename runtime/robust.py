@@ -30,12 +30,15 @@ _REFINE_ROUNDS = 6  # threshold-and-refine rounds at most (they stop when the in
 _NEIGHBOURHOOD = 4  # a local sample is drawn among this many sample sizes of nearest measures
 
 
-def outlier_threshold(errors: np.ndarray, scale: float, window: float = 0.35) -> float:
+def outlier_threshold(errors: np.ndarray, scale: float, window: float = 0.35,
+                      ceiling: float | None = None) -> float:
     """Threshold between inliers and outliers from the histogram of the errors (report §4).
 
     The histogram (bins of ``L*/20`` up to ``20 L*``) is smoothed over a window of
     ``window·L*`` (25–50 % of ``L*``); the threshold is its first local minimum or saddle
     after the mode. Without one in range (no outlier population there), it is the range end.
+    ``ceiling`` caps it (several structures close to one another make no minimum between
+    them: their errors form one slope).
 
     Examples
     --------
@@ -72,7 +75,8 @@ def outlier_threshold(errors: np.ndarray, scale: float, window: float = 0.35) ->
         if ahead.size and ahead.max() - smooth[i] > noise:
             break  # a genuine local minimum
         i += 1
-    return max(float(edges[i + 1]), float(scale))
+    threshold = max(float(edges[i + 1]), float(scale))
+    return threshold if ceiling is None else min(threshold, max(float(ceiling), float(scale)))
 
 
 @dataclass(frozen=True)
@@ -137,6 +141,8 @@ class ModelSearch:
         rows). Structures in clustered data are spatially coherent: a local sample is far
         likelier to be outlier-free than a uniform one when each structure holds a small
         share of the measures. 0: uniform samples only.
+    max_threshold : float, optional
+        A ceiling on the outlier threshold (error units, at least ``scale``).
 
     A sample whose independent equations outnumber the free degrees of freedom (a zoom from
     one match: two equations, one unknown; the null model: none) cannot be passed through
@@ -148,9 +154,10 @@ class ModelSearch:
                  scorer: str | Callable = "relevance", pool: np.ndarray | None = None,
                  sample_size: int | None = None, parent_free: int | None = None,
                  base: np.ndarray | None = None, initializer: InitializerFn | None = None,
-                 local: float = 0.0):
+                 local: float = 0.0, max_threshold: float | None = None):
         if not 0.0 <= local <= 1.0:
             raise ValueError(f"local must be a fraction in [0, 1], got {local}")
+        self.max_threshold = max_threshold
         self.fam = fam
         self.model = model
         self.problem = problem
@@ -307,7 +314,7 @@ class ModelSearch:
         better. A minimal sample of nearby measures extrapolates badly; without this the
         search keeps a partial structure whenever its budget held few spread samples."""
         errors = np.concatenate(self.best_errors)
-        threshold = outlier_threshold(errors, self.scale)
+        threshold = outlier_threshold(errors, self.scale, ceiling=self.max_threshold)
         rows = tuple(np.flatnonzero(e < threshold) for e in self.best_errors)
         if sum(r.size for r in rows) <= self.sample_size + self.base_size:
             return
@@ -334,7 +341,8 @@ class ModelSearch:
         if self.best_q is None:
             return None
         q, errors = self.best_q, self.best_errors
-        threshold = outlier_threshold(np.concatenate(errors), self.scale, window)
+        threshold = outlier_threshold(np.concatenate(errors), self.scale, window,
+                                      self.max_threshold)
         rows = tuple(np.flatnonzero(e < threshold) for e in errors)
         result = None
         for round_ in range(_REFINE_ROUNDS):
@@ -347,7 +355,8 @@ class ModelSearch:
                 break
             q = result.q
             errors = coherence_errors(self.problem, q)
-            threshold = outlier_threshold(np.concatenate(errors), self.scale, window)
+            threshold = outlier_threshold(np.concatenate(errors), self.scale, window,
+                                      self.max_threshold)
             new = tuple(np.flatnonzero(e < threshold) for e in errors)
             if all(np.array_equal(a, b) for a, b in zip(new, rows, strict=True)):
                 break  # stable: the fit is on the reported inliers

@@ -47,7 +47,9 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
         clustered data are spatially coherent and a small one is out of reach of uniform
         samples: 0.5 there (``experiments/adelaide.py``).
     options : the :class:`Estimator` options (``scale``, ``scorer``, ``phi``, ``seed``,
-        ``channel``, ``constants``, ...).
+        ``channel``, ``constants``, ``max_threshold``, ...). Structures close to one another
+        make no minimum in the error histogram between them: ``max_threshold`` (e.g. twice
+        ``scale``) keeps one from taking its neighbours.
 
     Returns
     -------
@@ -141,7 +143,8 @@ def _assign(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelSta
                 state, params=fit.params, q=fit.q, info=fit.info, covariance=fit.covariance,
                 cost=fit.normalized_cost, dof=fit.dof, derived=fit.derived,
                 slacks=fit.slacks, status="estimated" if fit.success else fit.message,
-                threshold=outlier_threshold(all_errors, scale, window),
+                threshold=outlier_threshold(all_errors, scale, window,
+                                            options.get("max_threshold")),
                 relevance=score(all_errors, scale), inliers=rows))
             kept_needed.append(need)
         if not kept:

@@ -88,3 +88,26 @@ def test_options_are_validated(line):
         kanagen.Estimator(line, local=1.5)
     with pytest.raises(ValueError, match="local"):
         kanagen.find_structures(line, data={"point": xy}, local=-0.1)
+
+
+def test_threshold_ceiling():
+    """Two error populations with no gap between them (neighbouring structures): the
+    histogram's threshold runs past both; a ceiling holds it, never below L*."""
+    from kanagen.runtime.robust import outlier_threshold
+
+    rng = np.random.default_rng(3)
+    errors = np.r_[rng.chisquare(1, 300), rng.uniform(0, 30, 300), rng.uniform(80, 200, 100)]
+    free = outlier_threshold(errors, 4.0)
+    assert free > 20.0
+    assert outlier_threshold(errors, 4.0, ceiling=8.0) == 8.0
+    assert outlier_threshold(errors, 4.0, ceiling=1.0) == 4.0
+    assert outlier_threshold(errors, 4.0, ceiling=1e3) == free
+
+
+def test_ceiling_reaches_every_threshold(line):
+    xy, _ = crossing_lines()
+    found = kanagen.find_structures(line, data={"point": xy}, model="line", max_structures=2,
+                                    scale=4.0, max_threshold=4.0)
+    assert all(s.threshold == 4.0 for s in found)
+    with pytest.raises(ValueError, match="max_threshold"):
+        kanagen.Estimator(line, scale=4.0, max_threshold=2.0)
