@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import sympy as sp
 
+from ..modelspec.constructs import qualitative_labels
 from ..modelspec.ir import Family, symbol
 from .printer import NumpyPrinter
 
@@ -209,7 +210,7 @@ def family_metadata(family: Family) -> dict:
             }
             for ch in family.channels
         },
-        "models": {m.name: _model_metadata(m) for m in family.models},
+        "models": {m.name: _model_metadata(m, family.parameter_names) for m in family.models},
         "derived": {d.name: list(d.shape) for d in family.derived},
         "null_model": family.null_model,
         "slack": list(family.slack),
@@ -219,9 +220,10 @@ def family_metadata(family: Family) -> dict:
     }
 
 
-def _model_metadata(model) -> dict:
-    """A model's constraints (as text), overrides and alternatives; its derived list and
-    initializer only when declared (so families without them generate as before)."""
+def _model_metadata(model, parameter: tuple[str, ...]) -> dict:
+    """A model's constraints (as text), overrides and alternatives; its derived list,
+    initializer and qualitative variables' labels only when it has them (so families
+    without them generate as before)."""
     out = {
         "constraints": [str(e) for e in model.constraints],
         "equations": {c: [str(e) for e in eqs] for c, eqs in model.equations},
@@ -231,4 +233,7 @@ def _model_metadata(model) -> dict:
         out["derived"] = list(model.derived)
     if model.initializer is not None:
         out["initializer"] = model.initializer
+    labels = qualitative_labels(model.constraints, parameter)
+    if labels:
+        out["labels"] = {name: list(values) for name, values in sorted(labels.items())}
     return out

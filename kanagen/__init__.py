@@ -21,8 +21,11 @@ _here = _Path(__file__).resolve().parent
 if not (_here / "runtime").is_dir() and (_here.parent / "runtime" / "__init__.py").is_file():
     __path__.append(str(_here.parent))  # noqa: F821 - the package's own __path__
 
+from .batching import BatchSummary, batch  # noqa: E402
+from .fitjob import FitOptions  # noqa: E402
 from .loader import load, load_text  # noqa: E402
 from .modelspec import SpecError, family_from_data  # noqa: E402
+from .resultsdb import read_results  # noqa: E402
 from .runtime.coherence import coherence, minimal_sample_size, minimal_solve  # noqa: E402
 from .runtime.estimator import Estimator, ModelState  # noqa: E402
 from .runtime.family import ModelFamily  # noqa: E402
@@ -34,13 +37,16 @@ from .runtime.structures import find_structures  # noqa: E402
 __version__ = "0.1.0"
 
 __all__ = [
+    "BatchSummary",
     "DerivedValue",
     "Estimator",
+    "FitOptions",
     "ModelState",
     "FitResult",
     "ModelFamily",
     "SpecError",
     "__version__",
+    "batch",
     "coherence",
     "family_from_data",
     "find_structures",
@@ -49,6 +55,7 @@ __all__ = [
     "load_text",
     "minimal_sample_size",
     "minimal_solve",
+    "read_results",
     "robust_fit",
     "RobustEstimate",
 ]

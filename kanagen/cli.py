@@ -8,7 +8,6 @@ import sys
 from pathlib import Path
 
 import click
-import numpy as np
 
 from .modelspec import SpecError
 
@@ -31,6 +30,8 @@ def main():
       kanagen build examples/conic.yaml -o generated
       kanagen fit examples/conic_lattice.yaml points.csv --scale 4   # robust, lattice
       kanagen fit examples/conic.yaml examples/data/ellipse_arc.csv --model conic --local
+      kanagen batch examples/conic_lattice.yaml 'scenes/*.csv' --db results.sqlite --scale 4
+      kanagen report result.json -o report.html       # a page with the pictures
     """
 
 
@@ -101,42 +102,67 @@ def show(spec):
         click.echo(f"  derived {d.name}: shape {d.shape or 'scalar'}")
 
 
+def fit_options(command):
+    """The estimation options of ``kanagen fit``, shared with ``kanagen batch`` (defined once,
+    turned into a :class:`~kanagen.fitjob.FitOptions` by :func:`_fit_options`)."""
+    options = [
+        click.option("--channel", default=None,
+                     help="Channel of DATA (default: the only one of SPEC)."),
+        click.option("--scale", type=float, default=1.0, show_default=True, metavar="L*",
+                     help="L*, the order of magnitude of an inlier's error (report eq. 29). "
+                          "Errors are squared distances in units of --sigma: an inlier's is "
+                          "about 1."),
+        click.option("--scorer", type=click.Choice(["relevance", "ransac", "trimmed"]),
+                     default="relevance", show_default=True,
+                     help="Score of a sample's estimate over all the measures."),
+        click.option("--phi", default=None, metavar="PHI",
+                     help="Cost factor of every edge of the lattice: a number, aic, ftest, "
+                          "ftest:P or exp:K (default: each edge's factor from SPEC)."),
+        click.option("--seed", type=int, default=0, show_default=True,
+                     help="Seed of the random samples (same seed, same result)."),
+        click.option("--max-samples", type=click.IntRange(min=1), default=2000,
+                     show_default=True,
+                     help="Stop the search after this many random samples in all."),
+        click.option("--model", default=None,
+                     help="Robust: search this model only, not the lattice. With --local: the "
+                          "model to fit (default: the null model)."),
+        click.option("--local", is_flag=True,
+                     help="Fit one model (--model) to all the measures with the local "
+                          "estimator: no random samples, no outlier rejection."),
+        click.option("--sigma", type=float, default=None,
+                     help="Standard deviation of each measured component (info = 1/sigma²; "
+                          "default 1)."),
+        click.option("--const", "consts", multiple=True, metavar="NAME=VALUE",
+                     help="Set a constant of SPEC (repeatable)."),
+        click.option("--max-iter", type=int, default=100, show_default=True,
+                     help="Iterations of the local estimator (--local only)."),
+    ]
+    for option in reversed(options):
+        command = option(command)
+    return command
+
+
+def _fit_options(scale, scorer, phi, seed, max_samples, model, local, sigma, consts,
+                 max_iter):
+    """The validated FitOptions of :func:`fit_options`' values; bad input exits 2."""
+    from .fitjob import FitOptions
+
+    try:
+        return FitOptions(scale=scale, scorer=scorer, phi=phi, seed=seed,
+                          max_samples=max_samples, model=model, local=local, sigma=sigma,
+                          constants=_parse_constants(consts), max_iter=max_iter)
+    except ValueError as exc:
+        _fail(str(exc))
+
+
 @main.command()
 @click.argument("spec", type=click.Path(exists=True, dir_okay=False))
 @click.argument("data", type=click.Path(exists=True, dir_okay=False))
-@click.option("--channel", default=None,
-              help="Channel of DATA (default: the only one of SPEC).")
-@click.option("--scale", type=float, default=1.0, show_default=True, metavar="L*",
-              help="L*, the order of magnitude of an inlier's error (report eq. 29). Errors "
-                   "are squared distances in units of --sigma: an inlier's is about 1.")
-@click.option("--scorer", type=click.Choice(["relevance", "ransac", "trimmed"]),
-              default="relevance", show_default=True,
-              help="Score of a sample's estimate over all the measures.")
-@click.option("--phi", default=None, metavar="PHI",
-              help="Cost factor of every edge of the lattice: a number, aic, ftest, ftest:P "
-                   "or exp:K (default: each edge's factor from SPEC).")
-@click.option("--seed", type=int, default=0, show_default=True,
-              help="Seed of the random samples (same seed, same result).")
-@click.option("--max-samples", type=click.IntRange(min=1), default=2000, show_default=True,
-              help="Stop the search after this many random samples in all.")
-@click.option("--model", default=None,
-              help="Robust: search this model only, not the lattice. With --local: the model "
-                   "to fit (default: the null model).")
-@click.option("--local", is_flag=True,
-              help="Fit one model (--model) to all the measures with the local estimator: no "
-                   "random samples, no outlier rejection.")
-@click.option("--sigma", type=float, default=None,
-              help="Standard deviation of each measured component (info = 1/sigma²; "
-                   "default 1).")
-@click.option("--const", "consts", multiple=True, metavar="NAME=VALUE",
-              help="Set a constant of SPEC (repeatable).")
-@click.option("--max-iter", type=int, default=100, show_default=True,
-              help="Iterations of the local estimator (--local only).")
+@fit_options
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), default=None,
               help="Also write the result as JSON to this file; '-': to stdout, the text "
                    "going to stderr. Infinite or undefined numbers are null.")
-def fit(spec, data, channel, scale, scorer, phi, seed, max_samples, model, local, sigma,
-        consts, max_iter, json_out):
+def fit(spec, data, channel, json_out, **options):
     """Find the model of SPEC that the measures in DATA support, despite outliers.
 
     DATA is a CSV file whose header names the channel's components (in any order, other
@@ -150,7 +176,9 @@ def fit(spec, data, channel, scale, scorer, phi, seed, max_samples, model, local
     on its inliers, and a general model replaces its parent only when its cost L~²/d beats
     the parent's by the factor Φ (--phi). A progress bar shows on a terminal. Printed: the
     lattice, one row per model estimated (the chosen one marked *), then the chosen model's
-    estimate ± standard deviation (inf: unobservable) and its derived quantities.
+    estimate ± standard deviation (inf: unobservable) and its derived quantities. The JSON
+    also carries what `kanagen report` draws: every measure's error, the threshold, the
+    best-relevance curve and the lattice.
 
     With --local, fit one model to all the measures with the local estimator of §2–3.
 
@@ -164,46 +192,142 @@ def fit(spec, data, channel, scale, scorer, phi, seed, max_samples, model, local
     """
     from . import load
     from .dataio import read_measures
+    from .fitjob import local_record, make_estimator, resolve_channel
 
+    opts = _fit_options(**options)
     try:
         fam = load(spec)
-        if channel is None:
-            if len(fam.channels) != 1:
-                _fail(f"--channel is required: {spec} has channels {list(fam.channels)}")
-            channel = next(iter(fam.channels))
-        components = fam.channel(channel).components
-        X = read_measures(data, components, channel)
+        channel = resolve_channel(fam, channel)
+        opts.check(fam)
+        X = read_measures(data, fam.channel(channel).components, channel)
         if X.ndim != 2 or X.shape[0] == 0:
             _fail(f"{data}: no measures for channel {channel!r}")
-        constants = _parse_constants(consts)
-        if sigma is not None and not (sigma > 0 and np.isfinite(sigma)):
-            _fail("--sigma must be a positive number")
-        info = None if sigma is None else sigma**-2
-        if model is not None:
-            fam.model(model)
-        if local:
-            from . import fit as fit_model
-
-            res = fit_model(fam, model, data={channel: X}, info={channel: info},
-                            constants=constants, max_iter=max_iter)
+        if opts.local:
+            res, record = local_record(fam, X, channel, opts, spec=spec, data=data)
         else:
-            from . import Estimator
-
-            phi = _parse_phi(phi)
-            est = Estimator(fam, scale=scale, scorer=scorer, phi=phi, seed=seed,
-                            channel=channel, constants=constants, model=model)
-            est.add_measures(channel, X, info=info)
+            est = make_estimator(fam, X, channel, opts)
     except (SpecError, ValueError, OSError) as exc:
         _fail(str(exc))
     to_err = json_out == "-"  # stdout holds the JSON alone; the text goes to stderr
-    if local:
+    if opts.local:
         click.echo(res.summary(), err=to_err)
-        _write_json(result_to_json(res), json_out)
+        _write_json(record, json_out)
         sys.exit(0 if res.success else 1)
-    found = _report_robust(est, fam, channel, len(X), json_out, to_err, spec=spec, data=data,
-                           scale=scale, scorer=scorer, phi=phi, seed=seed,
-                           max_samples=max_samples)
+    found = _report_robust(est, fam, channel, len(X), json_out, to_err, opts, spec=spec,
+                           data=data)
     sys.exit(0 if found else 1)
+
+
+@main.command()
+@click.argument("spec", type=click.Path(exists=True, dir_okay=False))
+@click.argument("data_glob", metavar="'DATA_GLOB'")
+@fit_options
+@click.option("--db", required=True, type=click.Path(dir_okay=False),
+              help="SQLite file of the results (created when missing; a re-run resumes).")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Local worker processes (default: the CPUs available).")
+@click.option("--scheduler", default=None, metavar="ADDRESS",
+              help="A dask.distributed scheduler (tcp://host:8786): run on its workers "
+                   "instead of local ones.")
+@click.option("--retry-errors", is_flag=True,
+              help="Estimate again the datasets whose earlier run failed.")
+def batch(spec, data_glob, channel, db, workers, scheduler, retry_errors, **options):
+    """Estimate every dataset matching DATA_GLOB with SPEC and the same options, in parallel.
+
+    One estimation per data file (formats as for `kanagen fit`; quote the glob, ** matches
+    folders recursively) on Dask workers: local processes by default, or the workers of a
+    dask.distributed scheduler (--scheduler; they need kanagen, not the files: the measures
+    travel with each task). Each dataset's outcome is written to the SQLite database --db as
+    it finishes, in its own transaction: the dataset, the spec's hash, the options, the
+    chosen model, its estimate, Q~, inliers, cost L~²/d, status and time, and the full JSON
+    record of `kanagen fit --json` (what `kanagen report --db` draws).
+
+    Re-running the same command skips what is done; a dataset that fails is recorded with
+    its error and the run goes on; a run killed at any moment keeps every finished result.
+    A progress bar over datasets shows on a terminal.
+
+    Exit status: 0 when no dataset failed, 1 otherwise, 2 on bad input.
+
+    \b
+    Examples:
+      kanagen batch examples/conic_lattice.yaml 'scenes/*.csv' --db results.sqlite --scale 4
+      kanagen batch spec.yaml 'pairs/**/*.npz' --channel match --db r.sqlite --workers 8
+      kanagen batch spec.yaml 'pairs/*.csv' --db r.sqlite --scheduler tcp://10.0.0.1:8786
+    """
+    from .batching import batch as run_batch
+
+    opts = _fit_options(**options)
+    bar = None
+
+    def start(todo, skipped):
+        nonlocal bar
+        if skipped:
+            click.echo(f"{skipped} dataset(s) already in {db}: skipped", err=True)
+        if todo and sys.stderr.isatty():
+            bar = click.progressbar(length=todo, label="datasets", file=sys.stderr,
+                                    item_show_func=lambda o: o and f"{o.dataset}: {o.status}")
+            bar.__enter__()
+
+    def step(outcome):
+        if bar is not None:
+            bar.update(1, outcome)
+        if outcome.status == "error":
+            where = "" if outcome.message.startswith(outcome.dataset) else f"{outcome.dataset}: "
+            click.echo(f"{chr(10) if bar else ''}error: {where}{outcome.message}", err=True)
+
+    try:
+        summary = run_batch(spec, data_glob, db=db, channel=channel, workers=workers,
+                            scheduler=scheduler, retry_errors=retry_errors, progress=step,
+                            on_start=start, options=opts)
+    except (SpecError, ValueError, OSError, ImportError) as exc:
+        _fail(str(exc))
+    except KeyboardInterrupt:
+        _fail(f"interrupted: the finished datasets are in {db}; the same command resumes", 130)
+    finally:
+        if bar is not None:
+            bar.__exit__(None, None, None)
+    click.echo(str(summary))
+    sys.exit(1 if summary.errors else 0)
+
+
+@main.command()
+@click.argument("result", required=False, type=click.Path(exists=True, dir_okay=False))
+@click.option("--db", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="A results database of kanagen batch (with --dataset).")
+@click.option("--dataset", default=None, help="The dataset of --db to report.")
+@click.option("-o", "--out", required=True, type=click.Path(dir_okay=False),
+              help="The HTML file to write.")
+@click.option("--data", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="The dataset's measures (default: the file the result names, if there).")
+@click.option("--images", nargs=2, type=click.Path(exists=True, dir_okay=False),
+              default=None, metavar="FIRST SECOND",
+              help="Two-view data: the two images, to draw the matches on.")
+def report(result, db, dataset, out, data, images):
+    """Write one self-contained HTML page of a result, with its pictures.
+
+    RESULT is the JSON of `kanagen fit --json`; or give --db and --dataset for a dataset of
+    a batch run. The page shows the chosen model and its estimate, the error histogram with
+    the inlier threshold (report Fig. 5), the best relevance against samples (Fig. 9), the
+    lattice of models with d and cost, the chosen one highlighted (Fig. 13–14), the
+    residuals, the measures of a planar channel, and for two-view data (x, y, x', y') with
+    --images the matches on both images, inliers and outliers coloured. Figures are SVG
+    drawn by matplotlib, inlined: the page needs no other file.
+
+    \b
+    Examples:
+      kanagen fit examples/conic_lattice.yaml examples/data/ellipse_outliers.csv \\
+          --scale 4 --json result.json && kanagen report result.json -o report.html
+      kanagen report --db results.sqlite --dataset scenes/s001.csv -o s001.html
+    """
+    from .report import write_report
+
+    try:
+        path = write_report(out, result, db=db, dataset=dataset, data=data, images=images)
+    except ImportError as exc:
+        _fail(f"kanagen report needs matplotlib ({exc}): pip install 'kanagen[report]'")
+    except (ValueError, OSError) as exc:
+        _fail(str(exc))
+    click.echo(f"wrote {path}")
 
 
 def _parse_constants(items) -> dict[str, float]:
@@ -219,66 +343,39 @@ def _parse_constants(items) -> dict[str, float]:
     return constants
 
 
-def _parse_phi(text: str | None):
-    """``--phi``: None (the spec's factors), a number, or a named factor, validated now (the
-    estimator would only meet a bad one in the middle of the search)."""
-    from .runtime.phi import phi as get_phi
-
-    if text is None:
-        return None
-    try:
-        choice = float(text)
-    except ValueError:
-        choice = text.strip()
-    try:
-        get_phi(choice)
-    except ValueError as exc:
-        _fail(f"--phi: {exc}")
-    return choice
-
-
-def _report_robust(est, fam, channel, measures, json_out, to_err, *, spec, data, scale,
-                   scorer, phi, seed, max_samples) -> bool:
+def _report_robust(est, fam, channel, measures, json_out, to_err, opts, *, spec,
+                   data) -> bool:
     """Run the search, print the lattice and the chosen model; True when a model was found."""
+    from .fitjob import robust_record
+
     interrupted = False
     try:
-        samples = _search(est, max_samples)
+        samples = _search(est, opts.max_samples)
     except KeyboardInterrupt:  # anytime: report the best model so far
         samples, interrupted = len(est.history), True
-    best = est.best()
-    found = best is not None and best.samples > 0 and bool(np.all(np.isfinite(best.q)))
-    status = f"interrupted ({est.status})" if interrupted else est.status
-    if not interrupted and samples >= max_samples and est.status != "done":
-        status = f"stopped at --max-samples {max_samples} ({est.status})"
-    chosen = best.model if found else None
-    click.echo(f"family {fam.name!r}, channel {channel!r}: {measures} measures, L* = {scale:g}, "
-               f"scorer {scorer}, {samples} sample(s): {status}", err=to_err)
-    click.echo(_lattice_table(est.states(), chosen), err=to_err)
-    if found:
-        click.echo(_state_summary(best, measures), err=to_err)
+    record = robust_record(est, fam, opts, channel=channel, measures=measures,
+                           samples=samples, spec=spec, data=data, interrupted=interrupted)
+    click.echo(f"family {fam.name!r}, channel {channel!r}: {measures} measures, "
+               f"L* = {opts.scale:g}, scorer {opts.scorer}, {samples} sample(s): "
+               f"{record['stop_reason']}", err=to_err)
+    click.echo(_lattice_table(est.states(), record["model"]), err=to_err)
+    if record["found"]:
+        click.echo(_state_summary(est.best(), measures), err=to_err)
     else:
         click.echo("no model found: no sample gave an estimate", err=to_err)
-    report = estimator_to_json(est, chosen)
-    report.update({"family": fam.name, "spec": str(spec), "data": str(data), "channel": channel,
-                   "scale": scale, "scorer": scorer, "phi": phi, "seed": seed,
-                   "max_samples": max_samples, "measures": measures, "total_samples": samples,
-                   "status": est.status, "stop_reason": status})
-    _write_json(report, json_out)
-    return found
+    _write_json(record, json_out)
+    return record["found"]
 
 
 def _search(est, max_samples: int) -> int:
     """Step the estimator up to ``max_samples`` samples; a progress bar on a terminal."""
-    samples = 0
+    from .fitjob import search
+
     if not sys.stderr.isatty():
-        while samples < max_samples and est.step():
-            samples += 1
-        return samples
+        return search(est, max_samples)
     with click.progressbar(length=max_samples, label="sampling", file=sys.stderr,
                            item_show_func=lambda status: status) as bar:
-        while samples < max_samples and est.step():
-            samples += 1
-            bar.update(1, est.status)
+        samples = search(est, max_samples, lambda e: bar.update(1, e.status))
         bar.update(max_samples - samples, est.status)  # explored before the budget: full bar
     return samples
 
@@ -299,13 +396,8 @@ def _lattice_table(states, chosen: str | None) -> str:
     return "\n".join(lines)
 
 
-def _std(covariance) -> np.ndarray:
-    """Standard deviations from a covariance: inf stays inf (unobservable)."""
-    with np.errstate(invalid="ignore"):
-        return np.sqrt(np.clip(np.diag(np.asarray(covariance, dtype=float)), 0.0, None))
-
-
 def _state_summary(best, measures: int) -> str:
+    from .fitjob import std
     from .runtime.results import estimate_lines
 
     lines = [f"chosen model {best.model!r}: {len(best.inliers)} inlier(s), "
@@ -314,14 +406,16 @@ def _state_summary(best, measures: int) -> str:
              f"{best.threshold:.4g}, {best.samples} sample(s)"]
     if best.status not in ("estimated", "null"):
         lines.append(f"  refinement: {best.status}")
-    lines += estimate_lines(best.params, best.slacks, _std(best.covariance), best.derived)
+    lines += estimate_lines(best.params, best.slacks, std(best.covariance), best.derived)
     return "\n".join(lines)
 
 
 def _write_json(obj, json_out: str | None) -> None:
     if not json_out:
         return
-    text = json.dumps(_finite(obj), indent=2, allow_nan=False)
+    from .fitjob import finite
+
+    text = json.dumps(finite(obj), indent=2, allow_nan=False)
     if json_out == "-":
         click.echo(text)
         return
@@ -329,80 +423,3 @@ def _write_json(obj, json_out: str | None) -> None:
         Path(json_out).write_text(text + "\n", encoding="utf-8")
     except OSError as exc:
         _fail(f"cannot write {json_out}: {exc.strerror or exc}")
-
-
-def _finite(obj):
-    """Plain JSON data: arrays as lists, inf and NaN as null."""
-    if isinstance(obj, dict):
-        return {str(k): _finite(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_finite(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _finite(obj.tolist())
-    if isinstance(obj, np.generic):
-        return _finite(obj.item())
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj
-
-
-def estimator_to_json(est, chosen: str | None) -> dict:
-    """An Estimator's lattice and chosen model as plain JSON data (inf and NaN as null after
-    :func:`_finite`)."""
-    lattice = [{"model": s.model, "parent": s.parent, "dof": s.dof, "cost": s.cost,
-                "relevance": s.relevance, "inliers": len(s.inliers), "outliers": len(s.outliers),
-                "samples": s.samples, "accepted": s.accepted, "threshold": s.threshold,
-                "status": s.status, "chosen": s.model == chosen}
-               for s in est.states()]
-    out = {"model": chosen, "lattice": lattice,
-           "history": [[int(n), float(r)] for n, r in est.history]}
-    best = est.best() if chosen is not None else None
-    if best is None:
-        return out
-    std = _std(best.covariance)
-    out.update({
-        "params": dict(best.params),
-        "std": dict(zip(best.params, std.tolist(), strict=False)),
-        "slacks": dict(best.slacks),
-        "components": [*best.params, *best.slacks],  # rows of covariance and info
-        "covariance": np.asarray(best.covariance),
-        "info": np.asarray(best.info),
-        "cost": best.cost,
-        "dof": best.dof,
-        "relevance": best.relevance,
-        "threshold": best.threshold,
-        "samples": best.samples,
-        "inliers": np.asarray(best.inliers, dtype=int),
-        "outliers": np.asarray(best.outliers, dtype=int),
-        "derived": {k: {"value": np.asarray(v.value), "std": np.asarray(v.std)}
-                    for k, v in best.derived.items()},
-        "model_status": best.status,
-    })
-    return out
-
-
-def result_to_json(res) -> dict:
-    """A FitResult as plain JSON data (inf and NaN as null after :func:`_finite`)."""
-    def arr(a):
-        return np.asarray(a).tolist()
-
-    return {
-        "model": res.model,
-        "params": res.params,
-        "std": dict(zip(res.params, arr(res.std), strict=False)),
-        "slacks": res.slacks,
-        "components": [*res.params, *res.slacks],  # rows of covariance and info
-        "covariance": arr(res.covariance),
-        "info": arr(res.info),
-        "cost": res.cost,
-        "dof": res.dof,
-        "normalized_cost": res.normalized_cost,
-        "residual": res.residual,
-        "iterations": res.iterations,
-        "success": res.success,
-        "status": res.status,
-        "message": res.message,
-        "derived": {k: {"value": arr(v.value), "std": arr(v.std)}
-                    for k, v in res.derived.items()},
-        "measures": {k: arr(v) for k, v in res.measures.items()},
-    }

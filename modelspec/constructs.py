@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import ast
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 import sympy as sp
@@ -203,6 +203,40 @@ def _equation(kind, c, label, slacks) -> tuple[sp.Expr, int | None]:
     if kind == ">":
         return c * s**2 - 1, i
     return c * s - 1, i
+
+
+def qualitative_labels(equations, parameter: Iterable[str]) -> dict[str, tuple[float, ...]]:
+    """The qualitative variables among a model's equations: an equation that is a product of
+    factors ``x − a`` in one parameter component ``x`` with numbers ``a`` (what ``x in {a, b,
+    ...}`` compiles to) gives ``x`` its labels ``a, b, ...``, in increasing order.
+
+    A local solver stays on the label it starts at; the robust search starts a solve on each
+    label (or combination of labels) so the data choose.
+    """
+    names = set(parameter)
+    labels: dict[str, tuple[float, ...]] = {}
+    for eq in equations:
+        factors = sp.Mul.make_args(sp.factor(eq))
+        free = set().union(*(f.free_symbols for f in factors))
+        if len(free) != 1 or len(factors) < 2:
+            continue
+        (x,) = free
+        if x.name not in names:
+            continue
+        values = []
+        for f in factors:
+            if f.is_number:
+                continue
+            base, exponent = f.as_base_exp()
+            poly = sp.Poly(base, x)
+            if poly.degree() != 1 or not exponent.is_Integer:
+                break
+            a, b = poly.all_coeffs()
+            values.append(float(-b / a))
+        else:
+            if len(values) >= 2:
+                labels[x.name] = tuple(sorted(set(values)))
+    return labels
 
 
 def slack_value(kind: str, c: float) -> float:

@@ -227,11 +227,16 @@ def free_dof(jacobian: Callable[[np.ndarray], np.ndarray], q: np.ndarray) -> int
 
 
 def minimal_sample_size(fam: ModelFamily, model: str, channel: str, q=None,
-                        constants=None) -> int:
+                        constants=None, data=None) -> int:
     """The fewest measures of ``channel`` whose equations fix the ``n − p`` free degrees of
-    freedom of ``model`` (p: rank of the constraints at ``q``, default the spec's q0)."""
+    freedom of ``model`` (p: rank of the constraints at ``q``, default the spec's q0); each
+    measure counts its equations' rank on their zero set (:func:`manifold_ranks`), at a few
+    measures of ``data`` (default: random ones) projected onto it."""
     k = fam.constant_vector(constants)
     q = parameter_vector(fam, q, "q")
     width = len(fam.channel(channel).components)
-    c, _, _ = fam.measurement(model, channel, q, np.zeros((0, width)), k)
-    return math.ceil(free_dof(lambda x: fam.c0(model, x, k)[1], q) / c.shape[1])
+    if data is None:
+        data = np.random.default_rng(0).standard_normal((8, width))
+    problem = make_problem(fam, model, {channel: data}, constants=constants)
+    rank = max(manifold_ranks(problem, q)[0], 1)
+    return math.ceil(free_dof(lambda x: fam.c0(model, x, k)[1], q) / rank)

@@ -52,6 +52,9 @@ class ModelState:
     derived: dict[str, DerivedValue] = field(default_factory=dict)
     status: str = "estimated"
     slacks: dict[str, float] = field(default_factory=dict)  # appendix F's added components
+    # every measure's error at the estimate (eq. 24), aligned with the ascending measure ids
+    measure_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def estimated(self) -> bool:
@@ -476,12 +479,15 @@ class Estimator:
         channel_ids = dict(zip(self._channels()[0], ids, strict=True))
         inliers = np.concatenate([channel_ids[n][est.inliers[n]] for n in names])
         outliers = np.concatenate([channel_ids[n][est.outliers[n]] for n in names])
+        scored = np.concatenate([channel_ids[n] for n in names])
+        errors = np.concatenate([est.errors[n] for n in names])
+        order = np.argsort(scored, kind="stable")
         state = ModelState(model, parent, est.params, est.q, est.fit.info, est.fit.covariance,
                            np.sort(inliers), np.sort(outliers), est.fit.normalized_cost,
                            est.fit.dof, est.relevance, est.samples, est.threshold, True,
                            est.fit.derived,
                            "estimated" if est.fit.success else est.fit.message,
-                           est.fit.slacks)
+                           est.fit.slacks, scored[order], errors[order])
         if parent is not None:
             p = self._states.get(parent)
             if p is not None and p.samples and np.isfinite(p.cost):

@@ -8,7 +8,7 @@ import importlib.util
 import os
 import sys
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import ModuleType
 
@@ -43,6 +43,8 @@ class ModelInfo:
     equations: Mapping[str, tuple[str, ...]]
     derived: tuple[str, ...]
     initializer: str | None = None
+    #: qualitative variables (appendix F, ``x in {a, b, ...}``): component -> its labels
+    labels: Mapping[str, tuple[float, ...]] = field(default_factory=dict)
 
 
 class ModelFamily:
@@ -70,7 +72,8 @@ class ModelFamily:
             name: ModelInfo(name, tuple(m["constraints"]),
                             tuple((a, phi) for a, phi in m["alternatives"]),
                             {c: tuple(e) for c, e in m["equations"].items()},
-                            tuple(m.get("derived", meta["derived"])), m.get("initializer"))
+                            tuple(m.get("derived", meta["derived"])), m.get("initializer"),
+                            {x: tuple(v) for x, v in m.get("labels", {}).items()})
             for name, m in meta["models"].items()
         }
         self.derived_shapes = {k: tuple(v) for k, v in meta["derived"].items()}
@@ -154,6 +157,22 @@ class ModelFamily:
         holds = [bool(c[i] >= 0 if kind == ">=" else c[i] > 0 if kind == ">" else
                       np.isfinite(c[i]) and c[i] != 0) for i, kind in enumerate(kinds)]
         return all(any(holds[i] for i in clause) for clause in clauses)
+
+    def strict_slacks(self, model: str) -> tuple[tuple[int, int], ...]:
+        """The slacks of ``model``'s strict relations, which diverge when the optimum lies on
+        the boundary: ``(index in q, p)`` with the relation ``c = 1/s^p`` on its equation
+        (``c·s² − 1``: p = 2; ``c·s − 1`` for ``c != 0``: p = 1)."""
+        if not self.slack_names:
+            return ()
+        n_user = self.n - len(self.slack_names)
+        kinds = self.module.FAMILY["slack_kinds"]
+        power = {">": 2, "!=": 1}
+        # a relation alone in its clause: within a disjunction (a product of equations) the
+        # slack of a relation that does not hold is free to wander
+        alone = {c[0] for c in self.module.FAMILY.get("slack_clauses", {}).get(model, [])
+                 if len(c) == 1}
+        return tuple((n_user + i, power[kinds[i]]) for i in sorted(alone)
+                     if kinds[i] in power)
 
     def slack_dict(self, q: np.ndarray) -> dict[str, float]:
         """The slack components by name."""

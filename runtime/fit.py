@@ -36,6 +36,7 @@ def make_problem(fam: ModelFamily, model: str, data: Mapping, info: Mapping | No
         k=k,
         eps=eps,
         relations=(lambda q: fam.relations_hold(model, q, k)) if fam.slack_names else None,
+        strict_slacks=fam.strict_slacks(model),
     )
 
 
@@ -98,6 +99,7 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
                           Q0=problem.Q0 if Q0 is None else Q0)
     start = problem.q0 if q_start is None else np.asarray(q_start, dtype=float)
     start = fam.with_slacks(start, problem.k, model)  # its slacks consistent with the start
+    start = _inside(problem, start)
     out = iterate(problem, start, max_iter=max_iter, xtol=xtol)
     x, lin, proj = out.point, out.lin, out.proj
     if lin is None or lin.x is not x:  # the outputs are taken at the returned point
@@ -139,6 +141,20 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
         derived=derived_values(fam, x.q, covariance, problem.k, model),
         slacks=fam.slack_dict(x.q),
     )
+
+
+def _inside(problem: Problem, start: np.ndarray) -> np.ndarray:
+    """A start where the model's inequalities (appendix F) do not hold is first moved onto
+    its constraints: the closest point satisfying ``c0`` (eq. 21 with no measures). From
+    outside, a squared slack cannot follow: linearised, ``c − s² = 0`` with ``c < 0`` asks
+    the free slack to absorb the violation, and it oscillates about zero instead."""
+    if problem.relations is None or problem.relations(start):
+        return start
+    from .coherence import solve_minimal  # coherence builds on this module
+
+    sol = solve_minimal(problem.subset(tuple(np.zeros(0, dtype=int)
+                                             for _ in problem.channels)), start)
+    return sol.q if sol.success and problem.relations(sol.q) else start
 
 
 def _feasible(x, start_violation: float, residual: float, ranks) -> bool:

@@ -76,6 +76,10 @@ def fundamental_8point(x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
     return _unit(T2.T @ F @ T1)
 
 
+_ALPHAS = np.array([0.0, 1.0, -1.0, 2.0])
+_CUBIC_FROM_VALUES = np.linalg.inv(np.vander(_ALPHAS, 4))  # values at _ALPHAS -> coefficients
+
+
 def fundamental_7point(x1: np.ndarray, x2: np.ndarray) -> list[np.ndarray]:
     """The seven-point fundamental matrices (exactly 7 correspondences): the real roots of
     ``det(α F1 + (1 − α) F2) = 0`` on the two-dimensional null space; unit norm each."""
@@ -84,10 +88,9 @@ def fundamental_7point(x1: np.ndarray, x2: np.ndarray) -> list[np.ndarray]:
         raise ValueError(f"the seven-point algorithm needs 7 correspondences, got {len(A)}")
     Vt = np.linalg.svd(A)[2]
     F1, F2 = Vt[-1].reshape(3, 3), Vt[-2].reshape(3, 3)
-    # det(a F1 + (1 − a) F2) is a cubic in a: fit it exactly from four values
-    alphas = np.array([0.0, 1.0, -1.0, 2.0])
-    dets = [np.linalg.det(a * F1 + (1 - a) * F2) for a in alphas]
-    coeffs = np.polyfit(alphas, dets, 3)
+    # det(a F1 + (1 − a) F2) is a cubic in a: exactly interpolated from four values
+    dets = np.linalg.det(_ALPHAS[:, None, None] * F1 + (1 - _ALPHAS[:, None, None]) * F2)
+    coeffs = _CUBIC_FROM_VALUES @ dets
     out = []
     for root in np.roots(coeffs):
         if abs(root.imag) > 1e-8 * (1 + abs(root.real)):
@@ -136,12 +139,14 @@ def focal_lengths(F: np.ndarray, pp1, pp2) -> tuple[float, float]:
     """
     p1, p2 = np.r_[np.asarray(pp1, float), 1.0], np.r_[np.asarray(pp2, float), 1.0]
     e1, e2 = epipoles(F)
-    Ii = np.diag([1.0, 1.0, 0.0])
 
     def squared(G, e, p, p_other):
-        num = -(p_other @ skew(e) @ Ii @ G @ np.outer(p, p) @ G.T @ p_other)
-        den = p_other @ skew(e) @ Ii @ G @ Ii @ G.T @ p_other
-        return float(num / den) if den != 0 else float("inf")
+        # −(p'ᵀ [e]× Ĩ G p pᵀ Gᵀ p') / (p'ᵀ [e]× Ĩ G Ĩ Gᵀ p'), Ĩ = diag(1, 1, 0)
+        a = np.cross(p_other, e)  # p'ᵀ [e]× as a vector: (p' × e)
+        a[2] = 0.0  # … Ĩ
+        aG, Gtp = a @ G, G.T @ p_other
+        den = aG[0] * Gtp[0] + aG[1] * Gtp[1]
+        return float(-(aG @ p) * (p @ Gtp) / den) if den != 0 else float("inf")
 
     return squared(F, e2, p1, p2), squared(F.T, e1, p2, p1)
 

@@ -19,6 +19,7 @@ inliers also starts from the candidates and keeps the fit of least cost.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
@@ -137,14 +138,31 @@ def resolve(choice) -> InitializerFn | None:
     return entry.fn
 
 
+def label_candidates(labels: Mapping[str, tuple[float, ...]]) -> InitializerFn:
+    """The starts of a model with qualitative variables (``x in {a, b, ...}``): one per
+    combination of labels. A local solver stays on the label it starts at, so every label
+    is tried and the data choose (the best-scoring sample, the least-cost refinement)."""
+    names = sorted(labels)
+    combos = [dict(zip(names, values, strict=True))
+              for values in itertools.product(*(labels[n] for n in names))]
+
+    def candidates(rows, constants) -> Candidates:
+        return [dict(c) for c in combos]
+
+    return candidates
+
+
 def model_initializers(fam, overrides: Mapping | None = None) -> dict[str, InitializerFn]:
-    """Each model's initializer: the spec's choice, overridden by ``overrides``."""
+    """Each model's initializer: the spec's choice, overridden by ``overrides``; a model
+    with qualitative variables and no closed form starts on each of its labels."""
     out = {}
     overrides = dict(overrides or {})
     for name in overrides:
         fam.model(name)  # a clear error for an unknown model
     for name, info in fam.models.items():
         fn = resolve(overrides[name] if name in overrides else info.initializer)
+        if fn is None and info.labels and overrides.get(name, "") is not None:
+            fn = label_candidates(info.labels)
         if fn is not None:
             out[name] = fn
     return out

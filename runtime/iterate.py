@@ -34,7 +34,11 @@ Status codes (``FitResult.status``):
 2 stalled — no fraction of the step is acceptable, only a negligible one is, or the step has
   stopped shrinking (rounding noise): the precision limit; returns the best point (a success
   when the equations hold there);
-3 numerical failure — non-finite values at the start or in the projector.
+3 numerical failure — non-finite values at the start or in the projector;
+4 at the boundary of a strict inequality (``c > 0``, ``c != 0``: appendix F) — the
+  relation's slack diverges (``c = 1/s² → 0``, below 1e-8 of its start): the infimum lies
+  on the boundary, outside the open set the model allows, so no minimum is attained;
+  returns the first iterate that close to the boundary (not a success).
 """
 
 from __future__ import annotations
@@ -54,15 +58,19 @@ from .projector import (
     point,
     project_measures,
     quadratic,
+    restore_parameter,
     solve,
 )
+from .sqrt import closest_sqrt
 
-CONVERGED, MAX_ITER, STALLED, FAILED = 0, 1, 2, 3
+CONVERGED, MAX_ITER, STALLED, FAILED, BOUNDARY = 0, 1, 2, 3, 4
 MESSAGES = {
     CONVERGED: "converged: the projector step is below the tolerance",
     MAX_ITER: "stopped: iteration cap reached",
     STALLED: "stalled: no fraction of the projector step improves the constraints or the cost",
     FAILED: "numerical failure: non-finite values",
+    BOUNDARY: "at the boundary of a strict inequality: its slack diverges (no minimum inside "
+              "the open set the model allows); returning the last point inside",
 }
 _MAX_HALVINGS = 40
 _RESTORATION = 2  # one projection step restores the measures of a trial point
@@ -110,6 +118,19 @@ def _negligible(problem: Problem, q_old, q_new, mt_old, mt_new, xtol: float) -> 
     return True
 
 
+def _diverging(problem: Problem, q_old: np.ndarray, q_new: np.ndarray,
+               start: np.ndarray) -> bool:
+    """A slack of a strict inequality diverges: it at least doubles in this step and its
+    relation ``c = 1/s²`` (``1/s`` for ``c != 0``) has fallen below 1e-8 of its starting
+    value. The parameter is then within that of the boundary of the open set the model
+    allows; letting the slack grow on would only make its equation ill-conditioned."""
+    for index, power in problem.strict_slacks:
+        s_old, s_new = abs(q_old[index]), abs(q_new[index])
+        if s_new > 2.0 * s_old and (abs(start[index]) / s_new) ** power < 1e-8:
+            return True
+    return False
+
+
 def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
             xtol: float = 1e-10) -> Outcome:
     """Run eq. 18 from ``(q_start, m)``; never raises on numerical trouble."""
@@ -138,9 +159,13 @@ def _acceptable(trial: Point, x: Point, eps_delta: float, delta_cap: float) -> b
     return trial.delta <= delta_cap and trial.cost < x.cost * (1 - 1e-10)
 
 
-def _restored(problem: Problem, q: np.ndarray, mt) -> Point:
-    """The point with its measures projected back onto their equations for this ``q``
-    (report eq. 22, a few measure-space steps): trial points are compared at their true cost."""
+def _restored(problem: Problem, q: np.ndarray, mt, root: np.ndarray | None = None) -> Point:
+    """The point with ``q`` projected back onto the parameter constraints (in the metric of
+    the step, when ``root`` is given) and its measures onto their equations for that ``q``
+    (report eq. 22, a few measure-space steps): trial points are compared at their true cost
+    and violation."""
+    if root is not None:
+        q = restore_parameter(problem, q, root)
     mt, _, _, evals = project_measures(problem, q, mt, _RESTORATION)
     return point(problem, q, mt, evals)
 
@@ -195,6 +220,8 @@ def _iterate(problem: Problem, q_start: np.ndarray, max_iter: int, xtol: float) 
         if trial is None:
             return outcome(x, it, STALLED, lin, proj)
         trial, mu_used, alpha = trial
+        if _diverging(problem, x.q, trial.q, q_start):
+            return outcome(trial, it, BOUNDARY)  # on the boundary of the open set
         mu = mu_used / 10 if mu_used > _MU_MIN else 0.0
         if alpha < 1 and _negligible(problem, x.q, trial.q, x.mt, trial.mt, xtol):
             return outcome(trial, it, STALLED, lin, proj)
@@ -203,46 +230,36 @@ def _iterate(problem: Problem, q_start: np.ndarray, max_iter: int, xtol: float) 
     return outcome(x, max_iter, MAX_ITER, lin, proj)
 
 
-def _second_order_correction(problem: Problem, trial: Point) -> Point | None:
-    """The trial point moved back onto the parameter constraints: ``q − C0⁺ c0(q)``, the
-    least-norm Gauss–Newton step on ``c0`` alone, its measures restored.
-
-    From a feasible point the projector step is tangent to the constraints and a curved one
-    (a unit norm) rises by ``O(‖Δq‖²)`` along it; the filter would then cut a good long step
-    down to the rounding level (the Maratos effect) and convergence would turn linear. The
-    second-order correction (Fletcher & Leyffer 2002; Nocedal & Wright §15.6) removes that
-    rise; the corrected point must pass the same filter.
-    """
-    if not trial.finite or not trial.c0.size or not np.any(trial.c0):
-        return None
-    try:
-        dq = np.linalg.lstsq(trial.C0, trial.c0, rcond=None)[0]
-    except np.linalg.LinAlgError:
-        return None
-    if not np.all(np.isfinite(dq)):
-        return None
-    return _restored(problem, trial.q - dq, trial.mt)
-
-
 def _line_search(problem, lin, proj, x, mu, eps_delta, delta_cap, guard=None):
     """Find an acceptable point: the report's step (or the damped one the last iteration
-    needed), halved back towards ``x`` a few times as eq. 18 does; if still refused, damp
-    more (Levenberg–Marquardt, tenfold, up to ``_MU_MAX``) and halve again — at the last
-    damping level for as long as eq. 18 would. Returns (point, μ used, α) or None."""
+    needed) — as it is, or else with its parameter restored onto the constraints (a
+    second-order correction) — halved back towards ``x`` a few times as eq. 18 does; if
+    still refused, damp more (Levenberg–Marquardt, tenfold, up to ``_MU_MAX``) and halve
+    again — at the last damping level for as long as eq. 18 would. Returns (point, μ used,
+    α) or None."""
+    root = None  # the information's closest square root, the metric of the correction
+    correctable = bool(x.c0.size)
     while True:
         target = proj if mu == 0.0 else solve(problem, lin, mu)
         alpha = 1.0
         for _ in range(_MAX_HALVINGS if mu >= _MU_MAX else _HALVINGS_PER_DAMPING):
             q = x.q + alpha * (target.q - x.q)
             mt = tuple(a + alpha * (b - a) for a, b in zip(x.mt, target.mt, strict=True))
+            # the plain step first (eq. 18: linear problems in one step, Newton's iterates);
+            # if it lowers the cost but is refused for its violation — curvature of the
+            # constraints, the Maratos effect — with its second-order correction onto them
             trial = _restored(problem, q, mt)
+            if correctable and trial.finite and trial.cost < x.cost and \
+                    not _acceptable(trial, x, eps_delta, delta_cap):
+                if root is None:
+                    root = closest_sqrt(lin.info, problem.eps)
+                corrected = _restored(problem, q, mt, root)
+                # second order: small against the step, else this is no Maratos effect
+                if np.linalg.norm(corrected.q - q) <= 0.5 * np.linalg.norm(q - x.q):
+                    trial = corrected
             # once the model's inequalities hold, they hold at every later iterate
-            if (guard is None or guard(q)) and _acceptable(trial, x, eps_delta, delta_cap):
+            if (guard is None or guard(trial.q)) and _acceptable(trial, x, eps_delta, delta_cap):
                 return trial, mu, alpha
-            corrected = _second_order_correction(problem, trial)
-            if corrected is not None and (guard is None or guard(corrected.q)) and \
-                    _acceptable(corrected, x, eps_delta, delta_cap):
-                return corrected, mu, alpha
             alpha /= 2
         if mu >= _MU_MAX:
             return None

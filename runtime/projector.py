@@ -32,6 +32,8 @@ class Problem:
     k: np.ndarray
     eps: float = EPS
     relations: Callable | None = None  # q -> whether the model's inequalities hold (app. F)
+    # slacks of the model's strict relations: (component, p) with c = 1/s^p (c > 0: 2, c != 0: 1)
+    strict_slacks: tuple[tuple[int, int], ...] = ()
 
 
     def subset(self, rows) -> Problem:
@@ -162,6 +164,38 @@ def project_measures(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...]
     return tuple(out_mt), tuple(out_violation), tuple(out_rank), tuple(out_evals)
 
 
+def restore_parameter(problem: Problem, q: np.ndarray, root: np.ndarray,
+                      iterations: int = 3) -> np.ndarray:
+    """Project ``q`` back onto ``c0(q) = 0`` with the least move in the metric ``Q̃ = Ā Āᵀ``
+    (``root``, the closest square root of the information): ``Δq = −Q̃⁻¹ C0ᵀ (C0 Q̃⁻¹ C0ᵀ)⁻
+    c0`` (the constraint rows of the projector, eq. 12, with the data part frozen), ``C0``
+    re-evaluated at each of a few steps. Directions the data do not see (a slack, the scale
+    of a homogeneous parameter) are free in this metric: the correction moves them first.
+
+    This is the parameter-space twin of :func:`project_measures` — a second-order correction:
+    a long projector step leaves a violation of the order of its square on curved
+    constraints (a unit norm, a slack's ``c·s² − 1``), which would make eq. 18 refuse it.
+    Steps that do not lower ``‖c0‖∞`` are not taken (call under np.errstate).
+    """
+    c0, C0 = problem.c0(q, problem.k)
+    if not c0.size:
+        return q
+    worst = float(np.max(np.abs(c0)))
+    for _ in range(iterations):
+        if not worst > _ROUNDING * (1.0 + float(np.max(np.abs(q)))) * 1e-3:
+            break
+        C0bar_t = triangular_solve(root, C0.T)  # Ā⁻¹ C0ᵀ
+        L0, kept0 = reduced_sqrt(C0bar_t.T @ C0bar_t, problem.eps)
+        y = reduced_solve(L0, kept0, reduced_solve(L0, kept0, c0), transpose=True)
+        trial = q - triangular_solve(root, C0bar_t @ y, transpose=True)
+        c0_new, C0_new = problem.c0(trial, problem.k)
+        new_worst = float(np.max(np.abs(c0_new)))
+        if not new_worst < worst:
+            break
+        q, c0, C0, worst = trial, c0_new, C0_new, new_worst
+    return q
+
+
 def _halving(problem: Problem, fn, ch, q, m, c, step, halvings: int = 4):
     """Eq. 18 per measure: take ``m + α step`` with α halved where the violation grows (a few
     times: the far-point instability of the plain step needs α <= 1/4); a measure whose
@@ -214,15 +248,16 @@ def linearise(problem: Problem, x: Point) -> Linearisation:
     info = problem.Q0 + A
     rhs = problem.Q0 @ (problem.q0 - q) + g
     H = info
-    if x.C0.shape[0]:
+    C0 = x.C0
+    if C0.shape[0]:
         # Augmented form of the same KKT system: adding ρ C0ᵀ(C0 Δq + c0) = 0 changes neither
         # Δq nor λ0, but makes H definite wherever the constraints fix what the data leave
         # free (e.g. the scale of a homogeneous parameter), so the closest root needs no ε
         # floor there and C̄0 = Ā⁻¹ C0ᵀ stays well conditioned.
-        gram = x.C0.T @ x.C0
-        rho = _augmentation(info, gram)
-        H = info + rho * gram
-        rhs = rhs - rho * (x.C0.T @ x.c0)
+        gram = C0.T @ C0
+        rho = _augmentation(H, gram)
+        H = H + rho * gram
+        rhs = rhs - rho * (C0.T @ x.c0)
     return Linearisation(x, info, H, rhs, tuple(whitened), tuple(ranks), residual)
 
 
@@ -236,11 +271,38 @@ def solve(problem: Problem, lin: Linearisation, mu: float = 0.0) -> Projection:
     H = lin.H
     if mu > 0.0:
         H = H + mu * np.diag(_equilibrium_weights(H))
-    Abar = closest_sqrt(H, problem.eps)  # H = Ā Āᵀ
-    bbar = triangular_solve(Abar, lin.rhs)
-    C0 = x.C0
+    # A component that neither the data nor the constraints see (a slack in a factor of a
+    # disjunction that does not hold: its column is rounding) holds only rounding in the
+    # right-hand side, which the closest root would divide by ε: it does not move.
+    seen = _seen(lin.info, x.C0)
+    dq = np.zeros(x.q.size)
+    if not seen.all():
+        H, rhs, C0 = H[np.ix_(seen, seen)], lin.rhs[seen], x.C0[:, seen]
+    else:
+        rhs, C0 = lin.rhs, x.C0
     residual = lin.residual
-    rank0, kept0 = 0, np.zeros(0, dtype=bool)
+    rank0, kept0 = 0, np.zeros(x.C0.shape[0], dtype=bool)
+    if seen.any():  # none seen, e.g. every gradient vanishes at the start: q stays
+        rank0, kept0, residual = _solve_seen(problem, x, H, rhs, C0, seen, dq, residual)
+    mt_new = []
+    for (_, correct), ch, w in zip(problem.kernels, problem.channels, lin.whitened,
+                                   strict=True):
+        if w is None:
+            mt_new.append(ch.m.copy())
+            continue
+        Cbar, rbar, state = w
+        mt_new.append(ch.m + correct(state, ch.G, rbar - Cbar @ dq))  # eq. 44
+    return Projection(x.q + dq, tuple(mt_new), x.C0[kept0], rank0, residual)
+
+
+def _solve_seen(problem: Problem, x: Point, H: np.ndarray, rhs: np.ndarray, C0: np.ndarray,
+                seen: np.ndarray, dq: np.ndarray, residual: float,
+                ) -> tuple[int, np.ndarray, float]:
+    """The parameter block of eq. 43 on the seen components: writes ``dq[seen]``; returns the
+    rank of the constraints, the rows kept and the residual with ``‖c0‖²`` whitened."""
+    Abar = closest_sqrt(H, problem.eps)  # H = Ā Āᵀ
+    bbar = triangular_solve(Abar, rhs)
+    rank0, kept0 = 0, np.zeros(C0.shape[0], dtype=bool)
     if C0.shape[0]:
         C0bar_t = triangular_solve(Abar, C0.T)  # Ā⁻¹ C0ᵀ
         L0, kept0 = reduced_sqrt(C0bar_t.T @ C0bar_t, problem.eps)
@@ -250,22 +312,24 @@ def solve(problem: Problem, lin: Linearisation, mu: float = 0.0) -> Projection:
         e0 = reduced_solve(L0, kept0, x.c0)
         residual += float(e0 @ e0)
         rank0 = int(kept0.sum())
-    dq = triangular_solve(Abar, bbar, transpose=True)
-    mt_new = []
-    for (_, correct), ch, w in zip(problem.kernels, problem.channels, lin.whitened,
-                                   strict=True):
-        if w is None:
-            mt_new.append(ch.m.copy())
-            continue
-        Cbar, rbar, state = w
-        mt_new.append(ch.m + correct(state, ch.G, rbar - Cbar @ dq))  # eq. 44
-    return Projection(x.q + dq, tuple(mt_new), C0[kept0], rank0, residual)
-
+    dq[seen] = triangular_solve(Abar, bbar, transpose=True)
+    return rank0, kept0, residual
 
 def project(problem: Problem, x: Point) -> tuple[Linearisation, Projection]:
     """One application of the projector ``P_{x0}(x•)`` (report eq. 12, Fig. 17)."""
     lin = linearise(problem, x)
     return lin, solve(problem, lin)
+
+
+def _seen(info: np.ndarray, C0: np.ndarray) -> np.ndarray:
+    """Components the data or the constraints see: some information (however small: the
+    scales of components may differ by many orders) or a constraint Jacobian entry above the
+    rounding level of its row."""
+    seen = np.diagonal(info) != 0.0
+    if C0.shape[0]:
+        rows = np.max(np.abs(C0), axis=1, keepdims=True)
+        seen |= np.any(np.abs(C0) > _ROUNDING * rows, axis=0)
+    return seen
 
 
 def _equilibrium_weights(H: np.ndarray) -> np.ndarray:

@@ -24,30 +24,36 @@ class DerivedValue:
 def constrained_covariance(info: np.ndarray, C0: np.ndarray) -> np.ndarray:
     """Covariance of q̃: the top-left block of ``[[Q̃, C0ᵀ], [C0, 0]]⁻¹``.
 
-    Directions that neither the information nor the constraints fix are unobservable: the
-    components they move get an infinite variance (not the pseudo-inverse's zero, which would
-    claim certainty).
+    Computed as ``Z (Zᵀ Q̃ Z)⁻¹ Zᵀ`` with ``Z`` an orthonormal basis of the null space of
+    ``C0`` (its rows independent: the reduced square root kept them), so components the
+    constraints pin get exactly zero variance however many they are. Directions that
+    neither the information nor the constraints fix are unobservable: the components they
+    move get an infinite variance (not the pseudo-inverse's zero, which would claim
+    certainty).
     """
-    n, p = info.shape[0], C0.shape[0]
-    K = np.zeros((n + p, n + p))
-    K[:n, :n] = info
-    K[:n, n:] = C0.T
-    K[n:, :n] = C0
-    if not np.all(np.isfinite(K)):
+    n = info.shape[0]
+    if not (np.all(np.isfinite(info)) and np.all(np.isfinite(C0))):
         return np.full((n, n), np.nan)
-    # equilibrate: unit diagonal on the information block, unit rows of C0
-    diag = np.abs(np.diag(info))
+    if C0.shape[0]:
+        _, S, Vt = np.linalg.svd(C0)
+        rank = int(np.count_nonzero(S > 1e-12 * S[0])) if S.size and S[0] > 0 else 0
+        Z = Vt[rank:].T
+    else:
+        Z = np.eye(n)
+    if Z.shape[1] == 0:
+        return np.zeros((n, n))
+    H = Z.T @ info @ Z
+    H = 0.5 * (H + H.T)
+    diag = np.abs(np.diag(H))
     d = np.sqrt(np.where(diag > 0, diag, max(float(diag.max(initial=0.0)), 1.0)))
-    rows = np.linalg.norm(C0 / d, axis=1) if p else np.zeros(0)
-    e = np.concatenate([d, np.where(rows > 0, rows, 1.0)])
-    K = K / np.outer(e, e)
-    w, V = np.linalg.eigh(K)
+    w, V = np.linalg.eigh(H / np.outer(d, d))
     scale = np.abs(w).max(initial=0.0)
     null = np.abs(w) <= 1e-12 * scale if scale > 0 else np.ones_like(w, dtype=bool)
     inv_w = np.where(null, 0.0, 1.0 / np.where(null, 1.0, w))
-    cov = (V[:n] * inv_w) @ V[:n].T / np.outer(d, d)
+    ZV = Z @ (V / d[:, None])
+    cov = (ZV * inv_w) @ ZV.T
     cov = 0.5 * (cov + cov.T)
-    free = np.any(np.abs(V[:n, null]) > 1e-8, axis=1)
+    free = np.any(np.abs(Z @ V[:, null]) > 1e-8, axis=1)
     cov[free, :] = np.inf
     cov[:, free] = np.inf
     return cov

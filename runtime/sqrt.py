@@ -3,8 +3,9 @@
 Both work on symmetric positive semi-definite matrices, batched over leading axes, with
 loops over the (small, fixed) matrix size and vector operations over the batch.
 
-* :func:`closest_sqrt` — Cholesky where a pivot that is not > ε·scale is replaced by ε·scale:
-  the factor of a definite matrix next to the input.
+* :func:`closest_sqrt` — Cholesky where a pivot that is not > ε·scale is replaced by ε·scale
+  (and the column below it, rounding noise for a PSD input, by zeros): the factor of a
+  definite matrix next to the input.
 * :func:`reduced_sqrt` — Cholesky where a row/column whose pivot is too small is dropped and
   the factorisation goes on with the rest: it keeps the first independent equations.
 
@@ -66,11 +67,15 @@ def closest_sqrt(S: np.ndarray, eps: float = EPS) -> np.ndarray:
     L = np.zeros_like(U)
     for k in range(n):
         piv = U[..., k, k] - np.sum(L[..., k, :k] ** 2, axis=-1)
-        L[..., k, k] = np.sqrt(np.where(piv > eps, piv, eps))
+        fixed = ~(piv > eps)
+        L[..., k, k] = np.sqrt(np.where(fixed, eps, piv))
         if k + 1 < n:
             rest = U[..., k + 1 :, k] - np.einsum("...ij,...j->...i", L[..., k + 1 :, :k],
                                                   L[..., k, :k])
-            L[..., k + 1 :, k] = rest / L[..., k, k][..., None]
+            # below a vanishing pivot a PSD matrix has a vanishing column (|rest|² <= piv ·
+            # pivots below): what is left is rounding noise, which √ε would amplify
+            L[..., k + 1 :, k] = np.where(fixed[..., None], 0.0,
+                                          rest / L[..., k, k][..., None])
     return L * d[..., :, None]
 
 

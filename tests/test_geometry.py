@@ -77,8 +77,8 @@ def test_quaternion_round_trip(v):
     R = g.rotation_from_quaternion(q)
     assert np.allclose(R @ R.T, np.eye(3), atol=1e-12) and np.linalg.det(R) > 0
     back = g.quaternion_from_rotation(R)
-    assert np.allclose(back, q * np.sign(q[0] or 1.0), atol=1e-9) or \
-        np.allclose(back, -q, atol=1e-9)
+    assert back[0] >= 0  # the convention: w >= 0 (q and −q are the same rotation)
+    assert np.allclose(back, q, atol=1e-9) or np.allclose(back, -q, atol=1e-9)
     assert np.allclose(g.rotation_from_quaternion(back), R, atol=1e-12)
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 from kanagen.runtime.sqrt import REDUNDANT, closest_sqrt, reduced_solve, reduced_sqrt
@@ -17,6 +17,7 @@ def _psd(rng, n, rank):
 
 @settings(max_examples=60, deadline=None)
 @given(st.integers(1, 8), st.integers(0, 8), st.integers(0, 2**32 - 1), st.booleans())
+@example(6, 3, 1688030, False)  # a tiny genuine pivot, then noise pivots below it
 def test_closest_sqrt_is_a_definite_factor_next_to_the_input(n, rank, seed, batched):
     rng = np.random.default_rng(seed)
     S = _psd(rng, n, min(rank, n))
@@ -48,9 +49,10 @@ def test_reduced_sqrt_keeps_the_first_independent_rows(p, n, seed, batched):
     for i in range(p):  # first independent rows, greedily
         if np.linalg.matrix_rank(C[expected + [i]], tol=1e-9) > len(expected):
             expected.append(i)
-    # a rank decision is only as sharp as the kept rows' conditioning allows
+    # a rank decision on a Gram matrix is only as sharp as its rounding, ε·cond² of the kept
+    # rows, allows: against the REDUNDANT = 1e3 ε test, cond² must stay well below 1e3
     rows = C[expected] / np.linalg.norm(C[expected], axis=1)[:, None]
-    assume(np.linalg.svd(rows, compute_uv=False).min() > 1e-3)
+    assume(np.linalg.svd(rows, compute_uv=False).min() > 0.2)
     assert np.flatnonzero(kept).tolist() == expected
     assert kept.sum() <= n
     sub = np.ix_(kept, kept)

@@ -43,6 +43,8 @@ def test_family_shape(fam):
     assert edges == {"none": {"zoom", "rotation", "translation"}, "zoom": {"planar"},
                      "rotation": {"planar"}, "translation": {"general"},
                      "planar": {"general"}, "general": set()}
+    assert {m: kanagen.minimal_sample_size(fam, m, "match") for m in fam.models} == {
+        "none": 0, "zoom": 1, "rotation": 2, "translation": 2, "planar": 4, "general": 7}
     assert {"F"} <= set(fam.model("general").derived) and "H" not in fam.model("general").derived
     assert {"H"} <= set(fam.model("planar").derived) and "F" not in fam.model("planar").derived
 
@@ -261,3 +263,22 @@ def test_adaptive_budgets_stop_early(fam):
         runs[adaptive] = (est.run(max_samples=5000).model, est.samples)
     assert runs[True][0] == runs[False][0] == "general"
     assert runs[True][1] < 0.8 * runs[False][1]
+
+
+def test_pinned_components_have_zero_variance(fam):
+    """Eleven of the twelve components pinned (zoom): their variance is zero (to rounding;
+    the bordered inverse used to leave 10⁴ there), and the one free component's variance is
+    ``1/Q̃_ff`` — matched by a Monte Carlo over the noise."""
+    s = two_view_scene("zoom", n=80, sigma=0.5, seed=5)
+    q = _truth(fam, s)
+    res = kanagen.fit(fam, "zoom", {"match": s.data}, {"match": 4.0}, q0=q,
+                      constants=s.constants)
+    assert res.success
+    f2 = fam.parameter_names.index("f2")
+    assert res.std[f2] > 0 and np.all(np.delete(res.std, f2) <= 1e-12 * res.std[f2])
+    assert res.covariance[f2, f2] == pytest.approx(1 / res.info[f2, f2], rel=1e-9)
+    rng = np.random.default_rng(0)
+    draws = [kanagen.fit(fam, "zoom", {"match": s.clean + rng.normal(0, 0.5, s.clean.shape)},
+                         {"match": 4.0}, q0=q, constants=s.constants).q[f2]
+             for _ in range(60)]
+    assert np.var(draws) == pytest.approx(res.covariance[f2, f2], rel=0.4)

@@ -1,0 +1,325 @@
+"""One estimation job: a dataset, the options of ``kanagen fit``, and its JSON record.
+
+``kanagen fit`` and ``kanagen batch`` share this: the options (:class:`FitOptions`, validated
+here once), the run of one dataset (:func:`run_job`) and the record it makes — the JSON that
+``kanagen fit --json`` writes and that ``kanagen batch`` stores per dataset — so a dataset
+estimated by either gives the same record, bit for bit.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from .runtime.estimator import Estimator
+from .runtime.family import ModelFamily
+from .runtime.phi import phi as get_phi
+from .runtime.scoring import SCORERS
+
+#: Format of the JSON record; extensions add keys, never change existing ones.
+RECORD_FORMAT = 2
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """The options of one estimation (``kanagen fit`` / ``kanagen batch``), validated.
+
+    Parameters
+    ----------
+    scale : float
+        ``L*``, the order of magnitude of an inlier's error (eq. 29).
+    scorer : str
+        ``"relevance"``, ``"ransac"`` or ``"trimmed"``.
+    phi : float or str, optional
+        Cost factor of every edge of the lattice (default: the spec's factor per edge).
+    seed, max_samples : random seed and sample budget of the robust search.
+    model : str, optional
+        Robust: search this model only; with ``local``: the model to fit.
+    local : bool
+        Fit one model to all the measures with the local estimator (no sampling).
+    sigma : float, optional
+        Standard deviation of each measured component (info ``1/σ²``; default 1).
+    constants : mapping or pairs
+        Constants of the spec set at run time.
+    max_iter : int
+        Iterations of the local estimator (``local`` only).
+
+    Examples
+    --------
+    >>> FitOptions(scale=4, phi="0.5", constants={"f0": 100}).phi
+    0.5
+    >>> FitOptions(scale=0)
+    Traceback (most recent call last):
+    ...
+    ValueError: scale (L*) must be positive and finite, got 0
+    """
+
+    scale: float = 1.0
+    scorer: str = "relevance"
+    phi: float | str | None = None
+    seed: int = 0
+    max_samples: int = 2000
+    model: str | None = None
+    local: bool = False
+    sigma: float | None = None
+    constants: tuple[tuple[str, float], ...] = field(default=())
+    max_iter: int = 100
+
+    def __post_init__(self):
+        def put(name, value):
+            object.__setattr__(self, name, value)
+
+        put("scale", _positive(self.scale, "scale (L*)"))
+        if self.sigma is not None:
+            put("sigma", _positive(self.sigma, "sigma"))
+        if self.scorer not in SCORERS:
+            raise ValueError(f"unknown scorer {self.scorer!r} (choose from {sorted(SCORERS)})")
+        put("phi", _phi_choice(self.phi))
+        for name, low in (("seed", 0), ("max_samples", 1), ("max_iter", 1)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) \
+                    or value < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+            put(name, int(value))
+        put("local", bool(self.local))
+        constants = self.constants.items() if isinstance(self.constants, Mapping) \
+            else self.constants
+        try:
+            pairs = tuple(sorted((str(k), float(v)) for k, v in constants))
+        except (TypeError, ValueError):
+            raise ValueError(f"constants must map names to numbers, got {self.constants!r}")\
+                from None
+        put("constants", pairs)
+
+    def check(self, fam: ModelFamily) -> None:
+        """Raise ValueError when the options do not fit the family (model, constants)."""
+        if self.model is not None:
+            fam.model(self.model)
+        fam.constant_vector(dict(self.constants))
+
+    def to_dict(self) -> dict:
+        """Plain JSON data (constants as a mapping)."""
+        out = asdict(self)
+        out["constants"] = dict(self.constants)
+        return out
+
+    def key(self, channel: str) -> str:
+        """Canonical JSON of the options with the channel: the same options, the same text
+        (what a batch run's resume matches on)."""
+        return json.dumps({**self.to_dict(), "channel": channel}, sort_keys=True,
+                          separators=(",", ":"))
+
+
+def _positive(value, what: str) -> float:
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        out = math.nan
+    if not (out > 0 and math.isfinite(out)):
+        raise ValueError(f"{what} must be positive and finite, got {value!r}")
+    return out
+
+
+def _phi_choice(choice):
+    """A number stays a number ("0.5" too); a named factor is checked now: the estimator
+    would only meet a bad one in the middle of the search."""
+    if choice is None:
+        return None
+    if isinstance(choice, str):
+        try:
+            choice = float(choice)
+        except ValueError:
+            choice = choice.strip()
+    elif not isinstance(choice, int | float) or isinstance(choice, bool):
+        raise ValueError(f"phi must be a number or a name, got {choice!r}")
+    try:
+        get_phi(choice)
+    except ValueError as exc:
+        raise ValueError(f"phi: {exc}") from None
+    return float(choice) if not isinstance(choice, str) else choice
+
+
+def resolve_channel(fam: ModelFamily, channel: str | None) -> str:
+    """The channel named, or the family's only one; ValueError otherwise."""
+    if channel is None:
+        if len(fam.channels) != 1:
+            raise ValueError(f"a channel is required: the family has channels "
+                             f"{list(fam.channels)}")
+        return next(iter(fam.channels))
+    fam.channel(channel)
+    return channel
+
+
+def make_estimator(fam: ModelFamily, X: np.ndarray, channel: str,
+                   opts: FitOptions) -> Estimator:
+    """The robust lattice search of one dataset, measures in, not yet run."""
+    est = Estimator(fam, scale=opts.scale, scorer=opts.scorer, phi=opts.phi, seed=opts.seed,
+                    channel=channel, constants=dict(opts.constants), model=opts.model)
+    est.add_measures(channel, X, info=_info(opts))
+    return est
+
+
+def _info(opts: FitOptions) -> float | None:
+    return None if opts.sigma is None else opts.sigma**-2
+
+
+def search(est: Estimator, max_samples: int,
+           on_sample: Callable[[Estimator], None] | None = None) -> int:
+    """Step the estimator up to ``max_samples`` samples; returns the samples drawn."""
+    samples = 0
+    while samples < max_samples and est.step():
+        samples += 1
+        if on_sample is not None:
+            on_sample(est)
+    return samples
+
+
+def robust_record(est: Estimator, fam: ModelFamily, opts: FitOptions, *, channel: str,
+                  measures: int, samples: int, spec: str, data: str,
+                  interrupted: bool = False) -> dict:
+    """The JSON record of a robust search (``kanagen fit --json``); ``"found"`` says whether
+    a model was found."""
+    best = est.best()
+    found = best is not None and best.samples > 0 and bool(np.all(np.isfinite(best.q)))
+    status = f"interrupted ({est.status})" if interrupted else est.status
+    if not interrupted and samples >= opts.max_samples and est.status != "done":
+        status = f"stopped at --max-samples {opts.max_samples} ({est.status})"
+    record = estimator_to_json(est, best.model if found else None, measures)
+    record.update(_header(fam, channel, spec, data))
+    record.update({"scale": opts.scale, "scorer": opts.scorer, "phi": opts.phi,
+                   "seed": opts.seed, "max_samples": opts.max_samples, "measures": measures,
+                   "total_samples": samples, "status": est.status, "stop_reason": status,
+                   "found": found})
+    return record
+
+
+def local_record(fam: ModelFamily, X: np.ndarray, channel: str, opts: FitOptions, *,
+                 spec: str, data: str):
+    """The local fit of one model to all the measures: ``(FitResult, JSON record)``."""
+    from .runtime.coherence import coherence
+    from .runtime.fit import fit
+
+    info = {channel: _info(opts)}
+    constants = dict(opts.constants)
+    res = fit(fam, opts.model, data={channel: X}, info=info, constants=constants,
+              max_iter=opts.max_iter)
+    record = result_to_json(res)
+    errors = np.full(len(X), np.nan)
+    if np.all(np.isfinite(res.q)):
+        errors = coherence(fam, res.model, res.q, {channel: X}, info, constants)[channel]
+    record.update(_header(fam, channel, spec, data))
+    record.update({"local": True, "errors": errors, "found": bool(res.success),
+                   "stop_reason": res.message, "max_iter": opts.max_iter})
+    return res, record
+
+
+def _header(fam: ModelFamily, channel: str, spec: str, data: str) -> dict:
+    return {"format": RECORD_FORMAT, "family": fam.name, "spec": str(spec),
+            "spec_sha256": fam.sha256, "data": str(data), "channel": channel,
+            "channel_components": list(fam.channel(channel).components),
+            "edges": [[m, alt, phi] for m, info in fam.models.items()
+                      for alt, phi in info.alternatives],
+            "null_model": fam.null_model}
+
+
+def run_job(fam: ModelFamily, X: np.ndarray, channel: str, opts: FitOptions, *,
+            spec: str, data: str) -> dict:
+    """Estimate one dataset without a terminal (``kanagen batch``): the record that
+    ``kanagen fit --json`` writes for the same dataset and options, made plain JSON data."""
+    if opts.local:
+        return finite(local_record(fam, X, channel, opts, spec=spec, data=data)[1])
+    est = make_estimator(fam, X, channel, opts)
+    samples = search(est, opts.max_samples)
+    return finite(robust_record(est, fam, opts, channel=channel, measures=len(X),
+                                samples=samples, spec=spec, data=data))
+
+
+def std(covariance) -> np.ndarray:
+    """Standard deviations from a covariance: inf stays inf (unobservable)."""
+    with np.errstate(invalid="ignore"):
+        return np.sqrt(np.clip(np.diag(np.asarray(covariance, dtype=float)), 0.0, None))
+
+
+def finite(obj):
+    """Plain JSON data: arrays as lists, inf and NaN as null."""
+    if isinstance(obj, dict):
+        return {str(k): finite(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [finite(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return finite(obj.tolist())
+    if isinstance(obj, np.generic):
+        return finite(obj.item())
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def estimator_to_json(est: Estimator, chosen: str | None, measures: int | None = None) -> dict:
+    """An Estimator's lattice and chosen model as JSON data (inf and NaN as null after
+    :func:`finite`); ``errors[i]`` is measure ``i``'s error under the chosen model (eq. 24;
+    ``measures`` long, ids from 0)."""
+    lattice = [{"model": s.model, "parent": s.parent, "dof": s.dof, "cost": s.cost,
+                "relevance": s.relevance, "inliers": len(s.inliers), "outliers": len(s.outliers),
+                "samples": s.samples, "accepted": s.accepted, "threshold": s.threshold,
+                "status": s.status, "chosen": s.model == chosen}
+               for s in est.states()]
+    out = {"model": chosen, "lattice": lattice,
+           "history": [[int(n), float(r)] for n, r in est.history]}
+    best = est.best() if chosen is not None else None
+    if best is None:
+        return out
+    errors = np.full(measures if measures is not None else best.measure_ids.size, np.nan)
+    inside = best.measure_ids < errors.size
+    errors[best.measure_ids[inside]] = best.errors[inside]
+    out.update({
+        "params": dict(best.params),
+        "std": dict(zip(best.params, std(best.covariance).tolist(), strict=False)),
+        "slacks": dict(best.slacks),
+        "components": [*best.params, *best.slacks],  # rows of covariance and info
+        "covariance": np.asarray(best.covariance),
+        "info": np.asarray(best.info),
+        "cost": best.cost,
+        "dof": best.dof,
+        "relevance": best.relevance,
+        "threshold": best.threshold,
+        "samples": best.samples,
+        "inliers": np.asarray(best.inliers, dtype=int),
+        "outliers": np.asarray(best.outliers, dtype=int),
+        "errors": errors,
+        "derived": {k: {"value": np.asarray(v.value), "std": np.asarray(v.std)}
+                    for k, v in best.derived.items()},
+        "model_status": best.status,
+    })
+    return out
+
+
+def result_to_json(res) -> dict:
+    """A FitResult as JSON data (inf and NaN as null after :func:`finite`)."""
+    def arr(a):
+        return np.asarray(a).tolist()
+
+    return {
+        "model": res.model,
+        "params": res.params,
+        "std": dict(zip(res.params, arr(res.std), strict=False)),
+        "slacks": res.slacks,
+        "components": [*res.params, *res.slacks],  # rows of covariance and info
+        "covariance": arr(res.covariance),
+        "info": arr(res.info),
+        "cost": res.cost,
+        "dof": res.dof,
+        "normalized_cost": res.normalized_cost,
+        "residual": res.residual,
+        "iterations": res.iterations,
+        "success": res.success,
+        "status": res.status,
+        "message": res.message,
+        "derived": {k: {"value": arr(v.value), "std": arr(v.std)}
+                    for k, v in res.derived.items()},
+        "measures": {k: arr(v) for k, v in res.measures.items()},
+    }

@@ -1,0 +1,244 @@
+"""kanagen report: one self-contained HTML page, checked in headless Chromium."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from scenes import arc
+
+from kanagen.cli import main
+from kanagen.figures import CHOSEN, INLIER, OUTLIER
+from kanagen.fitjob import FitOptions
+from kanagen.resultsdb import ResultsDB, Row, encode
+
+pytest.importorskip("matplotlib")
+
+ROOT = Path(__file__).resolve().parents[1]
+LATTICE = ROOT / "examples" / "conic_lattice.yaml"
+CHROMIUM = shutil.which("chromium") or ("/usr/bin/chromium"
+                                        if Path("/usr/bin/chromium").exists() else None)
+
+# A two-view family small enough for a test: matches (x, y) -> (x', y') of a rectified pair
+# (one equation per match: the epipolar line y' = (1 + s) y + t), the null model "shift"
+# (s = 0) under the general "scaled".
+TWO_VIEW = """
+name: rectified_views
+parameter: {s: 0.0, t: 0.0}
+channels:
+  match:
+    components: [x, y, xp, yp]
+    equations: [yp - (1 + s)*y - t]
+models:
+  shift:
+    constraints: [s]
+    alternatives: {scaled: ftest}
+  scaled:
+    constraints: []
+"""
+
+
+def run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+
+
+@pytest.fixture
+def conic_result(tmp_path):
+    """A robust fit of a circular arc with outliers, as kanagen fit --json writes it."""
+    xy, _ = arc("circle", 3, n=40)
+    data = tmp_path / "arc.csv"
+    np.savetxt(data, xy, delimiter=",", header="x,y", comments="", fmt="%.6f")
+    out = tmp_path / "result.json"
+    done = run("fit", LATTICE, data, "--scale", "4", "--max-samples", "60", "--json", out)
+    assert done.exit_code == 0, done.output
+    return out, data
+
+
+@pytest.fixture
+def two_view_result(tmp_path):
+    """Matches between two textured images shifted by (12, -5) px, a quarter of them wrong;
+    the images as PNG files."""
+    import matplotlib.image
+
+    rng = np.random.default_rng(7)
+    texture = rng.uniform(0, 1, (140, 200))
+    first, second = texture[10:130, 20:190], texture[15:135, 8:178]  # second = first moved
+    for name, img in (("first.png", first), ("second.png", second)):
+        matplotlib.image.imsave(tmp_path / name, img, cmap="gray")
+    p = rng.uniform([0, 0], [170, 120], (60, 2))
+    q = p + [12.0, -5.0] + rng.normal(0, 0.3, p.shape)
+    q[:15] = rng.uniform([0, 0], [170, 120], (15, 2))
+    data = tmp_path / "matches.csv"
+    np.savetxt(data, np.c_[p, q], delimiter=",", header="x,y,xp,yp", comments="", fmt="%.4f")
+    spec = tmp_path / "rectified_views.yaml"
+    spec.write_text(TWO_VIEW)
+    out = tmp_path / "matches.json"
+    done = run("fit", spec, data, "--sigma", "0.3", "--scale", "4", "--max-samples", "60",
+               "--json", out)
+    assert done.exit_code == 0, done.output
+    assert json.loads(out.read_text())["model"] == "shift"  # y' = y - 5
+    return out, data, (tmp_path / "first.png", tmp_path / "second.png")
+
+
+def figures_of(html: str) -> list[str]:
+    return re.findall(r'data-figure="([a-z]+)"', html)
+
+
+def test_report_of_a_robust_fit_has_every_figure(conic_result, tmp_path):
+    result, data = conic_result
+    page = tmp_path / "report.html"
+    done = run("report", result, "-o", page)
+    assert done.exit_code == 0, done.output
+    html = page.read_text()
+    assert figures_of(html) == ["histogram", "relevance", "lattice", "residuals", "measures"]
+    assert html.count("<svg") == 5 and "<?xml" not in html
+    # self-contained: no external resource of any kind
+    assert not re.search(r'(src|href)="(?!#|data:)', html)
+    assert not re.search(r'(?<!xmlns=")(?<!xmlns:xlink=")https?://', html)
+    rec = json.loads(result.read_text())
+    assert f"Chosen model: <span class=\"chosen\">{rec['model']}</span>" in html
+    assert "threshold" in html and "Φ" in html and "s_ellipse" in html
+    # the ids of the figures never collide
+    ids = re.findall(r' id="([^"]+)"', html)
+    assert len(ids) == len(set(ids))
+
+
+def test_report_of_a_batch_dataset_and_bad_requests(conic_result, tmp_path):
+    result, data = conic_result
+    rec = json.loads(result.read_text())
+    db = tmp_path / "r.sqlite"
+    with ResultsDB(db) as store:
+        key = FitOptions(scale=4, max_samples=60).key("point")
+        store.write(Row(str(data), rec["spec_sha256"], key, rec["family"], "point", "ok",
+                        encode(rec), rec["stop_reason"], 0.5))
+        store.write(Row("broken.csv", rec["spec_sha256"], key, rec["family"], "point", "error",
+                        encode(None), "broken.csv: not a row of numbers"))
+    page = tmp_path / "from_db.html"
+    done = run("report", "--db", db, "--dataset", data, "-o", page)
+    assert done.exit_code == 0, done.output
+    html = page.read_text()
+    assert "batch status <b>ok</b>" in html and len(figures_of(html)) == 5
+    for args, message in (
+            (("--db", db, "--dataset", "nowhere.csv"), "no dataset 'nowhere.csv'; it has"),
+            (("--db", db, "--dataset", "broken.csv"), "failed: broken.csv: not a row"),
+            (("--db", db), "--db needs --dataset"),
+            ((result, "--db", db, "--dataset", data), "not both"),
+            ((result, "--images", data, data), "images need two-view matches"),
+            ((data,), "not JSON")):
+        done = run("report", *args, "-o", tmp_path / "x.html")
+        assert done.exit_code == 2 and message in done.output, done.output
+        assert "Traceback" not in done.output
+
+
+def test_report_of_a_local_fit(tmp_path):
+    out = tmp_path / "local.json"
+    done = run("fit", ROOT / "examples/conic.yaml", ROOT / "examples/data/ellipse_arc.csv",
+               "--model", "conic", "--local", "--json", out)
+    assert done.exit_code == 0, done.output
+    rec = json.loads(out.read_text())
+    assert rec["local"] and len(rec["errors"]) == len(rec["measures"]["point"])
+    page = tmp_path / "local.html"
+    assert run("report", out, "-o", page).exit_code == 0
+    assert figures_of(page.read_text()) == ["histogram", "residuals", "measures"]
+
+
+def test_two_view_report_draws_the_matches(two_view_result, tmp_path):
+    result, data, images = two_view_result
+    page = tmp_path / "views.html"
+    done = run("report", result, "--images", *images, "-o", page)
+    assert done.exit_code == 0, done.output
+    html = page.read_text()
+    assert figures_of(html) == ["histogram", "relevance", "lattice", "residuals", "matches"]
+    assert "data:image/png;base64," in html  # the images inside the page
+    assert run("report", result, "-o", page).exit_code == 0
+    assert "give the two images (--images" in page.read_text()
+    # without the data file: said on the page, no traceback
+    moved = data.rename(tmp_path / "elsewhere.csv")
+    done = run("report", result, "--images", *images, "-o", page)
+    assert done.exit_code == 0 and "Matches not drawn" in page.read_text()
+    done = run("report", result, "--images", *images, "--data", moved, "-o", page)
+    assert "matches" in figures_of(page.read_text())
+
+
+def chromium(*args: str, profile: Path) -> subprocess.CompletedProcess:
+    command = [CHROMIUM, "--headless", "--disable-gpu", "--disable-background-networking",
+               "--disable-component-update", "--disable-sync", "--no-first-run",
+               "--disable-extensions", f"--user-data-dir={profile}", *args]
+    if os.geteuid() == 0:
+        command.insert(2, "--no-sandbox")  # Chromium refuses root with its sandbox
+    return subprocess.run(command, capture_output=True, text=True, timeout=180)
+
+
+# Appended to a copy of the page: lay out each figure and write its size and drawn elements
+# into the DOM, which --dump-dom then shows.
+PROBE = """<script>
+document.body.dataset.rendered = JSON.stringify(
+  [...document.querySelectorAll("figure.kanagen-figure")].map(f => {
+    const svg = f.querySelector("svg"), box = svg.getBoundingClientRect();
+    return [f.dataset.figure, Math.round(box.width), Math.round(box.height),
+            svg.querySelectorAll("path, use, image").length];
+  }));
+</script>"""
+
+
+@pytest.mark.parametrize("kind", ["conic", "two_view"])
+def test_report_renders_in_headless_chromium(kind, request, tmp_path):
+    if CHROMIUM is None:
+        if os.environ.get("CI"):
+            pytest.fail("chromium is missing: .ci/run installs it (apt-get install chromium)")
+        pytest.skip("chromium not installed (apt-get install chromium)")
+    import matplotlib.image
+
+    if kind == "conic":
+        result, _ = request.getfixturevalue("conic_result")
+        extra, expected = [], "measures"
+    else:
+        result, _, images = request.getfixturevalue("two_view_result")
+        extra, expected = ["--images", *images], "matches"
+    page = tmp_path / "page.html"
+    assert run("report", result, *extra, "-o", page).exit_code == 0
+    probe = tmp_path / "probe.html"
+    probe.write_text(page.read_text().replace("</body>", PROBE + "</body>"))
+    dom = chromium("--virtual-time-budget=2000", "--dump-dom", probe.as_uri(),
+                   profile=tmp_path / "profile1")
+    assert dom.returncode == 0, dom.stderr[-2000:]
+    found = re.search(r'data-rendered="([^"]*)"', dom.stdout)
+    assert found, dom.stdout[:2000]
+    rendered = json.loads(found.group(1).replace("&quot;", '"'))
+    assert [r[0] for r in rendered] == ["histogram", "relevance", "lattice", "residuals",
+                                        expected]
+    for name, width, height, drawn in rendered:
+        assert width > 200 and height > 100 and drawn > 10, (name, width, height, drawn)
+    shot = tmp_path / "page.png"
+    done = chromium("--window-size=1200,6000", "--hide-scrollbars", f"--screenshot={shot}",
+                    page.as_uri(), profile=tmp_path / "profile2")
+    assert done.returncode == 0 and shot.exists(), done.stderr[-2000:]
+    pixels = matplotlib.image.imread(shot)[..., :3]
+
+    def count(colour: str) -> int:
+        rgb = np.array([int(colour[i:i + 2], 16) for i in (1, 3, 5)]) / 255
+        return int(np.count_nonzero(np.abs(pixels - rgb).max(axis=-1) < 10 / 255))
+
+    # the figures are drawn: inliers, outliers and the threshold, the chosen model's box
+    assert count(INLIER) > 500 and count(OUTLIER) > 200 and count(CHOSEN) > 100
+
+
+def test_lattice_rows_are_longest_paths_from_the_null_model():
+    import doctest
+
+    import kanagen.figures as figures
+
+    assert doctest.testmod(figures).failed == 0
+    edges = [["none", m] for m in ("zoom", "rotation", "translation")] + \
+        [["zoom", "planar"], ["rotation", "planar"], ["translation", "general"],
+         ["planar", "general"]]
+    assert figures.lattice_levels(edges, ["none", "zoom"], "none") == {
+        "none": 0, "zoom": 1, "rotation": 1, "translation": 1, "planar": 2, "general": 3}
+    assert figures.lattice_levels([], ["circle"], "line") == {"line": 0, "circle": 1}
