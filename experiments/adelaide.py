@@ -48,6 +48,8 @@ SAMPLES = 1000
 LOCAL = 0.5
 REASSIGN = 5
 CEILING = 2.0
+RETRIES = 2  # a search that finds nothing is repeated this many times (known structures)
+RESTARTS = 3  # extractions per scene, the one of least truncated error kept
 
 
 @dataclass(frozen=True)
@@ -66,7 +68,8 @@ class SceneResult:
 
 def kanagen_labels(fam, scene: datasets.MultiStructureScene, samples: int = SAMPLES,
                    scale: float = SCALE, local: float = LOCAL, reassign: int = REASSIGN,
-                   ceiling: float = CEILING, seed: int = 0) -> tuple[np.ndarray, int]:
+                   ceiling: float = CEILING, retries: int = RETRIES,
+                   restarts: int = RESTARTS, seed: int = 0) -> tuple[np.ndarray, int]:
     """Per-match classes from :func:`kanagen.find_structures` (0 = outlier), and the number
     of structures found."""
     cx, cy = scene.centre
@@ -75,7 +78,7 @@ def kanagen_labels(fam, scene: datasets.MultiStructureScene, samples: int = SAMP
         fam, data={"match": scene.matches}, info={"match": 1.0},
         max_structures=scene.structures, model=MODEL[scene.kind], scale=scale,
         samples_per_model=samples, max_samples=samples * 10, local=local, reassign=reassign,
-        max_threshold=ceiling * scale, seed=seed,
+        max_threshold=ceiling * scale, retries=retries, restarts=restarts, seed=seed,
         constants={"cx": cx, "cy": cy, "f0": float(max(width, height))})
     return labels_from_structures(len(scene.matches), [s.inliers for s in found]), len(found)
 
@@ -164,6 +167,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--reassign", type=int, default=REASSIGN, help="assignment rounds")
     parser.add_argument("--ceiling", type=float, default=CEILING,
                         help="ceiling of the outlier threshold, in units of L*")
+    parser.add_argument("--retries", type=int, default=RETRIES,
+                        help="repeats of a search that finds nothing")
+    parser.add_argument("--restarts", type=int, default=RESTARTS,
+                        help="extractions per scene (the least truncated error kept)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", help="write the per-scene results here")
     args = parser.parse_args(argv)
@@ -178,7 +185,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             scene = datasets.adelaide_scene(kind, name)
             r = run_scene(fam, scene, samples=args.samples, scale=args.scale,
                           local=args.local, reassign=args.reassign, ceiling=args.ceiling,
-                          seed=args.seed)
+                          retries=args.retries, restarts=args.restarts, seed=args.seed)
             results.append(r)
             print(f"{kind} {name}: kanagen {100 * r.kanagen:.1f} % ({r.kanagen_seconds:.1f} s), "
                   f"MAGSAC " + ", ".join(f"{t}: {100 * v:.1f} %" for t, v in r.magsac.items()),

@@ -15,11 +15,14 @@ from .fit import fit_problem, make_problem
 from .robust import outlier_threshold
 from .scoring import scorer as get_scorer
 
+_RESTART_SEEDS = 1000  # seeds of restart r: seed + 1000 r, then one per search
+
 
 def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None,
                     max_structures: int = 5, model: str | None = None,
                     min_inliers: int | None = None, max_samples: int = 2000,
-                    reassign: int = 5, local: float = 0.0, **options) -> list[ModelState]:
+                    reassign: int = 5, local: float = 0.0, retries: int = 0,
+                    restarts: int = 1, **options) -> list[ModelState]:
     """Several structures in the same data (report §4, clustered data): find one, take its
     inliers out, search again, until nothing relevant is left or ``max_structures``; then
     (``reassign`` rounds) give each measure to the structure with the least coherence
@@ -46,6 +49,15 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
         :class:`~kanagen.runtime.robust.ModelSearch`); default 0 (uniform). Structures of
         clustered data are spatially coherent and a small one is out of reach of uniform
         samples: 0.5 there (``experiments/adelaide.py``).
+    retries : int
+        A search that finds nothing relevant is repeated with fresh samples up to this many
+        times before the extraction stops (worth it when ``max_structures`` is the known
+        number of structures); default 0.
+    restarts : int
+        Independent extractions (fresh samples); the one kept explains the measures best:
+        least ``Σᵢ min(eᵢ, τ)`` over all measures, ``eᵢ`` the error to the closest
+        structure and ``τ`` the ceiling ``max_threshold`` (else ``2 L*``) — the truncated
+        error of MSAC (Torr & Zisserman 2000) summed over the structures. Default 1.
     options : the :class:`Estimator` options (``scale``, ``scorer``, ``phi``, ``seed``,
         ``channel``, ``constants``, ``max_threshold``, ...). Structures close to one another
         make no minimum in the error histogram between them: ``max_threshold`` (e.g. twice
@@ -60,17 +72,44 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
     """
     if reassign < 0:
         raise ValueError(f"reassign must be a number of rounds >= 0, got {reassign}")
+    if retries < 0:
+        raise ValueError(f"retries must be >= 0, got {retries}")
+    if restarts < 1:
+        raise ValueError(f"restarts must be >= 1, got {restarts}")
+    info = dict(info or {})
+    seed = options.pop("seed", 0)
+    best, best_energy = [], np.inf
+    for r in range(restarts):
+        found, needed = _extract(fam, data, info, max_structures, model, min_inliers,
+                                 max_samples, local, retries,
+                                 None if seed is None else seed + _RESTART_SEEDS * r, options)
+        if reassign and found:
+            found = _assign(fam, data, info, found, needed, reassign, options)
+        if restarts == 1:
+            best = found
+            break
+        energy = _energy(fam, data, info, found, options)
+        if energy < best_energy:
+            best, best_energy = found, energy
+    return sorted(best, key=lambda s: -len(s.inliers))
+
+
+def _extract(fam: ModelFamily, data: Mapping, info: Mapping, max_structures: int,
+             model: str | None, min_inliers: int | None, max_samples: int, local: float,
+             retries: int, seed: int | None, options: Mapping,
+             ) -> tuple[list[ModelState], list[int]]:
+    """The greedy extraction: find a structure, take its inliers out, search again."""
     sizes = {name: len(np.asarray(rows)) for name, rows in data.items()}
     offsets = dict(zip(sizes, np.cumsum([0] + list(sizes.values()))[:-1].tolist(),
                        strict=True))
     remaining = {name: np.arange(size) for name, size in sizes.items()}
-    info = dict(info or {})
     found: list[ModelState] = []
     needed: list[int] = []
-    seed = options.pop("seed", 0)
-    for k in range(max_structures):
-        est = Estimator(fam, model=model, seed=None if seed is None else seed + k,
+    attempt, failures = 0, 0
+    while len(found) < max_structures:
+        est = Estimator(fam, model=model, seed=None if seed is None else seed + attempt,
                         local=local, **options)
+        attempt += 1
         index = []  # estimator id -> global row (channel offset + row)
         for name, rows in remaining.items():
             if rows.size == 0:
@@ -85,16 +124,32 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
             break
         need = min_inliers if min_inliers is not None else 2 * _minimal(est, best)
         if len(best.inliers) <= need:
-            break
+            failures += 1
+            if failures > retries:
+                break
+            continue
+        failures = 0
         index = np.concatenate(index)
         state = replace(best, inliers=index[best.inliers], outliers=index[best.outliers])
         found.append(state)
         needed.append(need)
         for name, rows in remaining.items():
             remaining[name] = rows[~np.isin(offsets[name] + rows, state.inliers)]
-    if reassign and len(found) > 0:
-        found = _assign(fam, data, info, found, needed, reassign, options)
-    return sorted(found, key=lambda s: -len(s.inliers))
+    return found, needed
+
+
+def _energy(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelState],
+            options: Mapping) -> float:
+    """``Σᵢ min(eᵢ, τ)``: each measure's error to its closest structure, truncated at the
+    ceiling ``τ`` (an outlier costs ``τ``)."""
+    ceiling = options.get("max_threshold") or 2.0 * float(options.get("scale", 1.0))
+    size = sum(len(np.asarray(rows)) for rows in data.values())
+    closest = np.full(size, np.inf)
+    for state in found:
+        problem = make_problem(fam, state.model, data, info, options.get("q0"),
+                               options.get("Q0"), options.get("constants"))
+        closest = np.minimum(closest, np.concatenate(coherence_errors(problem, state.q)))
+    return float(np.sum(np.minimum(closest, ceiling)))
 
 
 def _assign(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelState],

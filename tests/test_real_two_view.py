@@ -100,7 +100,7 @@ def test_adelaide_metric_and_peers():
 
     fam = kanagen.load("two_view")
     scene = datasets.adelaide_scene("F", "book")
-    labels, found = adelaide.kanagen_labels(fam, scene, samples=300)
+    labels, found = adelaide.kanagen_labels(fam, scene, samples=300, restarts=1)
     assert found == 1 and misclassification(scene.labels, labels) < 0.05
     assert cv2 is not None
     magsac = adelaide.magsac_labels(scene, 2.0)
@@ -111,3 +111,21 @@ def test_adelaide_metric_and_peers():
     text, means = adelaide.report([result])
     assert "floor: kanagen 2.0 % < sequential MAGSAC 3.0 %" in text and "met" in text
     assert means["F"]["magsac_best"] == pytest.approx(3.0)
+
+
+def test_real_table_helpers():
+    """experiments/two_view_real.py: what each pair should come out as, and the error of a
+    model on the ground truth (the ground truth's own H and F: zero and its Sampson error)."""
+    need("magsac_cmp")
+    import two_view_real as real
+
+    city, adam = datasets.homography_pair("city"), datasets.homography_pair("adam")
+    assert "none" in real.expected_models("homography", city)  # its H: 0.48 px from I
+    assert real.expected_models("homography", adam) == {"planar", "rotation", "zoom"}
+    kind, err = real.truth_error(adam, {"model": "planar", "derived": {"H": adam.H}})
+    assert kind == "transfer" and err < 1e-6
+    booksh = datasets.fundamental_pair("booksh")
+    kind, err = real.truth_error(booksh, {"model": "general", "derived": {"F": booksh.F}})
+    assert kind == "Sampson" and 0.3 < err < 0.7
+    c = real.constants_of(adam)
+    assert c == {"cx": 300.0, "cy": 225.0, "f0": 600.0}

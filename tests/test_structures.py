@@ -111,3 +111,55 @@ def test_ceiling_reaches_every_threshold(line):
     assert all(s.threshold == 4.0 for s in found)
     with pytest.raises(ValueError, match="max_threshold"):
         kanagen.Estimator(line, scale=4.0, max_threshold=2.0)
+
+
+def three_lines(seed: int = 5):
+    """Three lines of 30 points (σ = 0.3) among 300 uniform outliers (200 × 300 box)."""
+    rng = np.random.default_rng(seed)
+    lines = []
+    for a, b in ((0.5, 0.0), (-0.4, 10.0), (2.0, -30.0)):
+        x = rng.uniform(-50, 50, 30)
+        lines.append(np.c_[x, a * x + b + rng.normal(0, 0.3, 30)])
+    return np.r_[np.concatenate(lines), rng.uniform([-100, -150], [100, 150], (300, 2))]
+
+
+def test_retries_reach_the_known_number_of_structures(line):
+    """One sample per search: most searches find nothing; without retries the extraction
+    stops at the first, with retries it goes on until the three lines are found (the run
+    without retries is a prefix of the run with them: same seeds until the first failure)."""
+    xy = three_lines()
+    options = dict(data={"point": xy}, model="line", max_structures=3, scale=4.0,
+                   samples_per_model=1, min_inliers=20, reassign=0)
+    for seed in (0, 3):
+        alone = kanagen.find_structures(line, seed=seed, **options)
+        again = kanagen.find_structures(line, seed=seed, retries=60, **options)
+        assert len(alone) < 3 and len(again) == 3
+        lines = [np.bincount(s.inliers[s.inliers < 90] // 30, minlength=3) for s in again]
+        assert sorted(int(np.argmax(c)) for c in lines) == [0, 1, 2]  # one line each
+        assert all(c.max() >= 25 for c in lines)
+
+
+def energy(fam, found, xy, ceiling):
+    closest = np.full(len(xy), np.inf)
+    for s in found:
+        closest = np.minimum(closest, kanagen.coherence(fam, s.model, s.q,
+                                                        data={"point": xy})["point"])
+    return float(np.sum(np.minimum(closest, ceiling)))
+
+
+def test_restarts_keep_the_extraction_of_least_truncated_error(line):
+    """restarts=3 returns the single extraction (seeds s, s + 1000, s + 2000) of least
+    Σ min(e, τ), τ = max_threshold."""
+    xy = three_lines()
+    options = dict(data={"point": xy}, model="line", max_structures=3, scale=4.0,
+                   samples_per_model=3, min_inliers=20, retries=3, max_threshold=8.0)
+    singles = [kanagen.find_structures(line, seed=7 + 1000 * r, **options) for r in range(3)]
+    energies = [energy(line, f, xy, 8.0) for f in singles]
+    kept = kanagen.find_structures(line, seed=7, restarts=3, **options)
+    assert energy(line, kept, xy, 8.0) == pytest.approx(min(energies))
+    best = singles[int(np.argmin(energies))]
+    assert [s.inliers.tolist() for s in kept] == [s.inliers.tolist() for s in best]
+    with pytest.raises(ValueError, match="restarts"):
+        kanagen.find_structures(line, data={"point": xy}, restarts=0)
+    with pytest.raises(ValueError, match="retries"):
+        kanagen.find_structures(line, data={"point": xy}, retries=-1)
