@@ -106,11 +106,14 @@ def test_adelaide_metric_and_peers():
     magsac = adelaide.magsac_labels(scene, 2.0)
     assert set(np.unique(magsac)) <= {0, 1}
     assert misclassification(scene.labels, magsac) < 0.10
-    result = adelaide.SceneResult("F", "book", 187, 1, 0.44, 0.02, 1, 1.0,
-                                  {"1": 0.1, "2": 0.03}, 0.01)
-    text, means = adelaide.report([result])
-    assert "floor: kanagen 2.0 % < sequential MAGSAC 3.0 %" in text and "met" in text
+    results = [adelaide.SceneResult("F", name, 187, 1, 0.44, share, 1, 1.0,
+                                    {"1": 0.1, "2": magsac}, 0.01)
+               for name, share, magsac in (("a", 0.02, 0.03), ("b", 0.01, 0.05),
+                                           ("c", 0.09, 0.01))]
+    text, means = adelaide.report(results)
+    assert "floor: kanagen 4.0 % < sequential MAGSAC 3.0 %" in text and "NOT met" in text
     assert means["F"]["magsac_best"] == pytest.approx(3.0)
+    assert means["F"]["kanagen_median"] == pytest.approx(2.0)
 
 
 def test_real_table_helpers():
