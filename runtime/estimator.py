@@ -91,6 +91,13 @@ class Estimator:
         ``{model: name or callable or None}``: closed-form starts of the model's minimal
         solves (:mod:`kanagen.runtime.initializers`), over the spec's ``initializer:``;
         ``None`` switches one off.
+    local : float in [0, 1]
+        Fraction of local (nearest-neighbour) samples, see :class:`ModelSearch`, in the
+        searches over all the measures; default 0. A more general model's samples stay as
+        they are (extra measures among its parent's outliers).
+    max_threshold : float, optional
+        A ceiling on the outlier threshold of the error histogram (error units, at least
+        ``scale``); default none.
 
     Examples
     --------
@@ -109,7 +116,8 @@ class Estimator:
                  confidence: float = 0.99, inlier_ratio: float = 0.5, adaptive: bool = False,
                  min_samples: int = 20, window: float = 0.35,
                  q0=None, Q0=None, constants=None, model: str | None = None,
-                 initializers: dict | None = None):
+                 initializers: dict | None = None, local: float = 0.0,
+                 max_threshold: float | None = None):
         if not scale > 0:
             raise ValueError(f"scale (L*) must be positive, got {scale}")
         get_scorer(scorer)  # validate now: a bad choice must not surface mid-run
@@ -127,6 +135,13 @@ class Estimator:
         self.adaptive = adaptive
         self.min_samples = min_samples
         self.window = window
+        if not 0.0 <= local <= 1.0:
+            raise ValueError(f"local must be a fraction in [0, 1], got {local}")
+        self.local = float(local)
+        if max_threshold is not None and not max_threshold >= scale:
+            raise ValueError(f"max_threshold must be at least scale (L* = {scale}), got "
+                             f"{max_threshold}")
+        self.max_threshold = max_threshold
         if model is not None:
             fam.model(model)
         self.model = model  # a single model (no lattice), or None for the whole lattice
@@ -396,7 +411,9 @@ class Estimator:
                     self._corrected.get(parent, {}).get(name), self._constants)
             search = ModelSearch(self.fam, model, problem, channel, start, self._rng,
                                  self.scale, self.scorer, pool=pool, parent_free=parent_free,
-                                 base=base, initializer=self.initializers.get(model))
+                                 base=base, initializer=self.initializers.get(model),
+                                 local=self.local if pool is None else 0.0,
+                                 max_threshold=self.max_threshold)
             if search.exhausted:
                 self._skipped[model] = parent
                 self._queue_alternatives(model)

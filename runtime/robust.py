@@ -27,14 +27,18 @@ from .scoring import samples_for_confidence
 from .scoring import scorer as get_scorer
 
 _REFINE_ROUNDS = 6  # threshold-and-refine rounds at most (they stop when the inliers do)
+_NEIGHBOURHOOD = 4  # a local sample is drawn among this many sample sizes of nearest measures
 
 
-def outlier_threshold(errors: np.ndarray, scale: float, window: float = 0.35) -> float:
+def outlier_threshold(errors: np.ndarray, scale: float, window: float = 0.35,
+                      ceiling: float | None = None) -> float:
     """Threshold between inliers and outliers from the histogram of the errors (report §4).
 
     The histogram (bins of ``L*/20`` up to ``20 L*``) is smoothed over a window of
     ``window·L*`` (25–50 % of ``L*``); the threshold is its first local minimum or saddle
     after the mode. Without one in range (no outlier population there), it is the range end.
+    ``ceiling`` caps it (several structures close to one another make no minimum between
+    them: their errors form one slope).
 
     Examples
     --------
@@ -71,7 +75,8 @@ def outlier_threshold(errors: np.ndarray, scale: float, window: float = 0.35) ->
         if ahead.size and ahead.max() - smooth[i] > noise:
             break  # a genuine local minimum
         i += 1
-    return max(float(edges[i + 1]), float(scale))
+    threshold = max(float(edges[i + 1]), float(scale))
+    return threshold if ceiling is None else min(threshold, max(float(ceiling), float(scale)))
 
 
 @dataclass(frozen=True)
@@ -130,6 +135,14 @@ class ModelSearch:
     initializer : callable, optional
         Closed-form starts for the minimal solves (:mod:`~kanagen.runtime.initializers`):
         ``f(rows, constants) -> [{name: value}, ...]``; each candidate starts one solve.
+    local : float in [0, 1]
+        Fraction of the samples drawn locally (NAPSAC, Nasuto & Craddock 2002): one measure
+        at random, the others among its nearest measures (Euclidean distance of the data
+        rows). Structures in clustered data are spatially coherent: a local sample is far
+        likelier to be outlier-free than a uniform one when each structure holds a small
+        share of the measures. 0: uniform samples only.
+    max_threshold : float, optional
+        A ceiling on the outlier threshold (error units, at least ``scale``).
 
     A sample whose independent equations outnumber the free degrees of freedom (a zoom from
     one match: two equations, one unknown; the null model: none) cannot be passed through
@@ -140,7 +153,11 @@ class ModelSearch:
                  start: np.ndarray, rng: np.random.Generator, scale: float = 1.0,
                  scorer: str | Callable = "relevance", pool: np.ndarray | None = None,
                  sample_size: int | None = None, parent_free: int | None = None,
-                 base: np.ndarray | None = None, initializer: InitializerFn | None = None):
+                 base: np.ndarray | None = None, initializer: InitializerFn | None = None,
+                 local: float = 0.0, max_threshold: float | None = None):
+        if not 0.0 <= local <= 1.0:
+            raise ValueError(f"local must be a fraction in [0, 1], got {local}")
+        self.max_threshold = max_threshold
         self.fam = fam
         self.model = model
         self.problem = problem
@@ -162,6 +179,8 @@ class ModelSearch:
         equations = (self.sample_size + self.base_size) * self._equations_per_measure()
         self.full_rank = min(fam.n, fam.n - self.free_dof() + equations)
         self.overdetermined = equations > self.free_dof()
+        self.local = float(local)
+        self._neighbours: np.ndarray | None = None
         self.samples = 0
         self.degenerate = 0
         self.best_q: np.ndarray | None = None
@@ -219,7 +238,7 @@ class ModelSearch:
         if self.exhausted:
             return False
         self.samples += 1
-        rows = self.rng.choice(self.pool, size=self.sample_size, replace=False)
+        rows = self._draw()
         if self.base_size > 0:
             rows = np.r_[rows, self.rng.choice(self.base, size=self.base_size, replace=False)]
         picked = tuple(rows if i == self.channel else np.zeros(0, dtype=int)
@@ -243,6 +262,21 @@ class ModelSearch:
         self.degenerate += solutions == 0
         self.history.append((self.samples, self.best_score))
         return improved
+
+    def _draw(self) -> np.ndarray:
+        """The sampled measures: uniform, or local with probability ``local``."""
+        size = self.sample_size
+        if self.local > 0.0 and self.base_size == 0 and self.pool.size > size \
+                and self.rng.random() < self.local:
+            if self._neighbours is None:
+                from scipy.spatial import cKDTree
+
+                X = self.problem.channels[self.channel].X[self.pool]
+                k = min(self.pool.size, _NEIGHBOURHOOD * size)
+                self._neighbours = self.pool[cKDTree(X).query(X, k)[1]]
+            near = self._neighbours[self.rng.integers(self.pool.size)]
+            return np.r_[near[0], self.rng.choice(near[1:], size=size - 1, replace=False)]
+        return self.rng.choice(self.pool, size=size, replace=False)
 
     def _starts(self, rows: np.ndarray) -> list[np.ndarray]:
         """Starting values of solves on ``rows``: the initializer's candidates (none: no
@@ -280,7 +314,7 @@ class ModelSearch:
         better. A minimal sample of nearby measures extrapolates badly; without this the
         search keeps a partial structure whenever its budget held few spread samples."""
         errors = np.concatenate(self.best_errors)
-        threshold = outlier_threshold(errors, self.scale)
+        threshold = outlier_threshold(errors, self.scale, ceiling=self.max_threshold)
         rows = tuple(np.flatnonzero(e < threshold) for e in self.best_errors)
         if sum(r.size for r in rows) <= self.sample_size + self.base_size:
             return
@@ -307,7 +341,8 @@ class ModelSearch:
         if self.best_q is None:
             return None
         q, errors = self.best_q, self.best_errors
-        threshold = outlier_threshold(np.concatenate(errors), self.scale, window)
+        threshold = outlier_threshold(np.concatenate(errors), self.scale, window,
+                                      self.max_threshold)
         rows = tuple(np.flatnonzero(e < threshold) for e in errors)
         result = None
         for round_ in range(_REFINE_ROUNDS):
@@ -320,7 +355,8 @@ class ModelSearch:
                 break
             q = result.q
             errors = coherence_errors(self.problem, q)
-            threshold = outlier_threshold(np.concatenate(errors), self.scale, window)
+            threshold = outlier_threshold(np.concatenate(errors), self.scale, window,
+                                      self.max_threshold)
             new = tuple(np.flatnonzero(e < threshold) for e in errors)
             if all(np.array_equal(a, b) for a, b in zip(new, rows, strict=True)):
                 break  # stable: the fit is on the reported inliers

@@ -1,5 +1,5 @@
 """Several structures in the same data (report §4, clustered data): find one, take its
-inliers out, search again."""
+inliers out, search again; then give each measure to the structure that explains it best."""
 
 from __future__ import annotations
 
@@ -8,16 +8,32 @@ from dataclasses import replace
 
 import numpy as np
 
+from .coherence import coherence_errors
 from .estimator import Estimator, ModelState
 from .family import ModelFamily
+from .fit import fit_problem, make_problem
+from .robust import outlier_threshold
+from .scoring import scorer as get_scorer
+
+_RESTART_SEEDS = 1000  # seeds of restart r: seed + 1000 r, then one per search
 
 
 def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None,
                     max_structures: int = 5, model: str | None = None,
                     min_inliers: int | None = None, max_samples: int = 2000,
-                    **options) -> list[ModelState]:
+                    reassign: int = 5, local: float = 0.0, retries: int = 0,
+                    restarts: int = 1, **options) -> list[ModelState]:
     """Several structures in the same data (report §4, clustered data): find one, take its
-    inliers out, search again, until nothing relevant is left or ``max_structures``.
+    inliers out, search again, until nothing relevant is left or ``max_structures``; then
+    (``reassign`` rounds) give each measure to the structure with the least coherence
+    error among those whose threshold it passes, refit each structure on its measures, and
+    repeat until the assignment is stable.
+
+    The greedy search alone keeps its early mistakes: the first structure takes every
+    measure under its threshold, including those of later structures near where they meet
+    (two planes along their common line, two motions near the epipoles). The assignment
+    rounds are the "assign, then refit" steps of Isack & Boykov's PEARL (IJCV 2012) without
+    its smoothness term.
 
     Parameters
     ----------
@@ -26,24 +42,74 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
         The model of every structure; default: the lattice search picks one per structure.
     min_inliers : int, optional
         A structure needs more inliers than this (default: twice the minimal sample).
+    reassign : int
+        Rounds of assignment and refit at most (0: the greedy result as found).
+    local : float in [0, 1]
+        Share of local samples (a measure and its nearest neighbours, see
+        :class:`~kanagen.runtime.robust.ModelSearch`); default 0 (uniform). Structures of
+        clustered data are spatially coherent and a small one is out of reach of uniform
+        samples: 0.5 there (``experiments/adelaide.py``).
+    retries : int
+        A search that finds nothing relevant is repeated with fresh samples up to this many
+        times before the extraction stops (worth it when ``max_structures`` is the known
+        number of structures); default 0.
+    restarts : int
+        Independent extractions (fresh samples); the one kept explains the measures best:
+        least ``Σᵢ min(eᵢ, τ)`` over all measures, ``eᵢ`` the error to the closest
+        structure and ``τ`` the ceiling ``max_threshold`` (else ``2 L*``) — the truncated
+        error of MSAC (Torr & Zisserman 2000) summed over the structures. Default 1.
     options : the :class:`Estimator` options (``scale``, ``scorer``, ``phi``, ``seed``,
-        ``channel``, ``constants``, ...).
+        ``channel``, ``constants``, ``max_threshold``, ...). Structures close to one another
+        make no minimum in the error histogram between them: ``max_threshold`` (e.g. twice
+        ``scale``) keeps one from taking its neighbours.
 
     Returns
     -------
     list of ModelState
         Strongest (most inliers) first; ``inliers``/``outliers`` are row indices into the
-        arrays given (ids follow the rows of ``data``, channel after channel).
+        arrays given (ids follow the rows of ``data``, channel after channel). A measure is
+        an inlier of one structure at most.
     """
+    if reassign < 0:
+        raise ValueError(f"reassign must be a number of rounds >= 0, got {reassign}")
+    if retries < 0:
+        raise ValueError(f"retries must be >= 0, got {retries}")
+    if restarts < 1:
+        raise ValueError(f"restarts must be >= 1, got {restarts}")
+    info = dict(info or {})
+    seed = options.pop("seed", 0)
+    best, best_energy = [], np.inf
+    for r in range(restarts):
+        found, needed = _extract(fam, data, info, max_structures, model, min_inliers,
+                                 max_samples, local, retries,
+                                 None if seed is None else seed + _RESTART_SEEDS * r, options)
+        if reassign and found:
+            found = _assign(fam, data, info, found, needed, reassign, options)
+        if restarts == 1:
+            best = found
+            break
+        energy = _energy(fam, data, info, found, options)
+        if energy < best_energy:
+            best, best_energy = found, energy
+    return sorted(best, key=lambda s: -len(s.inliers))
+
+
+def _extract(fam: ModelFamily, data: Mapping, info: Mapping, max_structures: int,
+             model: str | None, min_inliers: int | None, max_samples: int, local: float,
+             retries: int, seed: int | None, options: Mapping,
+             ) -> tuple[list[ModelState], list[int]]:
+    """The greedy extraction: find a structure, take its inliers out, search again."""
     sizes = {name: len(np.asarray(rows)) for name, rows in data.items()}
     offsets = dict(zip(sizes, np.cumsum([0] + list(sizes.values()))[:-1].tolist(),
                        strict=True))
     remaining = {name: np.arange(size) for name, size in sizes.items()}
-    info = dict(info or {})
     found: list[ModelState] = []
-    seed = options.pop("seed", 0)
-    for k in range(max_structures):
-        est = Estimator(fam, model=model, seed=None if seed is None else seed + k, **options)
+    needed: list[int] = []
+    attempt, failures = 0, 0
+    while len(found) < max_structures:
+        est = Estimator(fam, model=model, seed=None if seed is None else seed + attempt,
+                        local=local, **options)
+        attempt += 1
         index = []  # estimator id -> global row (channel offset + row)
         for name, rows in remaining.items():
             if rows.size == 0:
@@ -56,15 +122,100 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
         best = est.run(max_samples=max_samples)
         if best is None or not best.samples:
             break
-        needed = min_inliers if min_inliers is not None else 2 * _minimal(est, best)
-        if len(best.inliers) <= needed:
-            break
+        need = min_inliers if min_inliers is not None else 2 * _minimal(est, best)
+        if len(best.inliers) <= need:
+            failures += 1
+            if failures > retries:
+                break
+            continue
+        failures = 0
         index = np.concatenate(index)
         state = replace(best, inliers=index[best.inliers], outliers=index[best.outliers])
         found.append(state)
+        needed.append(need)
         for name, rows in remaining.items():
             remaining[name] = rows[~np.isin(offsets[name] + rows, state.inliers)]
-    return sorted(found, key=lambda s: -len(s.inliers))
+    return found, needed
+
+
+def _energy(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelState],
+            options: Mapping) -> float:
+    """``Σᵢ min(eᵢ, τ)``: each measure's error to its closest structure, truncated at the
+    ceiling ``τ`` (an outlier costs ``τ``)."""
+    ceiling = options.get("max_threshold") or 2.0 * float(options.get("scale", 1.0))
+    size = sum(len(np.asarray(rows)) for rows in data.values())
+    closest = np.full(size, np.inf)
+    for state in found:
+        problem = make_problem(fam, state.model, data, info, options.get("q0"),
+                               options.get("Q0"), options.get("constants"))
+        closest = np.minimum(closest, np.concatenate(coherence_errors(problem, state.q)))
+    return float(np.sum(np.minimum(closest, ceiling)))
+
+
+def _assign(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelState],
+            needed: list[int], rounds: int, options: Mapping) -> list[ModelState]:
+    """Assign each measure to its best structure, refit, until stable (PEARL's steps)."""
+    constants = options.get("constants")
+    scale = float(options.get("scale", 1.0))
+    window = options.get("window", 0.35)
+    score = get_scorer(options.get("scorer", "relevance"))
+    problems = {}
+
+    def problem(model: str):
+        if model not in problems:
+            problems[model] = make_problem(fam, model, data, info, options.get("q0"),
+                                           options.get("Q0"), constants)
+        return problems[model]
+
+    sizes = [ch.size for ch in problem(found[0].model).channels]
+    bounds = np.cumsum([0] + sizes)
+    owner = _owners(len(found), bounds[-1], [s.inliers for s in found])
+    for _ in range(rounds):
+        errors = np.array([np.concatenate(coherence_errors(problem(s.model), s.q))
+                           for s in found])
+        passed = np.where(errors < np.array([s.threshold for s in found])[:, None], errors,
+                          np.inf)
+        new = np.where(np.isfinite(passed.min(axis=0)), np.argmin(passed, axis=0), -1)
+        if np.array_equal(new, owner):
+            break
+        owner = new
+        kept, kept_needed = [], []
+        for k, (state, need) in enumerate(zip(found, needed, strict=True)):
+            rows = np.flatnonzero(owner == k)
+            if rows.size <= need:
+                continue  # a structure the others explain better is dropped
+            prob = problem(state.model)
+            per_channel = tuple(rows[(rows >= a) & (rows < b)] - a
+                                for a, b in zip(bounds[:-1], bounds[1:], strict=True))
+            fit = fit_problem(fam, state.model, prob.subset(per_channel), q_start=state.q,
+                              q0=prob.q0, Q0=prob.Q0)
+            if not np.all(np.isfinite(fit.q)):
+                kept.append(state)
+                kept_needed.append(need)
+                continue
+            all_errors = np.concatenate(coherence_errors(prob, fit.q))
+            kept.append(replace(
+                state, params=fit.params, q=fit.q, info=fit.info, covariance=fit.covariance,
+                cost=fit.normalized_cost, dof=fit.dof, derived=fit.derived,
+                slacks=fit.slacks, status="estimated" if fit.success else fit.message,
+                threshold=outlier_threshold(all_errors, scale, window,
+                                            options.get("max_threshold")),
+                relevance=score(all_errors, scale), inliers=rows))
+            kept_needed.append(need)
+        if not kept:
+            break
+        found, needed = kept, kept_needed
+        owner = _owners(len(found), bounds[-1], [s.inliers for s in found])
+    everything = np.arange(bounds[-1])
+    return [replace(s, inliers=np.sort(s.inliers),
+                    outliers=np.setdiff1d(everything, s.inliers)) for s in found]
+
+
+def _owners(count: int, size: int, inliers: list[np.ndarray]) -> np.ndarray:
+    owner = np.full(size, -1)
+    for k in range(count):
+        owner[inliers[k]] = k
+    return owner
 
 
 def _rows_of(info, rows: np.ndarray, size: int):

@@ -1,0 +1,165 @@
+"""Several structures (report §4, clustered data): local samples reach a small structure that
+uniform samples miss, and the final assignment gives each measure to the structure that
+explains it best (a fixed point the greedy search alone does not reach)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import kanagen
+from kanagen.evaluation import labels_from_structures, misclassification
+
+
+@pytest.fixture(scope="module")
+def line():
+    return kanagen.load("line")
+
+
+def crossing_lines(seed: int = 0):
+    """Two crossing lines (80 and 60 points, σ = 0.5) and 40 uniform outliers."""
+    rng = np.random.default_rng(seed)
+    x1, x2 = rng.uniform(-50, 50, 80), rng.uniform(-50, 50, 60)
+    a = np.c_[x1, 0.2 * x1 + rng.normal(0, 0.5, 80)]
+    b = np.c_[x2, -0.3 * x2 + rng.normal(0, 0.5, 60)]
+    noise = rng.uniform([-50, -20], [50, 20], (40, 2))
+    labels = np.r_[np.ones(80, int), 2 * np.ones(60, int), np.zeros(40, int)]
+    return np.r_[a, b, noise], labels
+
+
+def assignment_violations(fam, found, xy) -> int:
+    """Measures not owned by the structure of least error among those they pass."""
+    errors = np.array([kanagen.coherence(fam, s.model, s.q, data={"point": xy})["point"]
+                       for s in found])
+    passed = np.where(errors < np.array([s.threshold for s in found])[:, None], errors, np.inf)
+    best = np.where(np.isfinite(passed.min(axis=0)), passed.argmin(axis=0), -1)
+    owner = np.full(len(xy), -1)
+    for k, s in enumerate(found):
+        owner[s.inliers] = k
+    return int(np.count_nonzero(best != owner))
+
+
+def test_assignment_reaches_its_fixed_point(line):
+    xy, labels = crossing_lines()
+    greedy = kanagen.find_structures(line, data={"point": xy}, model="line", max_structures=2,
+                                     scale=4.0, reassign=0)
+    assigned = kanagen.find_structures(line, data={"point": xy}, model="line",
+                                       max_structures=2, scale=4.0)
+    assert len(greedy) == len(assigned) == 2
+    assert assignment_violations(line, greedy, xy) > 0
+    assert assignment_violations(line, assigned, xy) == 0
+    for s in assigned:  # each structure is the fit on its own measures (a dense reference)
+        ref = kanagen.fit(line, "line", data={"point": xy[s.inliers]})
+        np.testing.assert_allclose(s.q, ref.q, atol=1e-9)
+        assert not set(s.outliers) & set(s.inliers)
+        assert len(s.inliers) + len(s.outliers) == len(xy)
+    assert not set(assigned[0].inliers) & set(assigned[1].inliers)
+
+    def error(found):
+        return misclassification(labels, labels_from_structures(len(xy),
+                                                                [s.inliers for s in found]))
+    assert error(assigned) < error(greedy)
+
+
+def test_local_samples_reach_a_small_structure():
+    """A circle of 15 points among 500 uniform outliers: no uniform sample of three lands
+    on it in 200 draws; local samples (a point and its nearest neighbours) do."""
+    fam = kanagen.load("conic_lattice")
+    rng = np.random.default_rng(1)
+    t = rng.uniform(0, 2 * np.pi, 15)
+    circle = np.c_[200 + 10 * np.cos(t), 150 + 10 * np.sin(t)] + rng.normal(0, 0.2, (15, 2))
+    xy = np.r_[circle, rng.uniform([0, 0], [640, 480], (500, 2))]
+
+    def found(local: float, seed: int) -> bool:
+        est = kanagen.Estimator(fam, model="circle", scale=4.0, seed=seed,
+                                samples_per_model=200, local=local)
+        est.add_measures("point", xy, info=1.0)
+        return np.isin(np.arange(15), est.run().inliers).sum() >= 13
+
+    assert sum(found(0.0, s) for s in range(3)) == 0
+    assert sum(found(0.5, s) for s in range(3)) >= 2
+
+
+def test_options_are_validated(line):
+    xy, _ = crossing_lines()
+    with pytest.raises(ValueError, match="reassign"):
+        kanagen.find_structures(line, data={"point": xy}, reassign=-1)
+    with pytest.raises(ValueError, match="local"):
+        kanagen.Estimator(line, local=1.5)
+    with pytest.raises(ValueError, match="local"):
+        kanagen.find_structures(line, data={"point": xy}, local=-0.1)
+
+
+def test_threshold_ceiling():
+    """Two error populations with no gap between them (neighbouring structures): the
+    histogram's threshold runs past both; a ceiling holds it, never below L*."""
+    from kanagen.runtime.robust import outlier_threshold
+
+    rng = np.random.default_rng(3)
+    errors = np.r_[rng.chisquare(1, 300), rng.uniform(0, 30, 300), rng.uniform(80, 200, 100)]
+    free = outlier_threshold(errors, 4.0)
+    assert free > 20.0
+    assert outlier_threshold(errors, 4.0, ceiling=8.0) == 8.0
+    assert outlier_threshold(errors, 4.0, ceiling=1.0) == 4.0
+    assert outlier_threshold(errors, 4.0, ceiling=1e3) == free
+
+
+def test_ceiling_reaches_every_threshold(line):
+    xy, _ = crossing_lines()
+    found = kanagen.find_structures(line, data={"point": xy}, model="line", max_structures=2,
+                                    scale=4.0, max_threshold=4.0)
+    assert all(s.threshold == 4.0 for s in found)
+    with pytest.raises(ValueError, match="max_threshold"):
+        kanagen.Estimator(line, scale=4.0, max_threshold=2.0)
+
+
+def three_lines(seed: int = 5):
+    """Three lines of 30 points (σ = 0.3) among 300 uniform outliers (200 × 300 box)."""
+    rng = np.random.default_rng(seed)
+    lines = []
+    for a, b in ((0.5, 0.0), (-0.4, 10.0), (2.0, -30.0)):
+        x = rng.uniform(-50, 50, 30)
+        lines.append(np.c_[x, a * x + b + rng.normal(0, 0.3, 30)])
+    return np.r_[np.concatenate(lines), rng.uniform([-100, -150], [100, 150], (300, 2))]
+
+
+def test_retries_reach_the_known_number_of_structures(line):
+    """One sample per search: most searches find nothing; without retries the extraction
+    stops at the first, with retries it goes on until the three lines are found (the run
+    without retries is a prefix of the run with them: same seeds until the first failure)."""
+    xy = three_lines()
+    options = dict(data={"point": xy}, model="line", max_structures=3, scale=4.0,
+                   samples_per_model=1, min_inliers=20, reassign=0)
+    for seed in (0, 3):
+        alone = kanagen.find_structures(line, seed=seed, **options)
+        again = kanagen.find_structures(line, seed=seed, retries=60, **options)
+        assert len(alone) < 3 and len(again) == 3
+        lines = [np.bincount(s.inliers[s.inliers < 90] // 30, minlength=3) for s in again]
+        assert sorted(int(np.argmax(c)) for c in lines) == [0, 1, 2]  # one line each
+        assert all(c.max() >= 25 for c in lines)
+
+
+def energy(fam, found, xy, ceiling):
+    closest = np.full(len(xy), np.inf)
+    for s in found:
+        closest = np.minimum(closest, kanagen.coherence(fam, s.model, s.q,
+                                                        data={"point": xy})["point"])
+    return float(np.sum(np.minimum(closest, ceiling)))
+
+
+def test_restarts_keep_the_extraction_of_least_truncated_error(line):
+    """restarts=3 returns the single extraction (seeds s, s + 1000, s + 2000) of least
+    Σ min(e, τ), τ = max_threshold."""
+    xy = three_lines()
+    options = dict(data={"point": xy}, model="line", max_structures=3, scale=4.0,
+                   samples_per_model=3, min_inliers=20, retries=3, max_threshold=8.0)
+    singles = [kanagen.find_structures(line, seed=7 + 1000 * r, **options) for r in range(3)]
+    energies = [energy(line, f, xy, 8.0) for f in singles]
+    kept = kanagen.find_structures(line, seed=7, restarts=3, **options)
+    assert energy(line, kept, xy, 8.0) == pytest.approx(min(energies))
+    best = singles[int(np.argmin(energies))]
+    assert [s.inliers.tolist() for s in kept] == [s.inliers.tolist() for s in best]
+    with pytest.raises(ValueError, match="restarts"):
+        kanagen.find_structures(line, data={"point": xy}, restarts=0)
+    with pytest.raises(ValueError, match="retries"):
+        kanagen.find_structures(line, data={"point": xy}, retries=-1)
