@@ -26,7 +26,16 @@ import numpy as np
 def homogeneous(x: np.ndarray) -> np.ndarray:
     """(N, 2) → (N, 3) with a last coordinate 1."""
     x = np.asarray(x, dtype=float)
-    return np.c_[x, np.ones(len(x))]
+    out = np.ones((len(x), 3))
+    out[:, :2] = x
+    return out
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a × b`` of two 3-vectors: ``np.cross``'s arithmetic without its per-call overhead
+    (the minimal solves of a robust search call it tens of thousands of times)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                     a[0] * b[1] - a[1] * b[0]])
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -118,9 +127,9 @@ def homography_dlt(x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
     T1, T2 = normalising_transform(x1), normalising_transform(x2)
     p1, p2 = homogeneous(x1) @ T1.T, homogeneous(x2) @ T2.T
     zero = np.zeros_like(p1)
-    rows_a = np.c_[zero, -p2[:, 2:] * p1, p2[:, 1:2] * p1]
-    rows_b = np.c_[p2[:, 2:] * p1, zero, -p2[:, :1] * p1]
-    H = np.linalg.svd(np.r_[rows_a, rows_b])[2][-1].reshape(3, 3)
+    rows_a = np.concatenate([zero, -p2[:, 2:] * p1, p2[:, 1:2] * p1], axis=1)
+    rows_b = np.concatenate([p2[:, 2:] * p1, zero, -p2[:, :1] * p1], axis=1)
+    H = np.linalg.svd(np.concatenate([rows_a, rows_b]))[2][-1].reshape(3, 3)
     return _unit(np.linalg.solve(T2, H @ T1))
 
 
@@ -137,12 +146,12 @@ def focal_lengths(F: np.ndarray, pp1, pp2) -> tuple[float, float]:
     Negative or infinite values say the focal length cannot be read off this ``F`` (noise,
     or a critical motion: optical axes that meet).
     """
-    p1, p2 = np.r_[np.asarray(pp1, float), 1.0], np.r_[np.asarray(pp2, float), 1.0]
+    p1, p2 = homogeneous([pp1])[0], homogeneous([pp2])[0]
     e1, e2 = epipoles(F)
 
     def squared(G, e, p, p_other):
         # −(p'ᵀ [e]× Ĩ G p pᵀ Gᵀ p') / (p'ᵀ [e]× Ĩ G Ĩ Gᵀ p'), Ĩ = diag(1, 1, 0)
-        a = np.cross(p_other, e)  # p'ᵀ [e]× as a vector: (p' × e)
+        a = cross(p_other, e)  # p'ᵀ [e]× as a vector: (p' × e)
         a[2] = 0.0  # … Ĩ
         aG, Gtp = a @ G, G.T @ p_other
         den = aG[0] * Gtp[0] + aG[1] * Gtp[1]
@@ -220,11 +229,11 @@ def homography_poses(H: np.ndarray, y1: np.ndarray | None = None,
     a, b = np.sqrt(max(1.0 - s3, 0.0)), np.sqrt(max(s1 - 1.0, 0.0))
     out = []
     for u in ((a * v1 + b * v3) / np.sqrt(s1 - s3), (a * v1 - b * v3) / np.sqrt(s1 - s3)):
-        U = np.c_[v2, u, np.cross(v2, u)]
+        n = cross(v2, u)
+        U = np.column_stack([v2, u, n])
         Hv2, Hu = H @ v2, H @ u
-        W = np.c_[Hv2, Hu, np.cross(Hv2, Hu)]
+        W = np.column_stack([Hv2, Hu, cross(Hv2, Hu)])
         R = W @ U.T
-        n = np.cross(v2, u)
         T = (H - R) @ n  # H = R + T nᵀ (d = 1)
         for sign in (1.0, -1.0):
             scale = np.linalg.norm(T)

@@ -57,8 +57,9 @@ class Initializer:
 def _rays(X: np.ndarray, k: Mapping[str, float], f1: float = 1.0, f2: float = 1.0):
     """Pixel matches → rays (x, y, f) in the normalised coordinates of the family."""
     cx, cy, f0 = k["cx"], k["cy"], k["f0"]
-    y1 = np.c_[(X[:, 0] - cx) / f0, (X[:, 1] - cy) / f0, np.full(len(X), f1)]
-    y2 = np.c_[(X[:, 2] - cx) / f0, (X[:, 3] - cy) / f0, np.full(len(X), f2)]
+    y1, y2 = np.empty((len(X), 3)), np.empty((len(X), 3))
+    y1[:, 0], y1[:, 1], y1[:, 2] = (X[:, 0] - cx) / f0, (X[:, 1] - cy) / f0, f1
+    y2[:, 0], y2[:, 1], y2[:, 2] = (X[:, 2] - cx) / f0, (X[:, 3] - cy) / f0, f2
     return y1, y2
 
 
