@@ -156,13 +156,19 @@ def _acceptable(trial: Point, x: Point, eps_delta: float, delta_cap: float) -> b
     """
     if not trial.finite:
         return False
-    if x.delta > eps_delta and trial.delta <= (1 - 1e-4) * x.delta:
-        return True  # (a fall of δ within its rounding level is no progress)
+    if _lowers_violation(trial, x, eps_delta):
+        return True
     # At rounding-level feasibility, moving costs λ·δ of the same order: rounding too.
     slack = 1e-10 if x.delta <= eps_delta else 1e-13
     if trial.delta < x.delta + eps_delta and trial.cost <= x.cost * (1 + slack) + 1e-300:
         return True
     return trial.delta <= delta_cap and trial.cost < x.cost * (1 - 1e-10)
+
+
+def _lowers_violation(trial: Point, x: Point, eps_delta: float) -> bool:
+    """Eq. 18's aim: the violation δ falls (a fall within its rounding level is no
+    progress)."""
+    return x.delta > eps_delta and trial.delta <= (1 - 1e-4) * x.delta
 
 
 def _restored(problem: Problem, q: np.ndarray, mt, root: np.ndarray | None = None) -> Point:
@@ -279,7 +285,7 @@ def _trust_region_step(problem, lin, proj, x, region, eps_delta, delta_cap):
         s = trial.q - x.q
         size = float(np.linalg.norm(s))
         pred = float(s @ lin.rhs - 0.5 * s @ lin.info @ s)  # the linearised fall of L²
-        if trial.finite and x.delta > eps_delta and trial.delta <= (1 - 1e-4) * x.delta:
+        if trial.finite and _lowers_violation(trial, x, eps_delta):
             return trial, mu, 1.0  # eq. 18: the violation falls (the cost may rise meanwhile)
         if trial.finite and _acceptable(trial, x, eps_delta, delta_cap):
             rounding = pred <= 1e-13 * x.cost  # the cost's rounding level: no ratio to read
@@ -302,12 +308,11 @@ def _trust_region_step(problem, lin, proj, x, region, eps_delta, delta_cap):
 
 def _damping_for(problem: Problem, lin: Linearisation, radius: float,
                  weights: np.ndarray) -> float:
-    """The damping μ whose step has ``‖D Δq‖`` just within ``radius`` (bisection on log μ)."""
-    root = np.sqrt(weights)
+    """The damping μ (of ``μ diag(weights)``) whose step has ``‖Δq‖`` just within ``radius``
+    (bisection on log μ)."""
 
     def size(log_mu: float) -> float:
-        return float(np.linalg.norm(root * (solve(problem, lin, 10.0 ** log_mu, weights).q
-                                            - lin.x.q)))
+        return float(np.linalg.norm(solve(problem, lin, 10.0 ** log_mu, weights).q - lin.x.q))
 
     lo, hi = -12.0, 12.0
     while size(hi) > radius and hi < 300.0:

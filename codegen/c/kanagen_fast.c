@@ -780,12 +780,18 @@ static int kg_negligible(const kg_problem *pb, const double *q_old, const double
     return 1;
 }
 
+/* _lowers_violation: eq. 18's aim, δ falls (beyond its rounding level) */
+static int kg_lowers_violation(const kg_point *trial, const kg_point *x, double eps_delta)
+{
+    return x->delta > eps_delta && trial->delta <= (1 - 1e-4) * x->delta;
+}
+
 /* _acceptable: the small filter over (cost, violation) */
 static int kg_acceptable(const kg_point *trial, const kg_point *x, double eps_delta,
                          double delta_cap)
 {
     if (!kg_finite(trial)) return 0;
-    if (x->delta > eps_delta && trial->delta <= (1 - 1e-4) * x->delta) return 1;
+    if (kg_lowers_violation(trial, x, eps_delta)) return 1;
     double slack = x->delta <= eps_delta ? 1e-10 : 1e-13;
     if (trial->delta < x->delta + eps_delta && trial->cost <= x->cost * (1 + slack) + 1e-300)
         return 1;
@@ -958,7 +964,7 @@ static int kg_trust_region_step(kg_state *st, double *mu_out)
         }
         pred -= 0.5 * quad; /* the linearised fall of L² */
         const int finite = kg_finite(trial);
-        if (finite && x->delta > st->eps_delta && trial->delta <= (1 - 1e-4) * x->delta) {
+        if (finite && kg_lowers_violation(trial, x, st->eps_delta)) {
             *mu_out = mu;
             return 1; /* eq. 18: the violation falls */
         }
