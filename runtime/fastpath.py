@@ -360,20 +360,8 @@ class FastPath:
         onto their equations at ``q`` (:func:`~kanagen.runtime.projector.project_measures`
         with ``iterations`` and ``tol``): ``(‖m̃ − m‖²_Q + violation, equations kept)``, as
         two tuples of (M,) arrays; None when kg_coherence refuses the input (not finite)."""
-        channels = [(ch.name, ch.X, ch.Q, ch.G) for ch in problem.channels]
-        q = np.asarray(q, dtype=float)
-        size_in, _, head, where = self._layout(model, channels, problem.k, problem.eps,
-                                               iterations, tol, (), False)
         sizes = [ch.X.shape[0] for ch in problem.channels]
-        ws = self._buffers(size_in, 2 * sum(sizes))
-        ws[4] = None  # no plan's template any more
-        inp = ws[0]
-        self._pack(inp, head, where, channels, problem.k)
-        n = self.n
-        inp[where[0]:where[0] + n] = q
-        inp[where[1]:where[1] + n] = q
-        for (_, X, _, _), (x_at, _, _) in zip(channels, where[4:], strict=True):
-            inp[x_at:x_at + X.size] = X.ravel()
+        ws = self._packed_at(model, problem, q, problem.eps, iterations, tol, 2 * sum(sizes))
         if self._coherence(ws[2], ws[3]) != 0:
             return None
         out, totals, kept, at = ws[1], [], [], 0
@@ -383,27 +371,34 @@ class FastPath:
             at += 2 * M
         return tuple(totals), tuple(kept)
 
+    def _packed_at(self, model: str, problem, q: np.ndarray, eps: float, iterations: int,
+                   tol: float, size_out: int) -> list:
+        """The thread's buffers with the input of kg_coherence / kg_minimal packed: the
+        validated ``problem``'s measures, start and prior both ``q``."""
+        channels = [(ch.name, ch.X, ch.Q, ch.G) for ch in problem.channels]
+        q = np.asarray(q, dtype=float)
+        size_in, _, head, where = self._layout(model, channels, problem.k, eps, iterations,
+                                               tol, (), False)
+        ws = self._buffers(size_in, size_out)
+        ws[4] = None  # no plan's template any more
+        inp = ws[0]
+        self._pack(inp, head, where, channels, problem.k)
+        n = self.n
+        inp[where[0]:where[0] + n] = q
+        inp[where[1]:where[1] + n] = q
+        for (_, X, _, _), (x_at, _, _) in zip(channels, where[4:], strict=True):
+            inp[x_at:x_at + X.size] = X.ravel()
+        return ws
+
     def minimal(self, model: str, problem, target: np.ndarray, max_iter: int, xtol: float,
                 eps: float):
         """``kg_minimal``: :func:`~kanagen.runtime.coherence.solve_minimal` of the validated
         ``problem`` (its measures the sample) from ``target``: ``(q, success, rank,
         iterations, violation)``, or None when kg_minimal refuses the input."""
-        channels = [(ch.name, ch.X, ch.Q, ch.G) for ch in problem.channels]
-        target = np.asarray(target, dtype=float)
-        size_in, _, head, where = self._layout(model, channels, problem.k, eps, max_iter,
-                                               xtol, (), False)
-        ws = self._buffers(size_in, self.n + 4)
-        ws[4] = None  # no plan's template any more
-        inp = ws[0]
-        self._pack(inp, head, where, channels, problem.k)
-        n = self.n
-        inp[where[0]:where[0] + n] = target
-        inp[where[1]:where[1] + n] = target
-        for (_, X, _, _), (x_at, _, _) in zip(channels, where[4:], strict=True):
-            inp[x_at:x_at + X.size] = X.ravel()
+        ws = self._packed_at(model, problem, target, eps, max_iter, xtol, self.n + 4)
         if self._minimal(ws[2], ws[3]) != 0:
             return None
-        out = ws[1]
+        n, out = self.n, ws[1]
         success, rank, iterations, violation = out[n:n + 4].tolist()
         return out[:n].copy(), bool(success), int(rank), int(iterations), violation
 

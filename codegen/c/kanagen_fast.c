@@ -1136,6 +1136,54 @@ static void kg_eigh(int N, double *K, double *w, double *V)
     for (int i = 0; i < N; ++i) w[i] = K[i * N + i];
 }
 
+/* One-sided Jacobi (Hestenes): the columns of A (rows × cols, row-major) rotated until
+ * orthogonal, the rotations accumulated in V (cols × cols, row-major) when not NULL; the
+ * singular values are then the column norms (kg_column_norms) */
+static void kg_jacobi_columns(long rows, int cols, double *A, double *V)
+{
+    for (int sweep = 0; sweep < 60; ++sweep) {
+        int rotated = 0;
+        for (int a = 0; a < cols - 1; ++a)
+            for (int b = a + 1; b < cols; ++b) {
+                double aa = 0.0, bb = 0.0, ab = 0.0;
+                for (long i = 0; i < rows; ++i) {
+                    aa += A[i * cols + a] * A[i * cols + a];
+                    bb += A[i * cols + b] * A[i * cols + b];
+                    ab += A[i * cols + a] * A[i * cols + b];
+                }
+                if (fabs(ab) <= DBL_EPSILON * sqrt(aa * bb)) continue;
+                rotated = 1;
+                double zeta = (bb - aa) / (2 * ab);
+                double t = (zeta >= 0 ? 1.0 : -1.0) / (fabs(zeta) + sqrt(zeta * zeta + 1));
+                double cs = 1 / sqrt(t * t + 1), sn = t * cs;
+                for (long i = 0; i < rows; ++i) {
+                    double va = A[i * cols + a], vb = A[i * cols + b];
+                    A[i * cols + a] = cs * va - sn * vb;
+                    A[i * cols + b] = sn * va + cs * vb;
+                }
+                for (int i = 0; V && i < cols; ++i) {
+                    double va = V[i * cols + a], vb = V[i * cols + b];
+                    V[i * cols + a] = cs * va - sn * vb;
+                    V[i * cols + b] = sn * va + cs * vb;
+                }
+            }
+        if (!rotated) break;
+    }
+}
+
+/* The norms of the columns of A (rows × cols, row-major) into S; their largest returned */
+static double kg_column_norms(long rows, int cols, const double *A, double *S)
+{
+    double top = 0.0;
+    for (int j = 0; j < cols; ++j) {
+        double acc = 0.0;
+        for (long i = 0; i < rows; ++i) acc += A[i * cols + j] * A[i * cols + j];
+        S[j] = sqrt(acc);
+        top = S[j] > top ? S[j] : top;
+    }
+    return top;
+}
+
 /* the null space of C0 (p × n): Z (n × nz, row-major) orthonormal, nz returned — the
  * np.linalg.svd of constrained_covariance: C0's singular values by one-sided Jacobi
  * rotations of the columns of C0ᵀ (rank: those > 1e-12 of the largest), then the
@@ -1143,38 +1191,11 @@ static void kg_eigh(int N, double *K, double *w, double *V)
  * the same null space: the covariance does not depend on it) */
 static int kg_null_space(int n, int p, const double *C0, double *Z)
 {
-    double W[n * (p > 0 ? p : 1)], sigma[p > 0 ? p : 1], top = 0.0;
+    double W[n * (p > 0 ? p : 1)], sigma[p > 0 ? p : 1];
     for (int i = 0; i < n; ++i)
         for (int r = 0; r < p; ++r) W[i * p + r] = C0[r * n + i];
-    for (int sweep = 0; sweep < 60; ++sweep) {
-        int rotated = 0;
-        for (int a = 0; a < p - 1; ++a)
-            for (int b = a + 1; b < p; ++b) {
-                double aa = 0.0, bb = 0.0, ab = 0.0;
-                for (int i = 0; i < n; ++i) {
-                    aa += W[i * p + a] * W[i * p + a];
-                    bb += W[i * p + b] * W[i * p + b];
-                    ab += W[i * p + a] * W[i * p + b];
-                }
-                if (fabs(ab) <= DBL_EPSILON * sqrt(aa * bb)) continue;
-                rotated = 1;
-                double zeta = (bb - aa) / (2 * ab);
-                double t = (zeta >= 0 ? 1.0 : -1.0) / (fabs(zeta) + sqrt(zeta * zeta + 1));
-                double c = 1 / sqrt(t * t + 1), s = t * c;
-                for (int i = 0; i < n; ++i) {
-                    double wa = W[i * p + a], wb = W[i * p + b];
-                    W[i * p + a] = c * wa - s * wb;
-                    W[i * p + b] = s * wa + c * wb;
-                }
-            }
-        if (!rotated) break;
-    }
-    for (int r = 0; r < p; ++r) {
-        double acc = 0.0;
-        for (int i = 0; i < n; ++i) acc += W[i * p + r] * W[i * p + r];
-        sigma[r] = sqrt(acc);
-        top = sigma[r] > top ? sigma[r] : top;
-    }
+    kg_jacobi_columns(n, p, W, NULL);
+    const double top = kg_column_norms(n, p, W, sigma);
     /* the kept directions, as columns of U (n × rank), reduced to R by reflections
      * H_j = I − 2 v_j v_jᵀ; Z = H_0 … H_{rank−1} [0; I] */
     double U[n * (p > 0 ? p : 1)], Vh[n * (p > 0 ? p : 1)];
@@ -1771,41 +1792,8 @@ static int kg_minimal_step(long R, const double *J, const double *c, const doubl
     for (int a = 0; a < n * n; ++a) V[a] = a % (n + 1) == 0 ? 1.0 : 0.0;
     int finite = 1;
     for (long j = 0; j < R * n; ++j) finite &= isfinite(A[j]) != 0;
-    for (int sweep = 0; finite && sweep < 60; ++sweep) {
-        int rotated = 0;
-        for (int a = 0; a < n - 1; ++a)
-            for (int b = a + 1; b < n; ++b) {
-                double aa = 0.0, bb = 0.0, ab = 0.0;
-                for (long i = 0; i < R; ++i) {
-                    aa += A[i * n + a] * A[i * n + a];
-                    bb += A[i * n + b] * A[i * n + b];
-                    ab += A[i * n + a] * A[i * n + b];
-                }
-                if (fabs(ab) <= DBL_EPSILON * sqrt(aa * bb)) continue;
-                rotated = 1;
-                double zeta = (bb - aa) / (2 * ab);
-                double t = (zeta >= 0 ? 1.0 : -1.0) / (fabs(zeta) + sqrt(zeta * zeta + 1));
-                double cs = 1 / sqrt(t * t + 1), sn = t * cs;
-                for (long i = 0; i < R; ++i) {
-                    double va = A[i * n + a], vb = A[i * n + b];
-                    A[i * n + a] = cs * va - sn * vb;
-                    A[i * n + b] = sn * va + cs * vb;
-                }
-                for (int i = 0; i < n; ++i) {
-                    double va = V[i * n + a], vb = V[i * n + b];
-                    V[i * n + a] = cs * va - sn * vb;
-                    V[i * n + b] = sn * va + cs * vb;
-                }
-            }
-        if (!rotated) break;
-    }
-    double top = 0.0;
-    for (int j = 0; j < n; ++j) {
-        double acc = 0.0;
-        for (long i = 0; i < R; ++i) acc += A[i * n + j] * A[i * n + j];
-        S[j] = sqrt(acc);
-        top = S[j] > top ? S[j] : top;
-    }
+    if (finite) kg_jacobi_columns(R, n, A, V);
+    double top = kg_column_norms(R, n, A, S);
     int rank = 0;
     for (int j = 0; j < n; ++j) {
         /* an infinite J: LAPACK's singular values are NaN, nothing kept */
