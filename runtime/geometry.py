@@ -58,9 +58,14 @@ def _unit(M: np.ndarray) -> np.ndarray:
     return M / norm if norm > 0 else M
 
 
-def _epipolar_rows(x1, x2):
+def _normalised(x1, x2):
+    """Both views' points in Hartley's conditioning, and the two transforms."""
     T1, T2 = normalising_transform(x1), normalising_transform(x2)
-    p1, p2 = homogeneous(x1) @ T1.T, homogeneous(x2) @ T2.T
+    return homogeneous(x1) @ T1.T, homogeneous(x2) @ T2.T, T1, T2
+
+
+def _epipolar_rows(x1, x2):
+    p1, p2, T1, T2 = _normalised(x1, x2)
     return np.einsum("ni,nj->nij", p2, p1).reshape(len(p1), 9), T1, T2
 
 
@@ -124,8 +129,7 @@ def homography_dlt(x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
     x1, x2 = np.asarray(x1, dtype=float), np.asarray(x2, dtype=float)
     if len(x1) < 4:
         raise ValueError(f"the DLT needs 4 correspondences, got {len(x1)}")
-    T1, T2 = normalising_transform(x1), normalising_transform(x2)
-    p1, p2 = homogeneous(x1) @ T1.T, homogeneous(x2) @ T2.T
+    p1, p2, T1, T2 = _normalised(x1, x2)
     zero = np.zeros_like(p1)
     rows_a = np.concatenate([zero, -p2[:, 2:] * p1, p2[:, 1:2] * p1], axis=1)
     rows_b = np.concatenate([p2[:, 2:] * p1, zero, -p2[:, :1] * p1], axis=1)
