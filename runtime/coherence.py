@@ -95,9 +95,14 @@ def manifold_ranks(problem: Problem, q: np.ndarray, sample: int = 8) -> tuple[in
     """
     rows = tuple(np.arange(min(sample, ch.size)) for ch in problem.channels)
     sub = problem.subset(rows)
+    compiled = None if sub.compiled is None else \
+        sub.compiled[0].coherence(sub.compiled[1], sub, q, 50, 1e-12)
     with np.errstate(all="ignore"):
-        _, _, kept, _ = project_measures(sub, q, tuple(ch.m for ch in sub.channels), 50,
-                                         1e-12)
+        if compiled is not None:  # the same projection in C
+            kept = compiled[1]
+        else:
+            _, _, kept, _ = project_measures(sub, q, tuple(ch.m for ch in sub.channels), 50,
+                                             1e-12)
     # the most common rank: a measure whose projection stops short (a far outlier) keeps
     # the extra equation, one at a singular point of the zero set loses one
     return tuple(int(np.bincount(r).argmax()) if r.size else 0 for r in kept)

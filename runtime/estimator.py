@@ -332,12 +332,10 @@ class Estimator:
         return self._problem
 
     def _problem_for(self, model: str) -> tuple[Problem, list[np.ndarray], int]:
-        from .fit import make_problem
+        from .fit import problem_of
 
         names, chans, ids = self._channels()
-        data = {ch.name: ch.X for ch in chans}
-        info = {ch.name: ch.Q for ch in chans}
-        problem = make_problem(self.fam, model, data, info, self.q0, self.Q0, self._constants)
+        problem = problem_of(self.fam, model, tuple(chans), self.q0, self.Q0, self._constants)
         channel = self.channel or (names[0] if len(names) == 1 else None)
         if channel is None:
             raise ValueError(f"channel= is required: measures in {names}")

@@ -361,10 +361,19 @@ class FastPath:
         with ``iterations`` and ``tol``): ``(‖m̃ − m‖²_Q + violation, equations kept)``, as
         two tuples of (M,) arrays; None when kg_coherence refuses the input (not finite)."""
         sizes = [ch.X.shape[0] for ch in problem.channels]
-        ws = self._packed_at(model, problem, q, problem.eps, iterations, tol, 2 * sum(sizes))
+        packed = getattr(self._local, "coherence", None)
+        if packed is None or packed[0] is not problem or packed[1] != (model, iterations, tol):
+            # a search scores every sample on the same problem: its measures packed once
+            ws, where = self._packed_at(model, problem, q, problem.eps, iterations, tol,
+                                        2 * sum(sizes), own=True)
+            packed = self._local.coherence = (problem, (model, iterations, tol), ws, where)
+        ws, where = packed[2], packed[3]
+        ws[0][where[0]:where[0] + self.n] = q
+        ws[0][where[1]:where[1] + self.n] = q
         if self._coherence(ws[2], ws[3]) != 0:
             return None
-        out, totals, kept, at = ws[1], [], [], 0
+        out = ws[1]
+        totals, kept, at = [], [], 0
         for M in sizes:
             totals.append(out[at:at + M].copy())
             kept.append(out[at + M:at + 2 * M].astype(np.int64))
@@ -372,15 +381,21 @@ class FastPath:
         return tuple(totals), tuple(kept)
 
     def _packed_at(self, model: str, problem, q: np.ndarray, eps: float, iterations: int,
-                   tol: float, size_out: int) -> list:
-        """The thread's buffers with the input of kg_coherence / kg_minimal packed: the
-        validated ``problem``'s measures, start and prior both ``q``."""
+                   tol: float, size_out: int, own: bool = False) -> tuple[list, list]:
+        """The thread's buffers (``own``: new ones) with the input of kg_coherence /
+        kg_minimal packed: the validated ``problem``'s measures, start and prior both ``q``;
+        and where each input went (:meth:`_layout`)."""
         channels = [(ch.name, ch.X, ch.Q, ch.G) for ch in problem.channels]
         q = np.asarray(q, dtype=float)
         size_in, _, head, where = self._layout(model, channels, problem.k, eps, iterations,
                                                tol, (), False)
-        ws = self._buffers(size_in, size_out)
-        ws[4] = None  # no plan's template any more
+        if own:
+            inp, out = np.empty(size_in), np.empty(size_out)
+            ws = [inp, out, ctypes.c_void_p(inp.ctypes.data),
+                  ctypes.c_void_p(out.ctypes.data), None]
+        else:
+            ws = self._buffers(size_in, size_out)
+            ws[4] = None  # no plan's template any more
         inp = ws[0]
         self._pack(inp, head, where, channels, problem.k)
         n = self.n
@@ -388,14 +403,14 @@ class FastPath:
         inp[where[1]:where[1] + n] = q
         for (_, X, _, _), (x_at, _, _) in zip(channels, where[4:], strict=True):
             inp[x_at:x_at + X.size] = X.ravel()
-        return ws
+        return ws, where
 
     def minimal(self, model: str, problem, target: np.ndarray, max_iter: int, xtol: float,
                 eps: float):
         """``kg_minimal``: :func:`~kanagen.runtime.coherence.solve_minimal` of the validated
         ``problem`` (its measures the sample) from ``target``: ``(q, success, rank,
         iterations, violation)``, or None when kg_minimal refuses the input."""
-        ws = self._packed_at(model, problem, target, eps, max_iter, xtol, self.n + 4)
+        ws = self._packed_at(model, problem, target, eps, max_iter, xtol, self.n + 4)[0]
         if self._minimal(ws[2], ws[3]) != 0:
             return None
         n, out = self.n, ws[1]

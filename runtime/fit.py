@@ -20,7 +20,13 @@ def make_problem(fam: ModelFamily, model: str, data: Mapping, info: Mapping | No
                  q0=None, Q0=None, constants=None, eps: float = EPS) -> Problem:
     """Validate the inputs and bundle everything the projector needs."""
     fam.model(model)
-    channels = tuple(channel_data(fam, data, info))
+    return problem_of(fam, model, tuple(channel_data(fam, data, info)), q0, Q0, constants,
+                      eps)
+
+
+def problem_of(fam: ModelFamily, model: str, channels: tuple, q0=None, Q0=None,
+               constants=None, eps: float = EPS) -> Problem:
+    """:func:`make_problem` on channels validated already (:func:`channel_data`'s)."""
     k = fam.constant_vector(constants)
     measures, kernels = [], []
     for ch in channels:

@@ -167,6 +167,7 @@ class ModelSearch:
         self.scale = float(scale)
         self.score_fn = get_scorer(scorer)
         self.initializer = initializer
+        self._constants = dict(zip(fam.constant_names, problem.k.tolist(), strict=True))
         self.ranks = manifold_ranks(problem, self.start)  # equations per measure, per channel
         size = problem.channels[channel].size
         self.pool = np.arange(size) if pool is None else np.asarray(pool, dtype=int)
@@ -186,6 +187,7 @@ class ModelSearch:
         self.best_q: np.ndarray | None = None
         self.best_score = -np.inf
         self.best_errors: tuple[np.ndarray, ...] | None = None
+        self._needed: tuple = (None, None, None)  # samples_needed of the best estimate
         self.history: list[tuple[int, float]] = []
 
     def free_dof(self, q: np.ndarray | None = None) -> int:
@@ -217,6 +219,13 @@ class ModelSearch:
         estimate, or when no sample can be all inliers)."""
         if self.best_errors is None or not self.pool.size:
             return None
+        if self._needed[0] is self.best_errors and self._needed[1] == confidence:
+            return self._needed[2]  # the best estimate has not changed since
+        needed = self._samples_needed(confidence)
+        self._needed = (self.best_errors, confidence, needed)
+        return needed
+
+    def _samples_needed(self, confidence: float) -> int | None:
         good = self.best_errors[self.channel] < self.scale
         p = float(np.mean(good[self.pool])) ** self.sample_size
         if self.base_size:
@@ -241,14 +250,11 @@ class ModelSearch:
         rows = self._draw()
         if self.base_size > 0:
             rows = np.r_[rows, self.rng.choice(self.base, size=self.base_size, replace=False)]
-        picked = tuple(rows if i == self.channel else np.zeros(0, dtype=int)
-                       for i in range(len(self.problem.channels)))
         improved = False
         solutions = 0
         try:
             with np.errstate(all="ignore"):
-                sample = self.problem.subset(picked)
-                for q in self._solutions(sample, rows):
+                for q in self._solutions(rows):
                     solutions += 1
                     errors = coherence_errors(self.problem, q, iterations=1, ranks=self.ranks)
                     score = self.score_fn(np.concatenate(errors), self.scale)
@@ -284,20 +290,25 @@ class ModelSearch:
         parent's estimate."""
         if self.initializer is None:
             return [self.start]
-        ch = self.problem.channels[self.channel]
-        constants = dict(zip(self.fam.constant_names, self.problem.k.tolist(), strict=True))
         starts = []
-        for cand in self.initializer(ch.X[rows], constants):
+        for cand in self.initializer(self.problem.channels[self.channel].X[rows],
+                                     self._constants):
             q = start_from(self.fam, cand, self.start)
             if q is not None:
                 starts.append(self.fam.with_slacks(q, self.problem.k, self.model))
         return starts
 
-    def _solutions(self, sample: Problem, rows: np.ndarray) -> list[np.ndarray]:
-        """The sample's estimates that pass: minimal solves (eq. 21) of full rank from each
-        start, or the full estimator on an over-determined sample."""
+    def _solutions(self, rows: np.ndarray) -> list[np.ndarray]:
+        """The estimates of the sample ``rows`` that pass: minimal solves (eq. 21) of full
+        rank from each start, or the full estimator on an over-determined sample."""
         out = []
-        for start in self._starts(rows):
+        starts = self._starts(rows)
+        if not starts:
+            return out
+        sample = self.problem.subset(tuple(
+            rows if i == self.channel else np.zeros(0, dtype=int)
+            for i in range(len(self.problem.channels))))
+        for start in starts:
             if self.overdetermined:
                 fit = fit_problem(self.fam, self.model, sample, q_start=start, max_iter=20)
                 if fit.success and np.all(np.isfinite(fit.q)):
