@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import lattice
-from .coherence import free_dof
+from .coherence import free_dof, manifold_ranks
 from .family import ModelFamily
 from .fit import fit_problem
 from .initializers import model_initializers
@@ -394,7 +394,7 @@ class Estimator:
             problem, ids, channel = self._problem_for(model)
             parent_state = self._states.get(parent) if parent else None
             start = parent_state.q if parent_state is not None else self.q0
-            pool = base = parent_free = None
+            pool = base = parent_free = ranks = None
             if parent_state is not None and parent_state.samples and \
                     parent_state.inliers.size >= lattice.RELEVANT * sum(len(i) for i in ids):
                 # the extra measures among those not coherent with the parent (report §5),
@@ -404,14 +404,17 @@ class Estimator:
                 pool = np.flatnonzero(np.isin(ch_ids, parent_state.outliers))
                 base = np.flatnonzero(np.isin(ch_ids, parent_state.inliers))
                 name = problem.channels[channel].name
+                ranks = manifold_ranks(problem, self.fam.with_slacks(start, problem.k, model))
+                across = parent in self._shape and \
+                    self._shape[parent][0] != max(ranks[channel], 1)
                 parent_free = lattice.fixed_by(
                     self.fam, parent_state, self._free(parent, parent_state.q), model, name,
-                    self._corrected.get(parent, {}).get(name), self._constants)
+                    self._corrected.get(parent, {}).get(name), self._constants, across)
             search = ModelSearch(self.fam, model, problem, channel, start, self._rng,
                                  self.scale, self.scorer, pool=pool, parent_free=parent_free,
                                  base=base, initializer=self.initializers.get(model),
                                  local=self.local if pool is None else 0.0,
-                                 max_threshold=self.max_threshold)
+                                 max_threshold=self.max_threshold, ranks=ranks)
             if search.exhausted:
                 self._skipped[model] = parent
                 self._queue_alternatives(model)

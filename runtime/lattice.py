@@ -76,12 +76,19 @@ def rank(rows: np.ndarray) -> int | None:
 
 
 def fixed_by(fam: ModelFamily, parent: ModelState, free_parent: int, model: str,
-             channel: str, corrected: np.ndarray | None, constants) -> int:
-    """How many of ``model``'s free degrees of freedom the parent's inliers fix: at most the
-    parent's own (``free_parent``), and at most the rank of ``model``'s equations at the
-    parent's estimate over its inliers corrected onto the parent (report §5's singular
-    configurations: matches on a plane fix 5 of a fundamental matrix's 7, not the 8 of their
-    homography, so the general model needs 2 matches off the plane, not 1)."""
+             channel: str, corrected: np.ndarray | None, constants,
+             across: bool = False) -> int:
+    """How many of ``model``'s free degrees of freedom the parent's inliers fix: the rank of
+    ``model``'s equations at the parent's estimate over its inliers corrected onto the
+    parent (report §5's singular configurations: matches on a plane fix 5 of a fundamental
+    matrix's 7, not the 8 of their homography, so the general model needs 2 matches off the
+    plane, not 1), and at most the parent's own (``free_parent``) — unless the edge goes
+    ``across`` a change of equations per measure. There the parent's inliers are a singular
+    configuration of the child whatever the parent's freedom: matches of no motion (the
+    parent fixes nothing of its own) fix 4 of a fundamental matrix's 7, and its samples need
+    only the 3 others off them. Along an edge of the same equations, a parent close to the
+    child's structure holds its inliers only loosely: the cap keeps the samples the report's
+    additional measures."""
     if corrected is None or not len(corrected):
         return free_parent
     with np.errstate(all="ignore"):
@@ -90,7 +97,8 @@ def fixed_by(fam: ModelFamily, parent: ModelState, free_parent: int, model: str,
     both, alone = rank(np.r_[C0, C.reshape(-1, fam.n)]), rank(C0)
     if both is None or alone is None:
         return free_parent
-    return min(free_parent, max(both - alone, 0))
+    fixed = max(both - alone, 0)
+    return fixed if across else min(free_parent, fixed)
 
 
 def ranks_differ(shape: Shape, a: ModelState, b: ModelState) -> bool:

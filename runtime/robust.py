@@ -143,6 +143,9 @@ class ModelSearch:
         share of the measures. 0: uniform samples only.
     max_threshold : float, optional
         A ceiling on the outlier threshold (error units, at least ``scale``).
+    ranks : tuple of int, optional
+        Equations per measure of each channel at ``start``
+        (:func:`~kanagen.runtime.coherence.manifold_ranks`, computed when not given).
 
     A sample whose independent equations outnumber the free degrees of freedom (a zoom from
     one match: two equations, one unknown; the null model: none) cannot be passed through
@@ -154,7 +157,8 @@ class ModelSearch:
                  scorer: str | Callable = "relevance", pool: np.ndarray | None = None,
                  sample_size: int | None = None, parent_free: int | None = None,
                  base: np.ndarray | None = None, initializer: InitializerFn | None = None,
-                 local: float = 0.0, max_threshold: float | None = None):
+                 local: float = 0.0, max_threshold: float | None = None,
+                 ranks: tuple[int, ...] | None = None):
         if not 0.0 <= local <= 1.0:
             raise ValueError(f"local must be a fraction in [0, 1], got {local}")
         self.max_threshold = max_threshold
@@ -168,7 +172,8 @@ class ModelSearch:
         self.score_fn = get_scorer(scorer)
         self.initializer = initializer
         self._constants = dict(zip(fam.constant_names, problem.k.tolist(), strict=True))
-        self.ranks = manifold_ranks(problem, self.start)  # equations per measure, per channel
+        # equations per measure, per channel (the caller's when it has them already)
+        self.ranks = manifold_ranks(problem, self.start) if ranks is None else ranks
         size = problem.channels[channel].size
         self.pool = np.arange(size) if pool is None else np.asarray(pool, dtype=int)
         self.sample_size = sample_size or self._minimal(parent_free)
