@@ -55,6 +55,14 @@ PORTED: dict[str, tuple[str, ...]] = {
     "results": ("constrained_covariance", "propagate"),
     "family": ("ModelFamily.relations_hold",),
     "inputs": ("inverse_root", "ChannelData.scale", "ChannelData.with_corrected"),
+    # codegen/c/kanagen_geometry.c: the closed-form initialisers (FastPath.initializer)
+    "initializers": ("two_view_fundamental", "two_view_homography", "_rays", "_pose_params",
+                     "_FOCAL_RANGE", "_TWO_VIEW_Q"),
+    "geometry": ("homogeneous", "cross", "normalising_transform", "_unit", "_normalised",
+                 "_epipolar_rows", "fundamental_8point", "fundamental_7point", "_ALPHAS",
+                 "_CUBIC_FROM_VALUES", "homography_dlt", "epipoles", "focal_lengths",
+                 "essential_poses", "depths", "best_pose", "nearest_essential",
+                 "homography_poses", "quaternion_from_rotation"),
 }
 
 #: Fingerprints of :data:`PORTED` when the C port was last brought in line with them.
@@ -123,6 +131,41 @@ FINGERPRINTS: dict[str, str] = {
     'inputs.inverse_root': '051a001e58d2',
     'inputs.ChannelData.scale': 'eb3f459fe079',
     'inputs.ChannelData.with_corrected': 'f34815e6e497',
+    'initializers.two_view_fundamental': '27e179692ec5',
+    'initializers.two_view_homography': '8d4b488b7110',
+    'initializers._rays': '415fcf057322',
+    'initializers._pose_params': 'b4aae0a3cb9e',
+    'initializers._FOCAL_RANGE': 'f87b8f36bcc4',
+    'initializers._TWO_VIEW_Q': '6a4d9d3c3a06',
+    'geometry.homogeneous': 'e78e47b5ab90',
+    'geometry.cross': 'b585c32c4b02',
+    'geometry.normalising_transform': '85230fff495e',
+    'geometry._unit': '2e0b093c84a9',
+    'geometry._normalised': 'afdd541189c5',
+    'geometry._epipolar_rows': '9ae49e54014e',
+    'geometry.fundamental_8point': '94fd8ba26c68',
+    'geometry.fundamental_7point': '97eb416ca91d',
+    'geometry._ALPHAS': '024e7accb4a5',
+    'geometry._CUBIC_FROM_VALUES': 'c95f60d17ee2',
+    'geometry.homography_dlt': '4892afa7dfd3',
+    'geometry.epipoles': 'e77cc33dbce4',
+    'geometry.focal_lengths': '39c84f8e93d6',
+    'geometry.essential_poses': 'b863be224cb9',
+    'geometry.depths': 'd929c1fd98c6',
+    'geometry.best_pose': 'af9296e9125b',
+    'geometry.nearest_essential': '898b1d686f05',
+    'geometry.homography_poses': 'e6c7f0b6a730',
+    'geometry.quaternion_from_rotation': '270f42cbd8ff',
+}
+
+
+#: The initialisers with a compiled twin (codegen/c/kanagen_geometry.c: ``kg_<name>``), and
+#: which of the values it writes (in the order of ``_TWO_VIEW_Q``) their candidates name.
+TWINS: dict[str, tuple[tuple[int, str], ...]] = {
+    "two_view_fundamental": tuple(enumerate(
+        ("f1", "f2", "qw", "qx", "qy", "qz", "tx", "ty", "tz"))),
+    "two_view_homography": tuple(enumerate(
+        ("f1", "f2", "qw", "qx", "qy", "qz", "tx", "ty", "tz", "wx", "wy", "wz"))),
 }
 
 
@@ -201,6 +244,12 @@ class FastPath:
         self._minimal = lib.kg_minimal
         self._minimal.argtypes = [ctypes.c_void_p] * 2
         self._minimal.restype = ctypes.c_int
+        self._twins = {}  # the compiled initialisers by name (initializer)
+        for name in TWINS:
+            fn = getattr(lib, f"kg_{name}")
+            fn.argtypes = [ctypes.c_long] + [ctypes.c_void_p] * 3
+            fn.restype = ctypes.c_int
+            self._twins[name] = fn
         meta = module.FAMILY
         self.n = len(meta["parameter"])
         self.names = tuple(n for n, _ in meta["parameter"])
@@ -416,6 +465,44 @@ class FastPath:
         n, out = self.n, ws[1]
         success, rank, iterations, violation = out[n:n + 4].tolist()
         return out[:n].copy(), bool(success), int(rank), int(iterations), violation
+
+    def initializer(self, name: str):
+        """The compiled twin of the registered initializer ``name``
+        (:data:`~kanagen.runtime.initializers.INITIALIZERS`): the same function of
+        ``(rows, constants)``, the same candidates to rounding level (codegen/c/
+        kanagen_geometry.c), or None when it has none. Where the C code does not cover a
+        sample (a degenerate one, whose outcome in the Python follows LAPACK's arbitrary
+        basis) the twin runs the Python."""
+        fn = self._twins.get(name)
+        if fn is None:
+            return None
+        from .initializers import _TWO_VIEW_Q, INITIALIZERS
+
+        python = INITIALIZERS[name].fn
+        names = TWINS[name]
+        width = len(_TWO_VIEW_Q)
+        local = self._local
+
+        def twin(rows, constants):
+            ws = getattr(local, "init", None)
+            if ws is None:
+                k, out = np.empty(3), np.empty(4 * width)
+                ws = local.init = (k, out, ctypes.c_void_p(k.ctypes.data),
+                                   ctypes.c_void_p(out.ctypes.data))
+            X = rows
+            if type(X) is not np.ndarray or X.dtype.char != "d" or X.ndim != 2 \
+                    or X.shape[1] != 4 or not X.flags.c_contiguous:
+                return python(rows, constants)
+            k, out = ws[0], ws[1]
+            k[0], k[1], k[2] = constants["cx"], constants["cy"], constants["f0"]
+            count = fn(X.shape[0], X.ctypes.data, ws[2], ws[3])
+            if count < 0:
+                return python(rows, constants)
+            values = out[:count * width].tolist()
+            return [{n: values[c * width + i] for i, n in names}
+                    for c in range(count)]
+
+        return twin
 
     def closest_sqrt(self, S: np.ndarray, eps: float) -> np.ndarray:
         """The compiled :func:`~kanagen.runtime.sqrt.closest_sqrt` of one matrix (what the

@@ -216,9 +216,14 @@ def homography_poses(H: np.ndarray, y1: np.ndarray | None = None,
     """
     H = np.asarray(H, dtype=float)
     H = H / np.linalg.svd(H, compute_uv=False)[1]
-    if y1 is not None and y2 is not None and np.sum(np.einsum("ni,ij,nj->n", y2, H, y1)) < 0:
-        H = -H  # the sign that gives positive depths: λ2 y2 = H y1 with λ2 > 0
-    elif np.linalg.det(H) < 0:
+    if y1 is not None and y2 is not None:
+        # the sign that gives positive depths, λ2 y2 = H y1 with λ2 > 0: the same for H and
+        # −H (the DLT's sign is arbitrary), det(H) only when the depths do not decide
+        total = np.sum(np.einsum("ni,ij,nj->n", y2, H, y1))
+        flip = total < 0 or total == 0 and np.linalg.det(H) < 0
+    else:
+        flip = np.linalg.det(H) < 0
+    if flip:
         H = -H
     w2, V = np.linalg.eigh(H.T @ H)
     w2, V = w2[::-1], V[:, ::-1]

@@ -155,13 +155,20 @@ def label_candidates(labels: Mapping[str, tuple[float, ...]]) -> InitializerFn:
 
 def model_initializers(fam, overrides: Mapping | None = None) -> dict[str, InitializerFn]:
     """Each model's initializer: the spec's choice, overridden by ``overrides``; a model
-    with qualitative variables and no closed form starts on each of its labels."""
+    with qualitative variables and no closed form starts on each of its labels. On the
+    compiled backend a registered initializer named by the spec or an override runs as its
+    compiled twin (:meth:`~kanagen.runtime.fastpath.FastPath.initializer`: the same
+    candidates); a callable override runs as given."""
     out = {}
     overrides = dict(overrides or {})
     for name in overrides:
         fam.model(name)  # a clear error for an unknown model
+    fast = getattr(fam, "fastpath", None)
     for name, info in fam.models.items():
-        fn = resolve(overrides[name] if name in overrides else info.initializer)
+        choice = overrides[name] if name in overrides else info.initializer
+        fn = resolve(choice)
+        if fast is not None and isinstance(choice, str):
+            fn = fast.initializer(choice) or fn
         if fn is None and info.labels and overrides.get(name, "") is not None:
             fn = label_candidates(info.labels)
         if fn is not None:

@@ -134,3 +134,19 @@ def test_dlt_matches_opencv(seed):
     s = two_view_scene("planar", n=10, sigma=0.0, seed=seed)
     H_cv, _ = cv2.findHomography(s.x1, s.x2, 0)
     assert _same_up_to_sign(g.homography_dlt(s.x1, s.x2), H_cv, 1e-6)
+
+
+def test_homography_poses_do_not_depend_on_the_sign_of_h():
+    """The DLT's sign is arbitrary: H and −H give the same decompositions (the depths'
+    sign rule, det(H) only when the depths do not decide), also on samples with outliers
+    where the sign of positive depths has det(H) < 0."""
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        H = rng.normal(size=(3, 3))
+        y1 = np.c_[rng.uniform(-0.5, 0.5, (6, 2)), np.ones(6)]
+        y2 = np.c_[rng.uniform(-0.5, 0.5, (6, 2)), np.ones(6)]
+        a, b = g.homography_poses(H, y1, y2), g.homography_poses(-H, y1, y2)
+        assert len(a) == len(b)
+        for R, t, w in a:
+            assert any(np.allclose(R, R2) and np.allclose(t, t2) and np.allclose(w, w2)
+                       for R2, t2, w2 in b)
