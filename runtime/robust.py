@@ -21,12 +21,14 @@ from .coherence import coherence_errors, free_dof, manifold_ranks, solve_minimal
 from .family import ModelFamily
 from .fit import fit_problem, make_problem
 from .initializers import InitializerFn, model_initializers, start_from
+from .iterate import MAX_ITER
 from .projector import Problem
 from .results import FitResult
 from .scoring import samples_for_confidence
 from .scoring import scorer as get_scorer
 
 _REFINE_ROUNDS = 6  # threshold-and-refine rounds at most (they stop when the inliers do)
+_ROUND_ITER = 20  # iterations of a refinement round whose inliers may still change
 _NEIGHBOURHOOD = 4  # a local sample is drawn among this many sample sizes of nearest measures
 
 
@@ -64,15 +66,16 @@ def outlier_threshold(errors: np.ndarray, scale: float, window: float = 0.35,
     # A minimum is real when the histogram rises after it by more than its Poisson noise
     # (the kernel averages about `half` bins); a plateau at zero is a saddle.
     i = int(np.argmax(smooth))
-    while i + 1 < smooth.size:
+    smooth = smooth.tolist()  # the walk below reads single bins: Python floats are faster
+    while i + 1 < len(smooth):
         if smooth[i + 1] < smooth[i]:
             i += 1
             continue
         if smooth[i] * half < 0.5:
             break  # flat and empty: saddle
         ahead = smooth[i + 1:i + 1 + 2 * half]
-        noise = 3.0 * np.sqrt((smooth[i] + 1.0 / half) / half)
-        if ahead.size and ahead.max() - smooth[i] > noise:
+        noise = 3.0 * math.sqrt((smooth[i] + 1.0 / half) / half)
+        if ahead and max(ahead) - smooth[i] > noise:
             break  # a genuine local minimum
         i += 1
     threshold = max(float(edges[i + 1]), float(scale))
@@ -167,6 +170,7 @@ class ModelSearch:
         self.problem = problem
         self.channel = channel
         self.start = fam.with_slacks(np.asarray(start, dtype=float), problem.k, model)
+        self._free: int | None = None  # free_dof() at the start
         self.rng = rng
         self.scale = float(scale)
         self.score_fn = get_scorer(scorer)
@@ -196,9 +200,13 @@ class ModelSearch:
         self.history: list[tuple[int, float]] = []
 
     def free_dof(self, q: np.ndarray | None = None) -> int:
-        """``n − p``: the parameter's degrees of freedom left free by the constraints."""
-        return free_dof(lambda x: self.problem.c0(x, self.problem.k)[1],
-                        self.start if q is None else q)
+        """``n − p``: the parameter's degrees of freedom left free by the constraints (at
+        ``q``, default the start: computed once)."""
+        if q is None:
+            if self._free is None:
+                self._free = self.free_dof(self.start)
+            return self._free
+        return free_dof(lambda x: self.problem.c0(x, self.problem.k)[1], q)
 
     def _equations_per_measure(self) -> int:
         """Independent equations of one measure (on its equations' zero set)."""
@@ -361,22 +369,36 @@ class ModelSearch:
                                       self.max_threshold)
         rows = tuple(np.flatnonzero(e < threshold) for e in errors)
         result = None
+        # the first refinement (which picks among the starts) takes max_iter iterations;
+        # a later one, whose inliers may still change, a few, and the fit on the stable
+        # inliers goes on to max_iter in all (a model that does not fit its data crawls: it
+        # would crawl max_iter iterations every round)
+        per_round = max_iter
         for round_ in range(_REFINE_ROUNDS):
             starts = [q] + (self._starts(rows[self.channel])
                             if round_ == 0 and self.initializer is not None else [])
             fits = [fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=start,
-                                q0=q0, Q0=Q0, max_iter=max_iter) for start in starts]
+                                q0=q0, Q0=Q0, max_iter=per_round) for start in starts]
             result = min(fits, key=lambda f: f.cost if np.isfinite(f.cost) else np.inf)
             if not np.all(np.isfinite(result.q)):
                 break
             q = result.q
             errors = coherence_errors(self.problem, q)
             threshold = outlier_threshold(np.concatenate(errors), self.scale, window,
-                                      self.max_threshold)
+                                          self.max_threshold)
             new = tuple(np.flatnonzero(e < threshold) for e in errors)
             if all(np.array_equal(a, b) for a, b in zip(new, rows, strict=True)):
+                if result.status == MAX_ITER and per_round < max_iter:
+                    result = fit_problem(self.fam, self.model, self.problem.subset(rows),
+                                         q_start=q, q0=q0, Q0=Q0,
+                                         max_iter=max_iter - per_round)
+                    if np.all(np.isfinite(result.q)):  # the errors at the reported q
+                        errors = coherence_errors(self.problem, result.q)
+                        threshold = outlier_threshold(np.concatenate(errors), self.scale,
+                                                      window, self.max_threshold)
                 break  # stable: the fit is on the reported inliers
             rows = new
+            per_round = min(max_iter, _ROUND_ITER)
         else:
             result = fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=q,
                                  q0=q0, Q0=Q0, max_iter=max_iter)
