@@ -44,6 +44,9 @@ class Initializer:
     constants: tuple[str, ...]
     width: int  # components of the sampled channel
     doc: str
+    #: the candidates parameterise one estimate (the two decompositions of one homography
+    #: give the same errors): a random sample scores only the first whose solve passes
+    equivalent: bool = False
 
     def missing(self, parameter, constants, channels: Mapping[str, tuple[str, ...]]) -> str:
         """What the family lacks for this initializer ('' when nothing)."""
@@ -123,7 +126,8 @@ INITIALIZERS: dict[str, Initializer] = {
         Initializer("two_view_fundamental", two_view_fundamental, _TWO_VIEW_Q,
                     ("cx", "cy", "f0"), 4, two_view_fundamental.__doc__.splitlines()[0]),
         Initializer("two_view_homography", two_view_homography, _TWO_VIEW_Q,
-                    ("cx", "cy", "f0"), 4, two_view_homography.__doc__.splitlines()[0]),
+                    ("cx", "cy", "f0"), 4, two_view_homography.__doc__.splitlines()[0],
+                    equivalent=True),
     )
 }
 
@@ -169,11 +173,19 @@ def model_initializers(fam, overrides: Mapping | None = None) -> dict[str, Initi
         fn = resolve(choice)
         if fast is not None and isinstance(choice, str):
             fn = fast.initializer(choice) or fn
+        if isinstance(choice, str) and INITIALIZERS[choice].equivalent:
+            fn.equivalent = True  # read by equivalent()
         if fn is None and info.labels and overrides.get(name, "") is not None:
             fn = label_candidates(info.labels)
         if fn is not None:
             out[name] = fn
     return out
+
+
+def equivalent(fn: InitializerFn | None) -> bool:
+    """Do the candidates of the initializer ``fn`` parameterise one estimate (a registered
+    closed form flagged :attr:`Initializer.equivalent`)?"""
+    return bool(getattr(fn, "equivalent", False))
 
 
 def start_from(fam, candidate: Mapping[str, float], start: np.ndarray) -> np.ndarray | None:

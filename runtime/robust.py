@@ -20,7 +20,7 @@ import numpy as np
 from .coherence import coherence_errors, free_dof, manifold_ranks, solve_minimal
 from .family import ModelFamily
 from .fit import fit_problem, make_problem
-from .initializers import InitializerFn, model_initializers, start_from
+from .initializers import InitializerFn, equivalent, model_initializers, start_from
 from .iterate import MAX_ITER
 from .projector import Problem
 from .results import FitResult
@@ -175,6 +175,7 @@ class ModelSearch:
         self.scale = float(scale)
         self.score_fn = get_scorer(scorer)
         self.initializer = initializer
+        self.equivalent = equivalent(initializer)
         self._constants = dict(zip(fam.constant_names, problem.k.tolist(), strict=True))
         # equations per measure, per channel (the caller's when it has them already)
         self.ranks = manifold_ranks(problem, self.start) if ranks is None else ranks
@@ -330,6 +331,8 @@ class ModelSearch:
             sol = solve_minimal(sample, start)
             if sol.success and sol.rank >= self.full_rank:
                 out.append(sol.q)
+                if self.equivalent:
+                    break  # the other candidates are the same estimate
         return out
 
     def _local_optimisation(self, max_iter: int = 10) -> None:
