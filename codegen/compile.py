@@ -4,7 +4,8 @@ The CasADi functions of a family (its generated CasADi module's ``FUNCTIONS``) g
 ``casadi.CodeGenerator`` into C, followed by the family's tables
 (``templates/c/family.c.jinja``) and the compiled fast path of the estimator
 (``c/kanagen_fast.c``, docs/fastpath.md) with the closed-form initialisers
-(``c/kanagen_geometry.c``), all in one translation unit compiled into a shared
+(``c/kanagen_geometry.c``) and a robust search's sample (``c/kanagen_sample.c``), all in one
+translation unit compiled into a shared
 library in a cache folder keyed by the spec hash, the kanagen version, the generator and the
 CasADi version. The CasADi functions are loaded back with ``casadi.external`` (same names,
 inputs and outputs), the estimator through :mod:`kanagen.runtime.fastpath`. The C compiler is
@@ -37,6 +38,8 @@ TUNING = ("-fno-semantic-interposition", "-fno-math-errno")
 _FAST_C = Path(__file__).with_name("c") / "kanagen_fast.c"
 #: the closed-form initialisers of the two-view family (after _FAST_C: it uses its SVD)
 _GEOMETRY_C = Path(__file__).with_name("c") / "kanagen_geometry.c"
+#: one random sample of a robust search in one call (after both: it calls them)
+_SAMPLE_C = Path(__file__).with_name("c") / "kanagen_sample.c"
 _SLACK_KINDS = {">=": 0, ">": 1, "!=": 2}
 _TIMEOUT = 300  # seconds
 
@@ -85,8 +88,9 @@ def c_source(module: ModuleType, family: dict) -> str:
     from .backend import environment
 
     tables = environment("c").get_template("family.c.jinja").render(**_tables(module, family))
-    return "\n".join([generator.dump(), tables, _FAST_C.read_text(encoding="utf-8"),
-                      _GEOMETRY_C.read_text(encoding="utf-8")])
+    return "\n".join([generator.dump(), tables] + [path.read_text(encoding="utf-8")
+                                                    for path in (_FAST_C, _GEOMETRY_C,
+                                                                 _SAMPLE_C)])
 
 
 def _tables(module: ModuleType, family: dict) -> dict:

@@ -244,6 +244,9 @@ class FastPath:
         self._minimal = lib.kg_minimal
         self._minimal.argtypes = [ctypes.c_void_p] * 2
         self._minimal.restype = ctypes.c_int
+        self.sample = lib.kg_sample  # one sample of a robust search (fastsample.py)
+        self.sample.argtypes = [ctypes.c_void_p] * 3
+        self.sample.restype = ctypes.c_int
         self._twins = {}  # the compiled initialisers by name (initializer)
         for name in TWINS:
             fn = getattr(lib, f"kg_{name}")
@@ -410,13 +413,7 @@ class FastPath:
         with ``iterations`` and ``tol``): ``(‖m̃ − m‖²_Q + violation, equations kept)``, as
         two tuples of (M,) arrays; None when kg_coherence refuses the input (not finite)."""
         sizes = [ch.X.shape[0] for ch in problem.channels]
-        packed = getattr(self._local, "coherence", None)
-        if packed is None or packed[0] is not problem or packed[1] != (model, iterations, tol):
-            # a search scores every sample on the same problem: its measures packed once
-            ws, where = self._packed_at(model, problem, q, problem.eps, iterations, tol,
-                                        2 * sum(sizes), own=True)
-            packed = self._local.coherence = (problem, (model, iterations, tol), ws, where)
-        ws, where = packed[2], packed[3]
+        ws, where = self.coherence_input(model, problem, iterations, tol)
         ws[0][where[0]:where[0] + self.n] = q
         ws[0][where[1]:where[1] + self.n] = q
         if self._coherence(ws[2], ws[3]) != 0:
@@ -428,6 +425,18 @@ class FastPath:
             kept.append(out[at + M:at + 2 * M].astype(np.int64))
             at += 2 * M
         return tuple(totals), tuple(kept)
+
+    def coherence_input(self, model: str, problem, iterations: int, tol: float):
+        """kg_coherence's input for the validated ``problem`` (its start and prior slots
+        holding q0) and where its inputs are (:meth:`_layout`): packed once per problem
+        and thread, since a search scores every sample on the same problem."""
+        packed = getattr(self._local, "coherence", None)
+        if packed is None or packed[0] is not problem or packed[1] != (model, iterations, tol):
+            size = 2 * sum(ch.X.shape[0] for ch in problem.channels)
+            ws, where = self._packed_at(model, problem, problem.q0, problem.eps, iterations,
+                                        tol, size, own=True)
+            packed = self._local.coherence = (problem, (model, iterations, tol), ws, where)
+        return packed[2], packed[3]
 
     def _packed_at(self, model: str, problem, q: np.ndarray, eps: float, iterations: int,
                    tol: float, size_out: int, own: bool = False) -> tuple[list, list]:
@@ -502,6 +511,7 @@ class FastPath:
             return [{n: values[c * width + i] for i, n in names}
                     for c in range(count)]
 
+        twin.twin = name  # kg_sample calls the C itself (fastsample.py)
         return twin
 
     def closest_sqrt(self, S: np.ndarray, eps: float) -> np.ndarray:

@@ -19,6 +19,7 @@ import numpy as np
 
 from .coherence import coherence_errors, free_dof, manifold_ranks, solve_minimal
 from .family import ModelFamily
+from .fastsample import sampler_for
 from .fit import fit_problem, make_problem
 from .initializers import InitializerFn, equivalent, model_initializers, start_from
 from .iterate import MAX_ITER
@@ -191,6 +192,7 @@ class ModelSearch:
         self.full_rank = min(fam.n, fam.n - self.free_dof() + equations)
         self.overdetermined = equations > self.free_dof()
         self.local = float(local)
+        self._sampler = sampler_for(self)  # the compiled sample, or None
         self._neighbours: np.ndarray | None = None
         self.samples = 0
         self.degenerate = 0
@@ -268,9 +270,8 @@ class ModelSearch:
         solutions = 0
         try:
             with np.errstate(all="ignore"):
-                for q in self._solutions(rows):
+                for q, errors in self._scored(rows):
                     solutions += 1
-                    errors = coherence_errors(self.problem, q, iterations=1, ranks=self.ranks)
                     score = self.score_fn(np.concatenate(errors), self.scale)
                     if score > self.best_score:
                         self.best_q, self.best_score, self.best_errors = q, score, errors
@@ -282,6 +283,17 @@ class ModelSearch:
         self.degenerate += solutions == 0
         self.history.append((self.samples, self.best_score))
         return improved
+
+    def _scored(self, rows: np.ndarray):
+        """The sample's solutions, each with every measure's error (eq. 24): in one compiled
+        call (:mod:`~kanagen.runtime.fastsample`) when the search has one, else solve by
+        solve."""
+        if self._sampler is not None:
+            out = self._sampler(rows)
+            if out is not None:
+                return out
+        return ((q, coherence_errors(self.problem, q, iterations=1, ranks=self.ranks))
+                for q in self._solutions(rows))
 
     def _draw(self) -> np.ndarray:
         """The sampled measures: uniform, or local with probability ``local``."""

@@ -1686,15 +1686,12 @@ int kg_fit(const double *in, double *out)
  * q at which they are projected, its iteration cap the projector steps plus one, its xtol
  * the tolerance) projected onto c_i(q, ·) = 0 (project_measures); out per channel, per
  * measure: ‖m̃ − m‖²_Q + the whitened violation, then the equations kept. 1: bad input */
-int kg_coherence(const double *in, double *out)
+/* kg_coherence on a problem read already: per channel, M totals then M ranks in out */
+static int kg_coherence_at(kg_problem *pb, const double *q, int iterations, double tol,
+                           double *out)
 {
-    kg_problem pb;
-    int nch = (int)in[1], iterations;
-    double tol;
-    const double *q;
-    if (nch < 0 || nch > KG_NCH) return 1;
-    kg_channel channels[nch > 0 ? nch : 1];
-    if (kg_read(in, &pb, channels, &iterations, &tol, &q)) return 1;
+    const int nch = pb->nch;
+    kg_channel *channels = pb->ch;
     kg_point projected;
     kg_arena arena = {NULL, 0};
     for (int pass = 0; pass < 2; ++pass) { /* sizes, then places: ChannelData.m, one point */
@@ -1702,14 +1699,14 @@ int kg_coherence(const double *in, double *out)
             double *m = KG_TAKE(&arena, double, channels[c].M * channels[c].k);
             if (arena.base) channels[c].m = m;
         }
-        kg_layout_point(&arena, &pb, &projected);
+        kg_layout_point(&arena, pb, &projected);
         if (pass == 0) {
             arena.base = malloc(arena.used + 16);
             if (!arena.base) return 2;
             arena.used = 0;
         }
     }
-    kg_channel_data(&pb);
+    kg_channel_data(pb);
     long total = 0;
     for (int c = 0; c < nch; ++c) total += channels[c].M;
     double *work = malloc(sizeof(double) * (total + 1) + sizeof(int) * (total + 1));
@@ -1724,7 +1721,7 @@ int kg_coherence(const double *in, double *out)
         rank[c] = ranks + at;
         observed[c] = channels[c].m; /* the projection starts at the observed measures */
     }
-    kg_project_measures(&pb, q, observed, &projected, iterations, tol, violation, rank);
+    kg_project_measures(pb, q, observed, &projected, iterations, tol, violation, rank);
     for (int c = 0; c < nch; ++c) {
         const kg_channel *ch = &channels[c];
         const int k = ch->k;
@@ -1739,6 +1736,18 @@ int kg_coherence(const double *in, double *out)
     free(work);
     free(arena.base);
     return 0;
+}
+
+int kg_coherence(const double *in, double *out)
+{
+    kg_problem pb;
+    int nch = (int)in[1], iterations;
+    double tol;
+    const double *q;
+    if (nch < 0 || nch > KG_NCH) return 1;
+    kg_channel channels[nch > 0 ? nch : 1];
+    if (kg_read(in, &pb, channels, &iterations, &tol, &q)) return 1;
+    return kg_coherence_at(&pb, q, iterations, tol, out);
 }
 
 /* ---------------------------------------------------- runtime/coherence.py: solve_minimal */
@@ -1817,18 +1826,14 @@ static int kg_minimal_step(long R, const double *J, const double *c, const doubl
 /* solve_minimal: the q closest to the target (kg_fit's start) satisfying c0 and the
  * equations of the given measures (eq. 21, Q0 = 0), the watchdog and line search of the
  * Python; out: q (n), success, rank, iterations, violation. 1: bad input, 2: no memory */
-int kg_minimal(const double *in, double *out)
+/* kg_minimal on a problem read already (its measures the sample): out = q, success, rank,
+ * iterations, violation */
+static int kg_minimal_solve(const kg_problem *pb, const double *target, int max_iter,
+                            double xtol, double *out)
 {
-    kg_problem pb;
     const int n = KG_N;
-    int nch = (int)in[1], max_iter;
-    double xtol;
-    const double *target;
-    if (nch < 0 || nch > KG_NCH) return 1;
-    kg_channel channels[nch > 0 ? nch : 1];
-    if (kg_read(in, &pb, channels, &max_iter, &xtol, &target)) return 1;
-    long R = pb.p0;
-    for (int c = 0; c < nch; ++c) R += channels[c].M * channels[c].p;
+    long R = pb->p0;
+    for (int c = 0; c < pb->nch; ++c) R += pb->ch[c].M * pb->ch[c].p;
     /* c, J, their trial and best copies, the weights */
     double *work = malloc(sizeof(double) * (3 * (R + R * n) + R + 1));
     if (!work) return 2;
@@ -1837,7 +1842,7 @@ int kg_minimal(const double *in, double *out)
     double q[KG_N + 1], trial[KG_N + 1], step[KG_N + 1], r[KG_N + 1], q_best[KG_N + 1];
     memcpy(q, target, sizeof(double) * n);
     int rank = 0, it, success = -1;
-    kg_minimal_equations(&pb, q, NULL, c, J); /* raw: the rows' weights */
+    kg_minimal_equations(pb, q, NULL, c, J); /* raw: the rows' weights */
     for (long i = 0; i < R; ++i) {
         double acc = 0.0;
         for (int u = 0; u < n; ++u) acc += J[i * n + u] * J[i * n + u];
@@ -1853,7 +1858,7 @@ int kg_minimal(const double *in, double *out)
     int free_steps = KG_FREE_STEPS, slow = 0;
     for (it = 1; it <= max_iter; ++it) {
         for (int u = 0; u < n; ++u) r[u] = target[u] - q[u];
-        int got = kg_minimal_step(R, J, c, r, pb.eps, step);
+        int got = kg_minimal_step(R, J, c, r, pb->eps, step);
         if (got < 0) {
             success = 0;
             break;
@@ -1866,7 +1871,7 @@ int kg_minimal(const double *in, double *out)
             break;
         }
         for (int u = 0; u < n; ++u) trial[u] = q[u] + step[u];
-        d_new = kg_minimal_equations(&pb, trial, w, c_new, J_new);
+        d_new = kg_minimal_equations(pb, trial, w, c_new, J_new);
         double moved = 0.0;
         if (free_steps > 0 && isfinite(d_new) && d_new < KG_WATCHDOG * (1 + best)) {
             free_steps -= d_new >= delta;
@@ -1885,7 +1890,7 @@ int kg_minimal(const double *in, double *out)
             int found = 0;
             while (alpha > 0x1p-30) {
                 for (int u = 0; u < n; ++u) trial[u] = q[u] + alpha * step[u];
-                d_new = kg_minimal_equations(&pb, trial, w, c_new, J_new);
+                d_new = kg_minimal_equations(pb, trial, w, c_new, J_new);
                 if (isfinite(d_new) && d_new < delta + 1e-12 * (1 + delta)) {
                     found = 1;
                     break;
@@ -1933,6 +1938,18 @@ int kg_minimal(const double *in, double *out)
     out[n + 3] = delta;
     free(work);
     return 0;
+}
+
+int kg_minimal(const double *in, double *out)
+{
+    kg_problem pb;
+    int nch = (int)in[1], max_iter;
+    double xtol;
+    const double *target;
+    if (nch < 0 || nch > KG_NCH) return 1;
+    kg_channel channels[nch > 0 ? nch : 1];
+    if (kg_read(in, &pb, channels, &max_iter, &xtol, &target)) return 1;
+    return kg_minimal_solve(&pb, target, max_iter, xtol, out);
 }
 
 int kg_closest_root(long n, const double *S, double eps, double *L)

@@ -1,0 +1,91 @@
+"""One random sample of a robust search in one compiled call (codegen/c/kanagen_sample.c).
+
+:class:`~kanagen.runtime.robust.ModelSearch` solves each sample from each start
+(:func:`~kanagen.runtime.coherence.solve_minimal`) and scores every solution by the errors
+of all measures (:func:`~kanagen.runtime.coherence.coherence_errors`); on the compiled
+backend each of these is a C call with its input packed anew. :class:`Sampler` makes the
+whole sample — the closed form's candidates put into the start, their minimal solves and
+the errors at each solution that passes — one call of ``kg_sample`` on the problem packed
+once: the same C functions in the same order, so the same solutions and errors. The
+scoring stays in Python (any scorer).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import inspect
+
+import numpy as np
+
+from .coherence import coherence_errors, solve_minimal
+from .fastpath import TWINS
+from .initializers import _TWO_VIEW_Q
+
+_MINIMAL = {name: inspect.signature(solve_minimal).parameters[name].default
+            for name in ("max_iter", "xtol", "eps")}  # the search's solves use the defaults
+#: the tolerance of a sample's coherence errors (coherence_errors' default)
+_TOL = inspect.signature(coherence_errors).parameters["tol"].default
+
+
+class Sampler:
+    """``sampler(rows) -> [(q, errors per channel), ...]`` for a search of ``model`` on the
+    validated, compiled ``problem``: the solutions of the sample ``rows`` (indices into the
+    sampled ``channel``) from ``start`` or from the candidates of the compiled ``twin``
+    (its registry name, None for the start alone), each with every measure's error at one
+    projection step capped at ``ranks`` equations (eq. 24), as the Python path gives them;
+    None when the C leaves the sample to the Python path (a degenerate sample for the twin,
+    non-finite input).
+    """
+
+    def __init__(self, problem, channel: int, start: np.ndarray, ranks, twin: str | None,
+                 equivalent: bool, full_rank: int, size: int, constants):
+        fast, self.model = problem.compiled
+        self.fast, self.problem, self.n = fast, problem, fast.n
+        self.sizes = [ch.X.shape[0] for ch in problem.channels]
+        index = {name: i for i, name in enumerate(fast.names)}
+        named = dict(TWINS[twin]) if twin is not None else {}
+        head = [channel, size, 0 if twin is None else list(TWINS).index(twin) + 1,
+                int(equivalent), full_rank, _MINIMAL["max_iter"], _MINIMAL["xtol"],
+                _MINIMAL["eps"], *ranks]
+        head += [constants["cx"], constants["cy"], constants["f0"]] if twin is not None \
+            else [0.0, 0.0, 0.0]
+        head += [index[named[i]] if i in named else -1 for i in range(len(_TWO_VIEW_Q))]
+        self.sin = np.array(head + list(np.asarray(start, dtype=float)) + [0.0] * size)
+        self.rows_at = len(head) + self.n
+        total = sum(self.sizes)
+        self.out = np.empty(1 + 4 * (self.n + total))
+        self.start = np.asarray(start, dtype=float)
+        self._sin = ctypes.c_void_p(self.sin.ctypes.data)
+        self._out = ctypes.c_void_p(self.out.ctypes.data)
+
+    def __call__(self, rows: np.ndarray):
+        ws, where = self.fast.coherence_input(self.model, self.problem, 1, _TOL)
+        ws[0][where[0]:where[0] + self.n] = self.start
+        ws[0][where[1]:where[1] + self.n] = self.start
+        self.sin[self.rows_at:] = rows
+        if self.fast.sample(ws[2], self._sin, self._out) != 0:
+            return None
+        count, width, out = int(self.out[0]), self.n + sum(self.sizes), []
+        for j in range(count):
+            block = self.out[1 + j * width:1 + (j + 1) * width].copy()
+            errors, at = [], self.n
+            for M in self.sizes:
+                errors.append(block[at:at + M])
+                at += M
+            out.append((block[:self.n], tuple(errors)))
+        return out
+
+
+def sampler_for(search) -> Sampler | None:
+    """The compiled sampler of a :class:`~kanagen.runtime.robust.ModelSearch`, or None
+    when its samples take the Python path: an uncompiled family, slacks (a candidate's
+    slacks are set in Python), over-determined samples (fitted), an initializer other than
+    a registered closed form's compiled twin."""
+    problem, init = search.problem, search.initializer
+    if problem.compiled is None or search.fam.slack_names or search.overdetermined:
+        return None
+    twin = getattr(init, "twin", None) if init is not None else None
+    if init is not None and twin is None:
+        return None
+    return Sampler(problem, search.channel, search.start, search.ranks, twin, search.equivalent,
+                   search.full_rank, search.sample_size + search.base_size, search._constants)
