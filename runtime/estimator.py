@@ -24,11 +24,12 @@ from .inputs import ChannelData, channel_data, parameter_vector, prior_informati
 from .phi import phi as get_phi
 from .projector import Problem
 from .results import DerivedValue
-from .robust import ModelSearch, RobustEstimate
+from .robust import ModelSearch, RobustEstimate, outlier_threshold
 from .scoring import samples_for_confidence
 from .scoring import scorer as get_scorer
 
 _RESUME_FRACTION = 10  # a re-queued model draws a tenth of a fresh search's samples
+_BRIEF = 10  # iterations of the final refinement of a model that cannot win (_hopeless)
 
 
 @dataclass(frozen=True)
@@ -432,7 +433,8 @@ class Estimator:
         return free_dof(lambda x: self.fam.c0(model, x, self._constants)[1], q)
 
     def _conclude(self, model: str, parent: str | None, search: ModelSearch) -> None:
-        estimate = search.finish(self.q0, self.Q0, self.window)
+        estimate = search.finish(self.q0, self.Q0, self.window,
+                                 _BRIEF if self._hopeless(parent, search) else 100)
         if estimate is None or not np.all(np.isfinite(estimate.q)):
             self._skipped[model] = parent
             self._queue_alternatives(model)
@@ -449,6 +451,19 @@ class Estimator:
                 for cb in self._on_model:
                     cb(state)
         self._queue_alternatives(model)
+
+    def _hopeless(self, parent: str | None, search: ModelSearch) -> bool:
+        """Can the model searched not replace its parent, by a wide margin
+        (:func:`~kanagen.runtime.lattice.hopeless`)? Then its final refinement is brief."""
+        state = self._states.get(parent) if parent else None
+        if state is None or not state.samples or search.best_errors is None:
+            return False
+        errors = np.concatenate(search.best_errors)
+        threshold = outlier_threshold(errors, self.scale, self.window, self.max_threshold)
+        across = parent in self._shape and \
+            self._shape[parent][0] != max(search.ranks[search.channel], 1)
+        return lattice.hopeless(state, search.best_score,
+                                int(np.count_nonzero(errors < threshold)), across)
 
     # -- the lattice ---------------------------------------------------------------------------
     def _queue_alternatives(self, model: str) -> None:

@@ -24,6 +24,8 @@ if TYPE_CHECKING:
 MORE_SUPPORT = 1.2  # a general model wins outright when it explains this much more
 SUPPORT = 0.95  # ... and must keep this fraction of its parent's relevance
 RELEVANT = 0.1  # a parent explaining fewer measures than this fraction is no base
+HOPELESS = 0.5  # a child whose best sample reaches less than this share of what replacing
+#                its parent needs is refined briefly (Estimator: it cannot win)
 RANK_SAMPLE = 60  # corrected inliers of a parent used to count what they fix of a child
 RANK_TOL = 1e-6  # relative singular value below which a direction is not fixed
 SAME_FIT = 1e-6  # relative cost difference below which two fits are the same fit
@@ -131,6 +133,19 @@ def beats(parent: ModelState, state: ModelState, shape: Shape, replaces: Replace
     if state.relevance < SUPPORT * parent.relevance:
         return False
     return replaces(parent, state)
+
+
+def hopeless(parent: ModelState, relevance: float, inliers: int, across: bool) -> bool:
+    """Is a general model whose best random sample has this ``relevance`` and these
+    ``inliers`` far (:data:`HOPELESS`) from what :func:`beats` asks to replace ``parent``?
+    Across a change of equations per measure: a fifth more inliers; else at least
+    :data:`SUPPORT` of the parent's relevance. Its final refinement then takes a few
+    iterations: a refinement that doubles the support of the best sample, which its local
+    optimisation has refined already, is not what refinement does — and a model that does
+    not fit the data converges slowly, often not in ``max_iter`` iterations."""
+    if across:
+        return inliers < HOPELESS * MORE_SUPPORT * parent.inliers.size
+    return relevance < HOPELESS * SUPPORT * parent.relevance
 
 
 def select(states: list[ModelState], shape: Shape, replaces: Replaces) -> ModelState:

@@ -156,3 +156,19 @@ def test_run_stopping_rules(lattice):
     est.run(no_gain=3)
     h = est.history
     assert h[-1][1] <= h[-4][1] or not est.step()
+
+
+def test_a_child_far_from_replacing_its_parent_is_hopeless():
+    """lattice.hopeless: half of what beats() asks — a fifth more inliers across a change of
+    equations per measure, SUPPORT of the relevance along an edge — is far."""
+    from types import SimpleNamespace
+
+    from kanagen.runtime import lattice
+
+    parent = SimpleNamespace(inliers=np.arange(200), relevance=0.6)
+    need = lattice.HOPELESS * lattice.MORE_SUPPORT * 200  # 120 inliers
+    assert lattice.hopeless(parent, 0.0, int(need) - 1, across=True)
+    assert not lattice.hopeless(parent, 0.0, int(need), across=True)
+    need = lattice.HOPELESS * lattice.SUPPORT * 0.6
+    assert lattice.hopeless(parent, need * 0.99, 0, across=False)
+    assert not lattice.hopeless(parent, need * 1.01, 0, across=False)
