@@ -57,7 +57,9 @@ PORTED: dict[str, tuple[str, ...]] = {
     "inputs": ("inverse_root", "ChannelData.scale", "ChannelData.with_corrected"),
     # codegen/c/kanagen_geometry.c: the closed-form initialisers (FastPath.initializer)
     "initializers": ("two_view_fundamental", "two_view_homography", "_rays", "_pose_params",
-                     "_FOCAL_RANGE", "_TWO_VIEW_Q"),
+                     "_FOCAL_RANGE", "_TWO_VIEW_Q", "two_view_rotation", "two_view_translation",
+                     "_rotation_from_pairs", "_kabsch", "_in_focal_range",
+                     "_rotation_candidate", "_DEGENERATE"),
     "geometry": ("homogeneous", "cross", "normalising_transform", "_unit", "_normalised",
                  "_epipolar_rows", "fundamental_8point", "fundamental_7point", "_ALPHAS",
                  "_CUBIC_FROM_VALUES", "homography_dlt", "epipoles", "focal_lengths",
@@ -137,6 +139,13 @@ FINGERPRINTS: dict[str, str] = {
     'initializers._pose_params': 'b4aae0a3cb9e',
     'initializers._FOCAL_RANGE': 'f87b8f36bcc4',
     'initializers._TWO_VIEW_Q': '6a4d9d3c3a06',
+    'initializers.two_view_rotation': '4201463169cd',
+    'initializers.two_view_translation': '2226bf4bcbf0',
+    'initializers._rotation_from_pairs': '7d452c668bfc',
+    'initializers._kabsch': 'bdab072395a2',
+    'initializers._in_focal_range': 'ad3b05c687d5',
+    'initializers._rotation_candidate': '0929c0d2b305',
+    'initializers._DEGENERATE': '2f88dcb41fb8',
     'geometry.homogeneous': 'e78e47b5ab90',
     'geometry.cross': 'b585c32c4b02',
     'geometry.normalising_transform': '85230fff495e',
@@ -166,6 +175,8 @@ TWINS: dict[str, tuple[tuple[int, str], ...]] = {
         ("f1", "f2", "qw", "qx", "qy", "qz", "tx", "ty", "tz"))),
     "two_view_homography": tuple(enumerate(
         ("f1", "f2", "qw", "qx", "qy", "qz", "tx", "ty", "tz", "wx", "wy", "wz"))),
+    "two_view_rotation": tuple(enumerate(("f1", "f2", "qw", "qx", "qy", "qz"))),
+    "two_view_translation": ((6, "tx"), (7, "ty"), (8, "tz")),
 }
 
 
@@ -290,6 +301,9 @@ class FastPath:
         lib.kg_sizes(sizes)
         expected = [self.n, len(meta["constants"]), len(meta["channels"]), len(meta["models"]),
                     len(self.derived), len(meta.get("slack", ()))]
+        if lib.kg_sample_twins() != len(TWINS):  # kg_sample calls the twins by number
+            raise RuntimeError(f"compiled library {library} has {lib.kg_sample_twins()} "
+                               f"closed forms in kg_sample, TWINS names {len(TWINS)}")
         if list(sizes) != expected:
             raise RuntimeError(f"compiled library {library} does not match family "
                                f"{meta['name']!r}: sizes {list(sizes)} vs {expected}")

@@ -19,7 +19,8 @@ from kanagen.runtime import initializers as init
 from kanagen.runtime.initializers import INITIALIZERS, model_initializers
 from kanagen.scenes import MOTIONS, two_view_scene
 
-NAMES = ("two_view_fundamental", "two_view_homography")
+NAMES = ("two_view_fundamental", "two_view_homography", "two_view_rotation",
+         "two_view_translation")
 CONSTANTS = {"cx": 320.0, "cy": 240.0, "f0": 640.0}
 QUATERNION = ("qw", "qx", "qy", "qz")
 
@@ -33,7 +34,7 @@ def _same_candidate(a: dict, b: dict) -> bool:
     if a.keys() != b.keys():
         return False
     # w >= 0 decides the quaternion's sign, but not at w = 0 (a half turn)
-    sign = -1.0 if abs(a["qw"]) < 1e-6 and np.dot(
+    sign = -1.0 if "qw" in a and abs(a["qw"]) < 1e-6 and np.dot(
         [a[n] for n in QUATERNION], [b[n] for n in QUATERNION]) < 0 else 1.0
     return all(abs(float(a[n]) * (sign if n in QUATERNION else 1.0) - b[n])
                <= 1e-8 * max(1.0, abs(float(a[n]))) for n in a)
@@ -64,7 +65,11 @@ def test_twins_give_the_python_candidates(family):
             for name, m in (("two_view_fundamental", 7),
                             ("two_view_fundamental", int(rng.integers(8, 21))),
                             ("two_view_homography", 4),
-                            ("two_view_homography", int(rng.integers(5, 21)))):
+                            ("two_view_homography", int(rng.integers(5, 21))),
+                            ("two_view_rotation", 2),
+                            ("two_view_rotation", int(rng.integers(4, 21))),
+                            ("two_view_translation", 2),
+                            ("two_view_translation", int(rng.integers(3, 21)))):
                 rows = X[rng.choice(pool, m, replace=False)]
                 same_candidates(INITIALIZERS[name].fn(rows, CONSTANTS),
                                 twins[name](rows, CONSTANTS))
@@ -85,7 +90,8 @@ def _degenerate_samples():
     line = np.linspace(0, 1, 12)[:, None]
     collinear = np.c_[100 + 400 * line, 50 + 300 * line, 120 + 380 * line, 60 + 290 * line]
     return {
-        "nan": nan, "inf": inf, "few3": X[:3], "few6": X[:6], "empty": X[:0],
+        "nan": nan, "inf": inf, "few3": X[:3], "few6": X[:6], "empty": X[:0], "one": X[:1],
+        "nan2": nan[2:4], "identical2": np.tile(X[:1], (2, 1)),
         "duplicates7": X[[0, 0, 1, 2, 3, 4, 5]], "duplicates4": X[[0, 0, 1, 2]],
         "duplicates12": X[[0, 1, 2, 3] * 3],
         "identical": np.tile(X[:1], (9, 1)), "identical4": np.tile(X[:1], (4, 1)),

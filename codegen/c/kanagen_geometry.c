@@ -1,5 +1,6 @@
 /* The closed-form initialisers of the two-view family in C: a mechanical port of
- * runtime/initializers.py (two_view_fundamental, two_view_homography) and of the functions
+ * runtime/initializers.py (two_view_fundamental, two_view_homography, two_view_rotation,
+ * two_view_translation) and of the functions
  * of runtime/geometry.py they call (docs/fastpath.md). Compiled in the translation unit of
  * kanagen_fast.c, after it (kg_column_norms).
  *
@@ -742,4 +743,188 @@ int kg_two_view_homography(long m, const double *X, const double *k, double *out
         for (int i = 0; i < 3; ++i) o[9 + i] = p[12 + i];
     }
     return count;
+}
+
+/* _DEGENERATE: a singular value below this fraction of the largest is taken as zero */
+#define KG_NEGLIGIBLE 1e-6
+
+/* _in_focal_range */
+static int kg_in_focal_range(double F)
+{
+    return F > 0 && KG_FOCAL_MIN < sqrt(F) && sqrt(F) < KG_FOCAL_MAX;
+}
+
+/* _rotation_candidate into o[0..5] (the rest NaN) */
+static void kg_rotation_candidate(double f, const double *R, double *o)
+{
+    o[0] = o[1] = f;
+    kg_quaternion(R, o + 2);
+    for (int i = 6; i < KG_TWO_VIEW_Q; ++i) o[i] = NAN;
+}
+
+/* _rotation_from_pairs: R = B Aᵀ of the triads; 0 when a pair is parallel */
+static int kg_rotation_from_pairs(const double *a1, const double *a2, const double *b1,
+                                  const double *b2, double *R)
+{
+    double triads[2][9];
+    const double *us[2] = {a1, b1}, *vs[2] = {a2, b2};
+    for (int s = 0; s < 2; ++s) {
+        double n[3], e1[3], e2[3], e3[3];
+        kg_cross(us[s], vs[s], n);
+        double nu = sqrt(kg_dot3(us[s], us[s])), nn = sqrt(kg_dot3(n, n));
+        if (!(nu > 0 && nn > 0)) return 0;
+        for (int i = 0; i < 3; ++i) {
+            e1[i] = us[s][i] / nu;
+            e2[i] = n[i] / nn;
+        }
+        kg_cross(e1, e2, e3);
+        for (int i = 0; i < 3; ++i) { /* columns e1, e2, e3 */
+            triads[s][i * 3] = e1[i];
+            triads[s][i * 3 + 1] = e2[i];
+            triads[s][i * 3 + 2] = e3[i];
+        }
+    }
+    kg3_mul_t(triads[1], triads[0], R);
+    return 1;
+}
+
+/* _kabsch: the rotation that best maps the unit rays y1 onto y2; 0 when σ2 is negligible */
+static int kg_kabsch(long m, const double *y1, const double *y2, double *R)
+{
+    double M[9] = {0}, U[9], S[3], V[9];
+    for (long i = 0; i < m; ++i) {
+        const double *a = y1 + 3 * i, *b = y2 + 3 * i;
+        double na = sqrt(kg_dot3(a, a)), nb = sqrt(kg_dot3(b, b));
+        for (int r = 0; r < 3; ++r)
+            for (int c = 0; c < 3; ++c) M[r * 3 + c] += (b[r] / nb) * (a[c] / na);
+    }
+    kg_svd3(M, U, S, V);
+    if (!(S[1] > KG_NEGLIGIBLE * S[0])) return 0;
+    double u1[3] = {U[0], U[3], U[6]}, u2[3] = {U[1], U[4], U[7]};
+    double v1[3] = {V[0], V[3], V[6]}, v2[3] = {V[1], V[4], V[7]}, u3[3], v3[3];
+    kg_cross(u1, u2, u3);
+    kg_cross(v1, v2, v3);
+    for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c)
+            R[r * 3 + c] = u1[r] * v1[c] + u2[r] * v2[c] + u3[r] * v3[c];
+    return 1;
+}
+
+/* two_view_rotation: up to 3 candidates of KG_TWO_VIEW_Q values (t, w: NaN) into out; their
+ * number, or -1 when not covered (the caller runs the Python) */
+int kg_two_view_rotation(long m, const double *X, const double *k, double *out)
+{
+    if (m < 2 || m == 3 || !kg_finite_input(m, X, k)) return 0;
+    if (!isfinite(k[0]) || !isfinite(k[1]) || !isfinite(k[2]) || k[2] == 0) return -1;
+    if (m > 3) { /* DLT, ω = diag(F, F, 1) from Hn ω Hnᵀ = ω, R by Kabsch */
+        double H[9], G[9], Hn[9];
+        if (kg_homography_dlt(m, X, H) < 0) return -1;
+        const double f0 = k[2];
+        double T[9] = {1 / f0, 0, -k[0] / f0, 0, 1 / f0, -k[1] / f0, 0, 0, 1};
+        double Ti[9] = {f0, 0, k[0], 0, f0, k[1], 0, 0, 1};
+        kg3_mul(T, H, G);
+        kg3_mul(G, Ti, Hn);
+        double det = kg3_det(Hn);
+        if (!(det != 0)) return 0;
+        double scale = cbrt(det), A[9], B[9], num = 0.0, den = 0.0;
+        for (int i = 0; i < 9; ++i) Hn[i] /= scale;
+        for (int r = 0; r < 3; ++r)
+            for (int c = 0; c < 3; ++c) {
+                double h1 = Hn[r * 3] * Hn[c * 3], h2 = Hn[r * 3 + 1] * Hn[c * 3 + 1];
+                double h3 = Hn[r * 3 + 2] * Hn[c * 3 + 2];
+                A[r * 3 + c] = h1 + h2 - (r == c && r < 2 ? 1.0 : 0.0);
+                B[r * 3 + c] = (r == c && r == 2 ? 1.0 : 0.0) - h3;
+            }
+        for (int i = 0; i < 9; ++i) {
+            num += A[i] * B[i];
+            den += A[i] * A[i];
+        }
+        double F = den > 0 ? num / den : -1.0;
+        if (!kg_in_focal_range(F)) return 0;
+        double f = sqrt(F), R[9];
+        double *y = malloc(sizeof(double) * 6 * m);
+        if (!y) return -1;
+        kg_rays(m, X, k, f, f, y, y + 3 * m);
+        int found = kg_kabsch(m, y, y + 3 * m, R);
+        free(y);
+        if (!found) return 0;
+        kg_rotation_candidate(f, R, out);
+        return 1;
+    }
+    double y1[6], y2[6]; /* the image vectors (x, y, 0) */
+    kg_rays(2, X, k, 0.0, 0.0, y1, y2);
+    double p = kg_dot3(y1, y1 + 3), q = kg_dot3(y2, y2 + 3);
+    double s1 = kg_dot3(y1, y1), s2 = kg_dot3(y1 + 3, y1 + 3);
+    double t1 = kg_dot3(y2, y2), t2 = kg_dot3(y2 + 3, y2 + 3);
+    /* (p + F)² (t1 + F)(t2 + F) − (q + F)² (s1 + F)(s2 + F), highest power first */
+    double cubic[4] = {
+        t1 + t2 + 2 * p - s1 - s2 - 2 * q,
+        t1 * t2 + 2 * p * (t1 + t2) + p * p - s1 * s2 - 2 * q * (s1 + s2) - q * q,
+        2 * p * t1 * t2 + p * p * (t1 + t2) - 2 * q * s1 * s2 - q * q * (s1 + s2),
+        p * p * t1 * t2 - q * q * s1 * s2};
+    if (cubic[0] == 0 && cubic[1] == 0 && cubic[2] == 0 && cubic[3] == 0) return 0;
+    double roots[3];
+    int nroots = kg_real_roots(cubic, roots), count = 0;
+    if (nroots < 0) return -1;
+    for (int r = 0; r < nroots; ++r) {
+        double F = roots[r];
+        if (!kg_in_focal_range(F) || (p + F > 0) != (q + F > 0)) continue;
+        double f = sqrt(F), R[9];
+        y1[2] = y1[5] = y2[2] = y2[5] = f;
+        if (kg_rotation_from_pairs(y1, y1 + 3, y2, y2 + 3, R))
+            kg_rotation_candidate(f, R, out + KG_TWO_VIEW_Q * count++);
+    }
+    return count;
+}
+
+/* two_view_translation: one candidate of KG_TWO_VIEW_Q values (f, q, w: NaN) into out;
+ * their number, or -1 when not covered (the caller runs the Python) */
+int kg_two_view_translation(long m, const double *X, const double *k, double *out)
+{
+    if (m < 2 || !kg_finite_input(m, X, k)) return 0;
+    if (!isfinite(k[0]) || !isfinite(k[1]) || !isfinite(k[2]) || k[2] == 0) return -1;
+    double *y = malloc(sizeof(double) * 9 * m);
+    if (!y) return -1;
+    double *y1 = y, *y2 = y + 3 * m, *n = y + 6 * m, t[3];
+    kg_rays(m, X, k, 1.0, 1.0, y1, y2);
+    for (long i = 0; i < m; ++i) kg_cross(y1 + 3 * i, y2 + 3 * i, n + 3 * i);
+    if (m == 2) {
+        kg_cross(n, n + 3, t);
+    } else { /* the right singular vector of the least singular value of n (m × 3) */
+        double V[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1}, S[3];
+        kg_jacobi_null((int)m, 3, n, V);
+        kg_column_norms(m, 3, n, S);
+        int o[3] = {0, 1, 2};
+        for (int a = 1; a < 3; ++a)
+            for (int b = a; b > 0 && S[o[b]] > S[o[b - 1]]; --b) {
+                int tmp = o[b];
+                o[b] = o[b - 1];
+                o[b - 1] = tmp;
+            }
+        if (!isfinite(S[o[0]]) || !(S[o[1]] > KG_NEGLIGIBLE * S[o[0]])) {
+            free(y);
+            return 0;
+        }
+        for (int i = 0; i < 3; ++i) t[i] = V[i * 3 + o[2]];
+    }
+    double norm = sqrt(kg_dot3(t, t));
+    if (!(norm > 0 && isfinite(norm))) {
+        free(y);
+        return 0;
+    }
+    int big = 0;
+    for (int i = 0; i < 3; ++i) {
+        t[i] /= norm;
+        if (fabs(t[i]) > fabs(t[big])) big = i;
+    }
+    double sign = t[big] < 0 ? -1.0 : 1.0;
+    for (int i = 0; i < 3; ++i) t[i] *= sign;
+    static const double I3[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+    double mt[3] = {-t[0], -t[1], -t[2]};
+    if (kg_in_front(I3, mt, m, y1, y2) > kg_in_front(I3, t, m, y1, y2)) /* best_pose */
+        memcpy(t, mt, sizeof t);
+    free(y);
+    for (int i = 0; i < KG_TWO_VIEW_Q; ++i) out[i] = NAN;
+    for (int i = 0; i < 3; ++i) out[6 + i] = t[i];
+    return 1;
 }

@@ -12,10 +12,14 @@
 
 typedef int (*kg_twin_fn)(long, const double *, const double *, double *);
 /* the compiled twins by number (1, 2, ...): runtime/fastpath.py TWINS, in its order */
-static const kg_twin_fn kg_twins[] = {kg_two_view_fundamental, kg_two_view_homography};
+static const kg_twin_fn kg_twins[] = {kg_two_view_fundamental, kg_two_view_homography,
+                                       kg_two_view_rotation, kg_two_view_translation};
 #define KG_NTWINS ((int)(sizeof kg_twins / sizeof kg_twins[0]))
 #define KG_TWIN_WIDTH 12 /* values per candidate (initializers._TWO_VIEW_Q) */
 #define KG_TWIN_MAX 4    /* candidates at most */
+
+/* The twins' count, for the Python to check its TWINS against (runtime/fastsample.py) */
+int kg_sample_twins(void) { return KG_NTWINS; }
 
 /* in: kg_coherence's input (every measure; one projection step). sin: the sampled channel,
  * the rows' count s, the twin's number (0: none), equivalent candidates (stop at the first
