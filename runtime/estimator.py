@@ -320,6 +320,7 @@ class Estimator:
 
     def _channels(self) -> tuple[list[str], Problem, list[np.ndarray]]:
         if self._problem is None:
+            self._problems: dict[str, Problem] = {}  # _problem_for's
             names = [n for n, rows in self._rows.items() if rows]
             chans, ids = [], []
             for name in names:
@@ -336,7 +337,10 @@ class Estimator:
         from .fit import problem_of
 
         names, chans, ids = self._channels()
-        problem = problem_of(self.fam, model, tuple(chans), self.q0, self.Q0, self._constants)
+        problem = self._problems.get(model)
+        if problem is None:  # one per model until the measures or constants change
+            problem = self._problems[model] = problem_of(self.fam, model, tuple(chans), self.q0,
+                                                         self.Q0, self._constants)
         channel = self.channel or (names[0] if len(names) == 1 else None)
         if channel is None:
             raise ValueError(f"channel= is required: measures in {names}")
