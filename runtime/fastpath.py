@@ -161,7 +161,7 @@ FINGERPRINTS: dict[str, str] = {
     'geometry.focal_lengths': '39c84f8e93d6',
     'geometry.essential_poses': 'b863be224cb9',
     'geometry.depths': 'd929c1fd98c6',
-    'geometry.best_pose': 'af9296e9125b',
+    'geometry.best_pose': '7dbb992250cc',
     'geometry.nearest_essential': '898b1d686f05',
     'geometry.homography_poses': 'e6c7f0b6a730',
     'geometry.quaternion_from_rotation': '270f42cbd8ff',

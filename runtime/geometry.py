@@ -191,12 +191,17 @@ def depths(R: np.ndarray, t: np.ndarray, y1: np.ndarray, y2: np.ndarray):
 
 
 def best_pose(poses, y1: np.ndarray, y2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The pose that puts most points in front of both cameras (cheirality)."""
-    def in_front(pose):
-        d1, d2 = depths(*pose, y1, y2)
-        return int(np.count_nonzero((d1 > 0) & (d2 > 0)))
+    """The pose that puts most points in front of both cameras (cheirality). A tie (a
+    sample of outliers, say) goes to the smaller rotation (the larger trace), then to the
+    ``t`` whose largest component is positive: the order of ``poses`` follows the SVD's
+    arbitrary basis, the choice does not."""
+    def key(pose):
+        R, t = pose
+        d1, d2 = depths(R, t, y1, y2)
+        return (int(np.count_nonzero((d1 > 0) & (d2 > 0))), float(np.trace(R)),
+                float(np.sign(t[int(np.argmax(np.abs(t)))])))
 
-    return max(poses, key=in_front)
+    return max(poses, key=key)
 
 
 def nearest_essential(E: np.ndarray) -> np.ndarray:

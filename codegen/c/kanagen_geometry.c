@@ -8,9 +8,9 @@
  * its rows) or one-sided Jacobi rotations (over-determined: after a QR of the tall
  * system), 3 × 3 SVDs from Jacobi rotations; their signs, and the basis of a degenerate
  * singular subspace, differ from LAPACK's. Where the Python's outcome depends on that
- * arbitrary choice — a null space larger than the algorithm expects, a tie between poses
- * in best_pose — the functions return -1 ("not covered") and the caller runs the Python:
- * the outcomes are the Python's. Every other outcome is the same up to rounding; the
+ * arbitrary choice — a null space larger than the algorithm expects — the functions
+ * return -1 ("not covered") and the caller runs the Python: the outcomes are the Python's
+ * (best_pose breaks its ties by a rule the basis does not change). Every other outcome is the same up to rounding; the
  * order of the candidates is the order of the roots of the seven-point cubic and of the
  * two decompositions of a homography, which in the Python too follows the arbitrary
  * basis. Matrices are row-major. */
@@ -581,16 +581,22 @@ int kg_two_view_fundamental(long m, const double *X, const double *k, double *ou
         kg3_mul_t(UW, V, Rb);
         kg_rays(m, X, k, f1, f2, y1, y2);
         const double *Rs[4] = {Ra, Ra, Rb, Rb}, *ts[4] = {t, mt, t, mt};
+        /* best_pose: most points in front, then the larger trace, then the t whose
+         * largest component is positive (the first maximum, as Python's max) */
         long counts[4];
-        int best = 0, tied = 0;
+        double traces[4], signs[4];
+        int best = 0;
         for (int p = 0; p < 4; ++p) {
             counts[p] = kg_in_front(Rs[p], ts[p], m, y1, y2);
-            if (counts[p] > counts[best]) best = p;
-        }
-        for (int p = 0; p < 4; ++p) tied += counts[p] == counts[best];
-        if (tied > 1) { /* best_pose's choice follows LAPACK's signs */
-            free(y);
-            return -1;
+            traces[p] = Rs[p][0] + Rs[p][4] + Rs[p][8];
+            int i = 0;
+            for (int j = 1; j < 3; ++j)
+                if (fabs(ts[p][j]) > fabs(ts[p][i])) i = j;
+            signs[p] = ts[p][i] > 0 ? 1.0 : (ts[p][i] < 0 ? -1.0 : 0.0);
+            if (counts[p] > counts[best] || (counts[p] == counts[best] &&
+                    (traces[p] > traces[best] || (traces[p] == traces[best] &&
+                                                  signs[p] > signs[best]))))
+                best = p;
         }
         double *o = out + KG_TWO_VIEW_Q * count++;
         o[0] = f1;
