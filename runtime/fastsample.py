@@ -7,7 +7,9 @@ backend each of these is a C call with its input packed anew. :class:`Sampler` m
 whole sample — the closed form's candidates put into the start, their minimal solves and
 the errors at each solution that passes — one call of ``kg_sample`` on the problem packed
 once: the same C functions in the same order, so the same solutions and errors. The
-scoring stays in Python (any scorer).
+scoring stays in Python (any scorer); with relevance (eq. 29), a solution whose relevance
+the measures left cannot lift to the best so far is abandoned in C (an exact bound: the
+search is the same).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import numpy as np
 from .coherence import coherence_errors, solve_minimal
 from .fastpath import TWINS
 from .initializers import _TWO_VIEW_Q
+from .scoring import relevance
 
 _MINIMAL = {name: inspect.signature(solve_minimal).parameters[name].default
             for name in ("max_iter", "xtol", "eps")}  # the search's solves use the defaults
@@ -38,7 +41,8 @@ class Sampler:
     """
 
     def __init__(self, problem, channel: int, start: np.ndarray, ranks, twin: str | None,
-                 equivalent: bool, full_rank: int, size: int, constants):
+                 equivalent: bool, full_rank: int, size: int, constants, scale: float,
+                 relevance: bool):
         fast, self.model = problem.compiled
         self.fast, self.problem, self.n = fast, problem, fast.n
         self.sizes = [ch.X.shape[0] for ch in problem.channels]
@@ -46,33 +50,41 @@ class Sampler:
         named = dict(TWINS[twin]) if twin is not None else {}
         head = [channel, size, 0 if twin is None else list(TWINS).index(twin) + 1,
                 int(equivalent), full_rank, _MINIMAL["max_iter"], _MINIMAL["xtol"],
-                _MINIMAL["eps"], *ranks]
+                _MINIMAL["eps"], scale, -np.inf, *ranks]
         head += [constants["cx"], constants["cy"], constants["f0"]] if twin is not None \
             else [0.0, 0.0, 0.0]
         head += [index[named[i]] if i in named else -1 for i in range(len(_TWO_VIEW_Q))]
         self.sin = np.array(head + list(np.asarray(start, dtype=float)) + [0.0] * size)
         self.rows_at = len(head) + self.n
+        self.relevance = relevance  # the scorer is eq. 29's: hopeless solutions abandoned
         total = sum(self.sizes)
-        self.out = np.empty(1 + 4 * (self.n + total))
+        self.out = np.empty(1 + 4 * (1 + self.n + total))
         self.start = np.asarray(start, dtype=float)
         self._sin = ctypes.c_void_p(self.sin.ctypes.data)
         self._out = ctypes.c_void_p(self.out.ctypes.data)
 
-    def __call__(self, rows: np.ndarray):
+    def __call__(self, rows: np.ndarray, best: float = -np.inf):
+        """The solutions of the sample ``rows``, as ``(q, errors)``; with the scorer
+        relevance and the ``best`` score so far, ``errors`` is None for a solution that
+        cannot beat it (its relevance is bounded below ``best``)."""
         ws, where = self.fast.coherence_input(self.model, self.problem, 1, _TOL)
         ws[0][where[0]:where[0] + self.n] = self.start
         ws[0][where[1]:where[1] + self.n] = self.start
+        self.sin[9] = best if self.relevance else -np.inf
         self.sin[self.rows_at:] = rows
         if self.fast.sample(ws[2], self._sin, self._out) != 0:
             return None
-        count, width, out = int(self.out[0]), self.n + sum(self.sizes), []
+        count, width, out = int(self.out[0]), 1 + self.n + sum(self.sizes), []
         for j in range(count):
             block = self.out[1 + j * width:1 + (j + 1) * width].copy()
-            errors, at = [], self.n
+            if not block[0]:
+                out.append((block[1:1 + self.n], None))
+                continue
+            errors, at = [], 1 + self.n
             for M in self.sizes:
                 errors.append(block[at:at + M])
                 at += M
-            out.append((block[:self.n], tuple(errors)))
+            out.append((block[1:1 + self.n], tuple(errors)))
         return out
 
 
@@ -88,4 +100,5 @@ def sampler_for(search) -> Sampler | None:
     if init is not None and twin is None:
         return None
     return Sampler(problem, search.channel, search.start, search.ranks, twin, search.equivalent,
-                   search.full_rank, search.sample_size + search.base_size, search._constants)
+                   search.full_rank, search.sample_size + search.base_size, search._constants,
+                   search.scale, search.score_fn is relevance)

@@ -272,6 +272,8 @@ class ModelSearch:
             with np.errstate(all="ignore"):
                 for q, errors in self._scored(rows):
                     solutions += 1
+                    if errors is None:
+                        continue  # its relevance is bounded below the best (kg_sample)
                     score = self.score_fn(np.concatenate(errors), self.scale)
                     if score > self.best_score:
                         self.best_q, self.best_score, self.best_errors = q, score, errors
@@ -289,7 +291,7 @@ class ModelSearch:
         call (:mod:`~kanagen.runtime.fastsample`) when the search has one, else solve by
         solve."""
         if self._sampler is not None:
-            out = self._sampler(rows)
+            out = self._sampler(rows, self.best_score)
             if out is not None:
                 return out
         return ((q, coherence_errors(self.problem, q, iterations=1, ranks=self.ranks))

@@ -18,16 +18,71 @@ static const kg_twin_fn kg_twins[] = {kg_two_view_fundamental, kg_two_view_homog
 #define KG_TWIN_WIDTH 12 /* values per candidate (initializers._TWO_VIEW_Q) */
 #define KG_TWIN_MAX 4    /* candidates at most */
 
+#define KG_CHUNK 64 /* measures projected at a time while a solution may be abandoned */
+
+/* coherence_errors(problem, q, iterations=1, ranks=caps) of every measure, channel after
+ * channel, into errors — projected a chunk at a time (each measure's projection is its
+ * own). With a best relevance (report eq. 29; -inf: none), the solution is abandoned as
+ * soon as the measures left, each adding at most 1/M, cannot lift its relevance to it:
+ * an exact bound, with a margin far above the rounding of either sum. Returns 1 when
+ * every error is there, 0 when abandoned, -1 out of memory. */
+static int kg_sample_errors(const kg_problem *pb, const double *q, int iterations,
+                            double tol, const double *caps, double scale, double best,
+                            long total, double *coh, double *errors)
+{
+    kg_channel view[KG_NCH > 0 ? KG_NCH : 1];
+    kg_problem part = *pb;
+    part.ch = view;
+    for (int u = 0; u < pb->nch; ++u) {
+        view[u] = pb->ch[u];
+        view[u].M = 0;
+    }
+    double sum = 0.0;
+    long seen = 0;
+    for (int u = 0; u < pb->nch; ++u) {
+        const kg_channel *ch = &pb->ch[u];
+        const long qsize = (long)ch->k * ch->k;
+        const int cap = (int)caps[u];
+        for (long at = 0; at < ch->M; at += KG_CHUNK) {
+            const long M = ch->M - at < KG_CHUNK ? ch->M - at : KG_CHUNK;
+            view[u].M = M;
+            view[u].X = ch->X + at * ch->w;
+            if (ch->per_measure) {
+                view[u].Q = ch->Q + at * qsize;
+                view[u].G = ch->G + at * qsize;
+            }
+            if (kg_coherence_at(&part, q, iterations, tol, coh)) return -1;
+            for (long i = 0; i < M; ++i) {
+                int rank = (int)coh[M + i];
+                rank = rank < cap ? rank : cap;
+                double e = coh[i] / (double)(rank > 1 ? rank : 1);
+                e = isfinite(e) ? e : INFINITY;
+                errors[seen + i] = e;
+                if (e < scale) sum += 1.0 - 2.0 * e / scale;
+            }
+            seen += M;
+            if (seen < total && (sum + (double)(total - seen)) / (double)total
+                    < best - 1e-9 * fabs(best))
+                return 0;
+        }
+        view[u].M = 0;
+    }
+    return 1;
+}
+
 /* The twins' count, for the Python to check its TWINS against (runtime/fastsample.py) */
 int kg_sample_twins(void) { return KG_NTWINS; }
 
 /* in: kg_coherence's input (every measure; one projection step). sin: the sampled channel,
  * the rows' count s, the twin's number (0: none), equivalent candidates (stop at the first
- * solution), the full rank, solve_minimal's max_iter, xtol and eps, then per channel the
+ * solution), the full rank, solve_minimal's max_iter, xtol and eps, L* and the best
+ * relevance so far (-inf: the scorer is not relevance, no solution is abandoned), then per
+ * channel the
  * cap on the equations counted (manifold_ranks), the twin's constants (cx, cy, f0), the
  * parameter index of each of its KG_TWIN_WIDTH values (-1: not a candidate's), the start (n)
- * and the rows (s). out: the number of solutions, then per solution its q (n) and every
- * measure's error (eq. 24), channel after channel. Returns 0, -1 when the twin leaves the
+ * and the rows (s). out: the number of solutions, then per solution a flag (1: its errors
+ * follow; 0: abandoned, it cannot beat the best), its q (n) and every measure's error
+ * (eq. 24), channel after channel. Returns 0, -1 when the twin leaves the
  * sample to the Python (runtime/fastpath.py: a degenerate sample), 1 on bad input, 2 when
  * out of memory. */
 int kg_sample(const double *in, const double *sin, double *out)
@@ -43,8 +98,8 @@ int kg_sample(const double *in, const double *sin, double *out)
     const int c = (int)sin[0], twin = (int)sin[2], equivalent = (int)sin[3];
     const long s = (long)sin[1];
     const int full_rank = (int)sin[4], max_iter = (int)sin[5];
-    const double xtol = sin[6], eps = sin[7];
-    const double *caps = sin + 8, *k3 = caps + nch, *map = k3 + 3;
+    const double xtol = sin[6], eps = sin[7], scale = sin[8], best = sin[9];
+    const double *caps = sin + 10, *k3 = caps + nch, *map = k3 + 3;
     const double *start = map + KG_TWIN_WIDTH, *rows = start + n;
     if (c < 0 || c >= nch || s < 1 || twin < 0 || twin > KG_NTWINS) return 1;
     const kg_channel *ch = &channels[c];
@@ -52,7 +107,7 @@ int kg_sample(const double *in, const double *sin, double *out)
     long total = 0;
     for (int u = 0; u < nch; ++u) total += channels[u].M;
     const long qsize = (long)ch->k * ch->k, per = ch->per_measure ? s * qsize : 0;
-    double *buf = malloc(sizeof(double) * (s * ch->w + 2 * per + n + 4 + 2 * total + 1));
+    double *buf = malloc(sizeof(double) * (s * ch->w + 2 * per + n + 4 + 2 * KG_CHUNK + 1));
     if (!buf) return 2;
     double *X = buf, *Q = X + s * ch->w, *G = Q + per, *mout = G + per, *coh = mout + n + 4;
     for (long i = 0; i < s; ++i) { /* problem.subset: the sample's rows of channel c */
@@ -114,24 +169,15 @@ int kg_sample(const double *in, const double *sin, double *out)
             return 2;
         }
         if (!(mout[n] != 0.0 && (int)mout[n + 1] >= full_rank)) continue;
-        memcpy(at, mout, sizeof(double) * n);
-        if (kg_coherence_at(&pb, mout, iterations, tol, coh)) {
+        memcpy(at + 1, mout, sizeof(double) * n);
+        int done = kg_sample_errors(&pb, mout, iterations, tol, caps, scale, best, total, coh,
+                                    at + 1 + n);
+        if (done < 0) {
             free(buf);
             return 2;
         }
-        double *errors = at + n;
-        for (int u = 0, from = 0; u < nch; from += 2 * (int)channels[u].M, ++u) {
-            const long M = channels[u].M;
-            const int cap = (int)caps[u];
-            for (long i = 0; i < M; ++i) {
-                int rank = (int)coh[from + M + i];
-                rank = rank < cap ? rank : cap;
-                double e = coh[from + i] / (double)(rank > 1 ? rank : 1);
-                errors[i] = isfinite(e) ? e : INFINITY;
-            }
-            errors += M;
-        }
-        at += n + total;
+        at[0] = done;
+        at += 1 + n + total;
         ++solutions;
         if (equivalent) break; /* the other candidates are the same estimate */
     }
