@@ -70,7 +70,7 @@ PORTED: dict[str, tuple[str, ...]] = {
 #: Fingerprints of :data:`PORTED` when the C port was last brought in line with them.
 FINGERPRINTS: dict[str, str] = {
     'iterate._iterate': '5d15471d31b2',
-    'iterate._line_search': '306bd0c75a21',
+    'iterate._line_search': 'd6e9d502152e',
     'iterate._acceptable': '4e6d29053e7c',
     'iterate._restored': 'f209b2d5d42e',
     'iterate._negligible': 'c7e796ee9baa',

@@ -868,18 +868,31 @@ static int kg_line_search(kg_state *st, double *mu_io, double *alpha_out, int gu
                     kg_closest_sqrt(n, st->lin->info, pb->eps, st->root);
                     have_root = 1;
                 }
-                kg_point *corrected = st->pts[2];
-                kg_step_point(pb, x, target, alpha, corrected);
-                if (kg_restored(pb, corrected, st->root)) return -1;
-                double moved = 0.0, step = 0.0; /* np.linalg.norm */
-                for (int u = 0; u < n; ++u) {
-                    moved += (corrected->q[u] - trial->q[u]) * (corrected->q[u] - trial->q[u]);
-                    step += (trial->q[u] - x->q[u]) * (trial->q[u] - x->q[u]);
-                }
-                /* second order: small against the step, else no Maratos effect */
-                if (sqrt(moved) <= 0.5 * sqrt(step)) {
-                    st->pts[2] = trial;
-                    st->pts[1] = trial = corrected;
+                /* second order: small against the step, else no Maratos effect; in the
+                 * step's metric first, else (no slacks) in the Euclidean one: the first
+                 * small one, or the first acceptable */
+                double eye[KG_N * KG_N + 1];
+                for (int u = 0; u < n * n; ++u) eye[u] = u % (n + 1) == 0;
+                double plain[KG_N + 1]; /* the step's q (restoration keeps it) */
+                memcpy(plain, trial->q, sizeof(double) * n);
+                int chosen = 0;
+                for (int pass = 0; pass < (pb->guard ? 1 : 2); ++pass) {
+                    kg_point *corrected = st->pts[2];
+                    kg_step_point(pb, x, target, alpha, corrected);
+                    if (kg_restored(pb, corrected, pass == 0 ? st->root : eye)) return -1;
+                    double moved = 0.0, step = 0.0; /* np.linalg.norm */
+                    for (int u = 0; u < n; ++u) {
+                        moved += (corrected->q[u] - plain[u]) * (corrected->q[u] - plain[u]);
+                        step += (plain[u] - x->q[u]) * (plain[u] - x->q[u]);
+                    }
+                    if (!(sqrt(moved) <= 0.5 * sqrt(step))) continue;
+                    int accepted = kg_acceptable(corrected, x, st->eps_delta, st->delta_cap);
+                    if (!chosen || accepted) { /* corrected becomes the trial point */
+                        st->pts[2] = trial;
+                        st->pts[1] = trial = corrected;
+                        chosen = 1;
+                    }
+                    if (accepted) break;
                 }
             }
             if ((!guard || kg_relations(pb, trial->q))
