@@ -349,6 +349,21 @@ class ModelSearch:
                     break  # the other candidates are the same estimate
         return out
 
+    def _race(self, starts, rows, q0, Q0, max_iter: int) -> FitResult:
+        """The fit of least cost on ``rows`` from several starts: each runs
+        :data:`_ROUND_ITER` iterations, and the cheapest goes on to ``max_iter`` in all — a
+        start in a degenerate valley (focal lengths running off to the affine limit) crawls
+        on without the others waiting for it."""
+        sample = self.problem.subset(rows)
+        lap = min(max_iter, _ROUND_ITER) if len(starts) > 1 else max_iter
+        fits = [fit_problem(self.fam, self.model, sample, q_start=start, q0=q0, Q0=Q0,
+                            max_iter=lap) for start in starts]
+        best = min(fits, key=lambda f: f.cost if np.isfinite(f.cost) else np.inf)
+        if best.status == MAX_ITER and lap < max_iter and np.all(np.isfinite(best.q)):
+            best = fit_problem(self.fam, self.model, sample, q_start=best.q, q0=q0, Q0=Q0,
+                               max_iter=max_iter - lap)
+        return best
+
     def _local_optimisation(self, max_iter: int = 10) -> None:
         """LO-RANSAC (Chum, Matas & Kittler 2003): a sample that beats the best is refined
         at once on the measures it explains, and the refined estimate kept if it scores
@@ -394,9 +409,7 @@ class ModelSearch:
         for round_ in range(_REFINE_ROUNDS):
             starts = [q] + (self._starts(rows[self.channel])
                             if round_ == 0 and self.initializer is not None else [])
-            fits = [fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=start,
-                                q0=q0, Q0=Q0, max_iter=per_round) for start in starts]
-            result = min(fits, key=lambda f: f.cost if np.isfinite(f.cost) else np.inf)
+            result = self._race(starts, rows, q0, Q0, per_round)
             if not np.all(np.isfinite(result.q)):
                 break
             q = result.q
