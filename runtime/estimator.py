@@ -300,6 +300,7 @@ class Estimator:
         self._problem = None
         self.history = []
         self._states[self._root] = self._null_state()
+        self._done_relevance: float | None = None  # _best_relevance of the states so far
         self._skipped: dict[str, str | None] = {}  # too few measures to sample: -> its parent
         self._shape: dict[str, tuple[int, int]] = {}  # equations per measure, free dof
         self._corrected: dict[str, dict[str, np.ndarray]] = {}  # inliers, corrected
@@ -386,9 +387,14 @@ class Estimator:
         return True
 
     def _best_relevance(self, search: ModelSearch) -> float:
-        done = [s.relevance for s in self._states.values() if s.accepted and s.samples]
+        """The best relevance of the accepted models so far and of the current search."""
+        done = self._done_relevance
+        if done is None:  # the states changed: the best of the accepted ones anew
+            done = self._done_relevance = max(
+                [s.relevance for s in self._states.values() if s.accepted and s.samples],
+                default=-np.inf)
         current = search.best_score if np.isfinite(search.best_score) else 0.0
-        return max(done + [current])
+        return max(done, current)
 
     def _start_next(self) -> bool:
         while self._queue:
@@ -448,6 +454,7 @@ class Estimator:
         _, _, ids = self._channels()
         state = self._state(model, parent, estimate, ids)
         self._states[model] = state
+        self._done_relevance = None
         self._skipped.pop(model, None)
         if state.accepted:
             best = self._best_state()

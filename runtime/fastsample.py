@@ -59,22 +59,24 @@ class Sampler:
         self.relevance = relevance  # the scorer is eq. 29's: hopeless solutions abandoned
         total = sum(self.sizes)
         self.out = np.empty(1 + 4 * (1 + self.n + total))
-        self.start = np.asarray(start, dtype=float)
+        # kg_coherence's input of the whole problem, this sampler's own (packed once; the
+        # start in its start and prior slots: it must be finite for kg_read)
+        self._ws = fast._packed_at(self.model, problem, start, problem.eps, 1, _TOL, 0,
+                                   own=True)[0]
+        self.inp = self._ws[2]
         self._sin = ctypes.c_void_p(self.sin.ctypes.data)
         self._out = ctypes.c_void_p(self.out.ctypes.data)
+        self.width = 1 + self.n + total
 
     def __call__(self, rows: np.ndarray, best: float = -np.inf):
         """The solutions of the sample ``rows``, as ``(q, errors)``; with the scorer
         relevance and the ``best`` score so far, ``errors`` is None for a solution that
         cannot beat it (its relevance is bounded below ``best``)."""
-        ws, where = self.fast.coherence_input(self.model, self.problem, 1, _TOL)
-        ws[0][where[0]:where[0] + self.n] = self.start
-        ws[0][where[1]:where[1] + self.n] = self.start
         self.sin[9] = best if self.relevance else -np.inf
         self.sin[self.rows_at:] = rows
-        if self.fast.sample(ws[2], self._sin, self._out) != 0:
+        if self.fast.sample(self.inp, self._sin, self._out) != 0:
             return None
-        count, width, out = int(self.out[0]), 1 + self.n + sum(self.sizes), []
+        count, width, out = int(self.out[0]), self.width, []
         for j in range(count):
             block = self.out[1 + j * width:1 + (j + 1) * width].copy()
             if not block[0]:
