@@ -1151,8 +1151,10 @@ static void kg_eigh(int N, double *K, double *w, double *V)
 
 /* One-sided Jacobi (Hestenes): the columns of A (rows × cols, row-major) rotated until
  * orthogonal, the rotations accumulated in V (cols × cols, row-major) when not NULL; the
- * singular values are then the column norms (kg_column_norms) */
-static void kg_jacobi_columns(long rows, int cols, double *A, double *V)
+ * singular values are then the column norms (kg_column_norms). A pair of columns one of
+ * which has a squared norm at most floor is not rotated (0: every pair; the null spaces of
+ * kanagen_geometry.c pass the rounding level of A, kg_jacobi_null) */
+static void kg_jacobi(long rows, int cols, double *A, double *V, double floor)
 {
     for (int sweep = 0; sweep < 60; ++sweep) {
         int rotated = 0;
@@ -1164,7 +1166,8 @@ static void kg_jacobi_columns(long rows, int cols, double *A, double *V)
                     bb += A[i * cols + b] * A[i * cols + b];
                     ab += A[i * cols + a] * A[i * cols + b];
                 }
-                if (fabs(ab) <= DBL_EPSILON * sqrt(aa * bb)) continue;
+                if (aa <= floor || bb <= floor || fabs(ab) <= DBL_EPSILON * sqrt(aa * bb))
+                    continue;
                 rotated = 1;
                 double zeta = (bb - aa) / (2 * ab);
                 double t = (zeta >= 0 ? 1.0 : -1.0) / (fabs(zeta) + sqrt(zeta * zeta + 1));
@@ -1207,7 +1210,7 @@ static int kg_null_space(int n, int p, const double *C0, double *Z)
     double W[n * (p > 0 ? p : 1)], sigma[p > 0 ? p : 1];
     for (int i = 0; i < n; ++i)
         for (int r = 0; r < p; ++r) W[i * p + r] = C0[r * n + i];
-    kg_jacobi_columns(n, p, W, NULL);
+    kg_jacobi(n, p, W, NULL, 0.0);
     const double top = kg_column_norms(n, p, W, sigma);
     /* the kept directions, as columns of U (n × rank), reduced to R by reflections
      * H_j = I − 2 v_j v_jᵀ; Z = H_0 … H_{rank−1} [0; I] */
@@ -1814,7 +1817,7 @@ static int kg_minimal_step(long R, const double *J, const double *c, const doubl
     for (int a = 0; a < n * n; ++a) V[a] = a % (n + 1) == 0 ? 1.0 : 0.0;
     int finite = 1;
     for (long j = 0; j < R * n; ++j) finite &= isfinite(A[j]) != 0;
-    if (finite) kg_jacobi_columns(R, n, A, V);
+    if (finite) kg_jacobi(R, n, A, V, 0.0);
     double top = kg_column_norms(R, n, A, S);
     int rank = 0;
     for (int j = 0; j < n; ++j) {

@@ -104,44 +104,47 @@ static void kg_normalised(const double *X, long i, int c, const double *T, doubl
     p[2] = 1.0;
 }
 
-/* kg_jacobi_columns (kanagen_fast.c) for the null spaces here: a pair of columns of which
- * one is at the rounding level of A (norm <= ε ‖A‖_F) is not rotated — two such columns,
- * the null space of a minimal sample, would be rotated at random for every sweep; rotating
- * one against a large column would move it by less than rounding. V (when not NULL) is
+/* The order of the columns by decreasing norm (an insertion sort: stable, as few as 9) */
+static void kg_by_norm(int k, const double *norms, int *order)
+{
+    for (int j = 0; j < k; ++j) order[j] = j;
+    for (int a = 1; a < k; ++a)
+        for (int b = a; b > 0 && norms[order[b]] > norms[order[b - 1]]; --b) {
+            int t = order[b];
+            order[b] = order[b - 1];
+            order[b - 1] = t;
+        }
+}
+
+/* kg_jacobi (kanagen_fast.c) for the null spaces here: a pair of columns of which one is
+ * at the rounding level of A (norm <= ε ‖A‖_F) is not rotated — two such columns, the null
+ * space of a minimal sample, would be rotated at random for every sweep; rotating one
+ * against a large column would move it by less than rounding. V (when not NULL) is
  * accumulated. */
 static void kg_jacobi_null(int rows, int cols, double *A, double *V)
 {
     double total = 0.0;
     for (int i = 0; i < rows * cols; ++i) total += A[i] * A[i];
-    const double floor = DBL_EPSILON * DBL_EPSILON * total;
-    for (int sweep = 0; sweep < 60; ++sweep) {
-        int rotated = 0;
-        for (int a = 0; a < cols - 1; ++a)
-            for (int b = a + 1; b < cols; ++b) {
-                double aa = 0.0, bb = 0.0, ab = 0.0;
-                for (int i = 0; i < rows; ++i) {
-                    aa += A[i * cols + a] * A[i * cols + a];
-                    bb += A[i * cols + b] * A[i * cols + b];
-                    ab += A[i * cols + a] * A[i * cols + b];
-                }
-                if (aa <= floor || bb <= floor || fabs(ab) <= DBL_EPSILON * sqrt(aa * bb))
-                    continue;
-                rotated = 1;
-                double zeta = (bb - aa) / (2 * ab);
-                double t = (zeta >= 0 ? 1.0 : -1.0) / (fabs(zeta) + sqrt(zeta * zeta + 1));
-                double cs = 1 / sqrt(t * t + 1), sn = t * cs;
-                for (int i = 0; i < rows; ++i) {
-                    double va = A[i * cols + a], vb = A[i * cols + b];
-                    A[i * cols + a] = cs * va - sn * vb;
-                    A[i * cols + b] = sn * va + cs * vb;
-                }
-                for (int i = 0; V && i < cols; ++i) {
-                    double va = V[i * cols + a], vb = V[i * cols + b];
-                    V[i * cols + a] = cs * va - sn * vb;
-                    V[i * cols + b] = sn * va + cs * vb;
-                }
-            }
-        if (!rotated) break;
+    kg_jacobi(rows, cols, A, V, DBL_EPSILON * DBL_EPSILON * total);
+}
+
+/* The SVD of a square B (k × k, k <= 9, overwritten) by one-sided Jacobi: S decreasing,
+ * V's columns the right vectors, U's (when not NULL) the left ones (b_j / σ_j; a null σ_j
+ * leaves a zero column) */
+static void kg_svd_square(int k, double *B, double *S, double *V, double *U)
+{
+    double Vj[81], norms[9];
+    int order[9];
+    for (int i = 0; i < k * k; ++i) Vj[i] = i % (k + 1) == 0 ? 1.0 : 0.0;
+    kg_jacobi_null(k, k, B, Vj);
+    kg_column_norms(k, k, B, norms);
+    kg_by_norm(k, norms, order);
+    for (int j = 0; j < k; ++j) {
+        S[j] = norms[order[j]];
+        for (int i = 0; i < k; ++i) {
+            V[i * k + j] = Vj[i * k + order[j]];
+            if (U) U[i * k + j] = norms[order[j]] > 0 ? B[i * k + order[j]] / norms[order[j]] : 0.0;
+        }
     }
 }
 
@@ -174,49 +177,19 @@ static void kg_svd_right9(long rows, double *A, double *V, double *S)
         }
         r = 9;
     }
-    double W[81], norms[9];
+    double W[81];
     for (int i = 0; i < 81; ++i) W[i] = 0.0;
     for (long i = 0; i < r * 9; ++i) W[i] = A[i];
-    double Vj[81];
-    for (int i = 0; i < 81; ++i) Vj[i] = i % 10 == 0 ? 1.0 : 0.0;
-    kg_jacobi_null(9, 9, W, Vj);
-    kg_column_norms(9, 9, W, norms);
-    int order[9];
-    for (int j = 0; j < 9; ++j) order[j] = j;
-    for (int a = 1; a < 9; ++a) /* insertion sort by decreasing norm */
-        for (int b = a; b > 0 && norms[order[b]] > norms[order[b - 1]]; --b) {
-            int t = order[b];
-            order[b] = order[b - 1];
-            order[b - 1] = t;
-        }
-    for (int j = 0; j < 9; ++j) {
-        S[j] = norms[order[j]];
-        for (int i = 0; i < 9; ++i) V[i * 9 + j] = Vj[i * 9 + order[j]];
-    }
+    kg_svd_square(9, W, S, V, NULL);
 }
 
 /* The SVD of a 3 × 3 A by one-sided Jacobi: singular values S decreasing, V's columns the
  * right vectors, U's the left ones (b_j / σ_j; a null σ_j leaves a zero column) */
 static void kg_svd3(const double *A, double *U, double *S, double *V)
 {
-    double B[9], Vj[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1}, norms[3];
+    double B[9];
     memcpy(B, A, sizeof B);
-    kg_jacobi_null(3, 3, B, Vj);
-    kg_column_norms(3, 3, B, norms);
-    int o[3] = {0, 1, 2};
-    for (int a = 1; a < 3; ++a)
-        for (int b = a; b > 0 && norms[o[b]] > norms[o[b - 1]]; --b) {
-            int t = o[b];
-            o[b] = o[b - 1];
-            o[b - 1] = t;
-        }
-    for (int j = 0; j < 3; ++j) {
-        S[j] = norms[o[j]];
-        for (int i = 0; i < 3; ++i) {
-            V[i * 3 + j] = Vj[i * 3 + o[j]];
-            U[i * 3 + j] = norms[o[j]] > 0 ? B[i * 3 + o[j]] / norms[o[j]] : 0.0;
-        }
-    }
+    kg_svd_square(3, B, S, V, U);
 }
 
 /* The `need` null vectors of A (rows × 9, overwritten; rows = 9 − need, or more) into
@@ -724,19 +697,29 @@ static int kg_homography_poses(const double *H0, long m, const double *y1, const
     return kept;
 }
 
-/* two_view_homography: up to 4 candidates of KG_TWO_VIEW_Q values into out; their number,
- * or -1 when not covered (the caller runs the Python) */
-int kg_two_view_homography(long m, const double *X, const double *k, double *out)
+/* The DLT homography in the family's normalised coordinates, Hn = T H T⁻¹ with T the
+ * pixels -> (x − cx, y − cy, f0)/f0 map (two_view_homography, two_view_rotation); 0, or -1
+ * when not covered */
+static int kg_calibrated_dlt(long m, const double *X, const double *k, double *Hn)
 {
-    if (m < 4 || !kg_finite_input(m, X, k)) return 0;
-    if (!isfinite(k[0]) || !isfinite(k[1]) || !isfinite(k[2]) || k[2] == 0) return -1;
-    double H[9], G[9], Hn[9], poses[60];
+    double H[9], G[9];
     if (kg_homography_dlt(m, X, H) < 0) return -1;
     const double f0 = k[2];
     double T[9] = {1 / f0, 0, -k[0] / f0, 0, 1 / f0, -k[1] / f0, 0, 0, 1};
     double Ti[9] = {f0, 0, k[0], 0, f0, k[1], 0, 0, 1};
     kg3_mul(T, H, G);
     kg3_mul(G, Ti, Hn);
+    return 0;
+}
+
+/* two_view_homography: up to 4 candidates of KG_TWO_VIEW_Q values into out; their number,
+ * or -1 when not covered (the caller runs the Python) */
+int kg_two_view_homography(long m, const double *X, const double *k, double *out)
+{
+    if (m < 4 || !kg_finite_input(m, X, k)) return 0;
+    if (!isfinite(k[0]) || !isfinite(k[1]) || !isfinite(k[2]) || k[2] == 0) return -1;
+    double Hn[9], poses[60];
+    if (kg_calibrated_dlt(m, X, k, Hn) < 0) return -1;
     double *y = malloc(sizeof(double) * 6 * m);
     if (!y) return -1;
     kg_rays(m, X, k, 1.0, 1.0, y, y + 3 * m);
@@ -823,13 +806,8 @@ int kg_two_view_rotation(long m, const double *X, const double *k, double *out)
     if (m < 2 || m == 3 || !kg_finite_input(m, X, k)) return 0;
     if (!isfinite(k[0]) || !isfinite(k[1]) || !isfinite(k[2]) || k[2] == 0) return -1;
     if (m > 3) { /* DLT, ω = diag(F, F, 1) from Hn ω Hnᵀ = ω, R by Kabsch */
-        double H[9], G[9], Hn[9];
-        if (kg_homography_dlt(m, X, H) < 0) return -1;
-        const double f0 = k[2];
-        double T[9] = {1 / f0, 0, -k[0] / f0, 0, 1 / f0, -k[1] / f0, 0, 0, 1};
-        double Ti[9] = {f0, 0, k[0], 0, f0, k[1], 0, 0, 1};
-        kg3_mul(T, H, G);
-        kg3_mul(G, Ti, Hn);
+        double Hn[9];
+        if (kg_calibrated_dlt(m, X, k, Hn) < 0) return -1;
         double det = kg3_det(Hn);
         if (!(det != 0)) return 0;
         double scale = cbrt(det), A[9], B[9], num = 0.0, den = 0.0;
