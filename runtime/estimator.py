@@ -24,7 +24,7 @@ from .inputs import ChannelData, channel_data, parameter_vector, prior_informati
 from .phi import phi as get_phi
 from .projector import Problem
 from .results import DerivedValue
-from .robust import ModelSearch, RobustEstimate, outlier_threshold
+from .robust import ModelSearch, RobustEstimate
 from .scoring import samples_for_confidence
 from .scoring import scorer as get_scorer
 
@@ -360,8 +360,8 @@ class Estimator:
             return 1  # nothing to sample: the model's parameter is fixed
         if self.samples_per_model is not None:
             return self.samples_per_model
-        if parent is not None and search.base is not None and parent.model in self._shape \
-                and self._shape[parent.model][0] != max(search.ranks[search.channel], 1):
+        if parent is not None and search.base is not None and \
+                self._across(parent.model, search.ranks[search.channel]):
             needed = (lattice.MORE_SUPPORT - 1) * parent.inliers.size / max(search.pool.size, 1)
             return samples_for_confidence(self.confidence,
                                           min(1.0, max(needed, self.inlier_ratio)),
@@ -416,8 +416,7 @@ class Estimator:
                 base = np.flatnonzero(np.isin(ch_ids, parent_state.inliers))
                 name = problem.channels[channel].name
                 ranks = manifold_ranks(problem, self.fam.with_slacks(start, problem.k, model))
-                across = parent in self._shape and \
-                    self._shape[parent][0] != max(ranks[channel], 1)
+                across = self._across(parent, ranks[channel])
                 parent_free = lattice.fixed_by(
                     self.fam, parent_state, self._free(parent, parent_state.q), model, name,
                     self._corrected.get(parent, {}).get(name), self._constants, across)
@@ -469,12 +468,14 @@ class Estimator:
         state = self._states.get(parent) if parent else None
         if state is None or not state.samples or search.best_errors is None:
             return False
-        errors = np.concatenate(search.best_errors)
-        threshold = outlier_threshold(errors, self.scale, self.window, self.max_threshold)
-        across = parent in self._shape and \
-            self._shape[parent][0] != max(search.ranks[search.channel], 1)
-        return lattice.hopeless(state, search.best_score,
-                                int(np.count_nonzero(errors < threshold)), across)
+        inliers = sum(r.size for r in search.split(search.best_errors, self.window)[1])
+        return lattice.hopeless(state, search.best_score, inliers,
+                                self._across(parent, search.ranks[search.channel]))
+
+    def _across(self, parent: str, rank: int) -> bool:
+        """Does the edge from ``parent`` to a model of ``rank`` equations per measure (on the
+        sampled channel) change that number (an H-type parent, an F-type child)?"""
+        return parent in self._shape and self._shape[parent][0] != max(rank, 1)
 
     # -- the lattice ---------------------------------------------------------------------------
     def _queue_alternatives(self, model: str) -> None:

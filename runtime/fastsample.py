@@ -43,14 +43,16 @@ class Sampler:
     def __init__(self, problem, channel: int, start: np.ndarray, ranks, twin: str | None,
                  equivalent: bool, full_rank: int, size: int, constants, scale: float,
                  relevance: bool):
-        fast, self.model = problem.compiled
-        self.fast, self.problem, self.n = fast, problem, fast.n
+        fast, model = problem.compiled
+        self.fast, self.n = fast, fast.n
         self.sizes = [ch.X.shape[0] for ch in problem.channels]
         index = {name: i for i, name in enumerate(fast.names)}
         named = dict(TWINS[twin]) if twin is not None else {}
         head = [channel, size, 0 if twin is None else list(TWINS).index(twin) + 1,
                 int(equivalent), full_rank, _MINIMAL["max_iter"], _MINIMAL["xtol"],
-                _MINIMAL["eps"], scale, -np.inf, *ranks]
+                _MINIMAL["eps"], scale]
+        self.best_at = len(head)  # the best score so far, written at each call
+        head += [-np.inf, *ranks]
         head += [constants["cx"], constants["cy"], constants["f0"]] if twin is not None \
             else [0.0, 0.0, 0.0]
         head += [index[named[i]] if i in named else -1 for i in range(len(_TWO_VIEW_Q))]
@@ -61,7 +63,7 @@ class Sampler:
         self.out = np.empty(1 + 4 * (1 + self.n + total))
         # kg_coherence's input of the whole problem, this sampler's own (packed once; the
         # start in its start and prior slots: it must be finite for kg_read)
-        self._ws = fast._packed_at(self.model, problem, start, problem.eps, 1, _TOL, 0,
+        self._ws = fast._packed_at(model, problem, start, problem.eps, 1, _TOL, 0,
                                    own=True)[0]
         self.inp = self._ws[2]
         self._sin = ctypes.c_void_p(self.sin.ctypes.data)
@@ -72,7 +74,7 @@ class Sampler:
         """The solutions of the sample ``rows``, as ``(q, errors)``; with the scorer
         relevance and the ``best`` score so far, ``errors`` is None for a solution that
         cannot beat it (its relevance is bounded below ``best``)."""
-        self.sin[9] = best if self.relevance else -np.inf
+        self.sin[self.best_at] = best if self.relevance else -np.inf
         self.sin[self.rows_at:] = rows
         if self.fast.sample(self.inp, self._sin, self._out) != 0:
             return None

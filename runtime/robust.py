@@ -359,19 +359,31 @@ class ModelSearch:
         fits = [fit_problem(self.fam, self.model, sample, q_start=start, q0=q0, Q0=Q0,
                             max_iter=lap) for start in starts]
         best = min(fits, key=lambda f: f.cost if np.isfinite(f.cost) else np.inf)
-        if best.status == MAX_ITER and lap < max_iter and np.all(np.isfinite(best.q)):
-            best = fit_problem(self.fam, self.model, sample, q_start=best.q, q0=q0, Q0=Q0,
-                               max_iter=max_iter - lap)
-        return best
+        return self._go_on(best, sample, q0, Q0, lap, max_iter)
+
+    def _go_on(self, fit: FitResult, sample: Problem, q0, Q0, done: int,
+               max_iter: int) -> FitResult:
+        """``fit``, stopped at its cap of ``done`` iterations, taken on from where it stopped
+        to ``max_iter`` in all (as it is when it stopped otherwise)."""
+        if fit.status != MAX_ITER or done >= max_iter or not np.all(np.isfinite(fit.q)):
+            return fit
+        return fit_problem(self.fam, self.model, sample, q_start=fit.q, q0=q0, Q0=Q0,
+                           max_iter=max_iter - done)
+
+    def split(self, errors: tuple[np.ndarray, ...], window: float = 0.35):
+        """The outlier threshold of ``errors`` (per channel; :func:`outlier_threshold` with
+        this search's ceiling, and its default window) and, per channel, the measures below
+        it."""
+        threshold = outlier_threshold(np.concatenate(errors), self.scale, window,
+                                      self.max_threshold)
+        return threshold, tuple(np.flatnonzero(e < threshold) for e in errors)
 
     def _local_optimisation(self, max_iter: int = 10) -> None:
         """LO-RANSAC (Chum, Matas & Kittler 2003): a sample that beats the best is refined
         at once on the measures it explains, and the refined estimate kept if it scores
         better. A minimal sample of nearby measures extrapolates badly; without this the
         search keeps a partial structure whenever its budget held few spread samples."""
-        errors = np.concatenate(self.best_errors)
-        threshold = outlier_threshold(errors, self.scale, ceiling=self.max_threshold)
-        rows = tuple(np.flatnonzero(e < threshold) for e in self.best_errors)
+        rows = self.split(self.best_errors)[1]
         if sum(r.size for r in rows) <= self.sample_size + self.base_size:
             return
         fit = fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=self.best_q,
@@ -397,9 +409,7 @@ class ModelSearch:
         if self.best_q is None:
             return None
         q, errors = self.best_q, self.best_errors
-        threshold = outlier_threshold(np.concatenate(errors), self.scale, window,
-                                      self.max_threshold)
-        rows = tuple(np.flatnonzero(e < threshold) for e in errors)
+        threshold, rows = self.split(errors, window)
         result = None
         # the first refinement (which picks among the starts) takes max_iter iterations;
         # a later one, whose inliers may still change, a few, and the fit on the stable
@@ -414,18 +424,13 @@ class ModelSearch:
                 break
             q = result.q
             errors = coherence_errors(self.problem, q)
-            threshold = outlier_threshold(np.concatenate(errors), self.scale, window,
-                                          self.max_threshold)
-            new = tuple(np.flatnonzero(e < threshold) for e in errors)
+            threshold, new = self.split(errors, window)
             if all(np.array_equal(a, b) for a, b in zip(new, rows, strict=True)):
-                if result.status == MAX_ITER and per_round < max_iter:
-                    result = fit_problem(self.fam, self.model, self.problem.subset(rows),
-                                         q_start=q, q0=q0, Q0=Q0,
-                                         max_iter=max_iter - per_round)
-                    if np.all(np.isfinite(result.q)):  # the errors at the reported q
-                        errors = coherence_errors(self.problem, result.q)
-                        threshold = outlier_threshold(np.concatenate(errors), self.scale,
-                                                      window, self.max_threshold)
+                result = self._go_on(result, self.problem.subset(rows), q0, Q0, per_round,
+                                     max_iter)
+                if result.q is not q and np.all(np.isfinite(result.q)):
+                    errors = coherence_errors(self.problem, result.q)  # at the reported q
+                    threshold = self.split(errors, window)[0]
                 break  # stable: the fit is on the reported inliers
             rows = new
             per_round = min(max_iter, _ROUND_ITER)
