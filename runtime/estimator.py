@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import lattice
-from .coherence import free_dof, manifold_ranks
+from .coherence import manifold_ranks
 from .family import ModelFamily
 from .fit import fit_problem
 from .initializers import model_initializers
@@ -30,6 +30,9 @@ from .scoring import scorer as get_scorer
 
 _RESUME_FRACTION = 10  # a re-queued model draws a tenth of a fresh search's samples
 _BRIEF = 10  # iterations of the final refinement of a model that cannot win (_hopeless)
+#: samples per step of run() at most (a batch in one compiled call: ModelSearch.step), when
+#: no stopping rule reads the history sample by sample
+_BATCH = 128
 
 
 @dataclass(frozen=True)
@@ -236,6 +239,7 @@ class Estimator:
         self._stopped = False
         started = time.perf_counter()
         budget = self._samples + max_samples
+        batch = _BATCH if no_gain is None and until is None else 1
         reason = None
         while reason is None:
             if self._samples >= budget:
@@ -244,7 +248,7 @@ class Estimator:
             self._running.wait()
             if self._stopped:
                 reason = "stop()"
-            elif not self.step():
+            elif not self._locked_step(min(batch, budget - self._samples)):
                 break  # done: the status says so
             elif time_budget is not None and time.perf_counter() - started > time_budget:
                 reason = "time budget"
@@ -264,9 +268,14 @@ class Estimator:
 
     def step(self) -> bool:
         """One unit of work (usually one random sample). False when nothing is left to do."""
+        return self._locked_step(1)
+
+    def _locked_step(self, batch: int) -> bool:
+        """Up to ``batch`` samples of the current search (fewer when one improves it or its
+        budget ends), under the lock; numerical trouble is absorbed into the status."""
         with self._lock:
             try:
-                return self._step()
+                return self._step(batch)
             except Exception as exc:  # absorbed: numerical trouble shows in the status
                 self.status = f"error absorbed in step: {type(exc).__name__}: {exc}"
                 self._queue.clear()
@@ -328,6 +337,8 @@ class Estimator:
                 rows = self._rows[name]
                 X = np.array([r[1] for r in rows])
                 Q = np.array([r[2] for r in rows])
+                if np.all(Q == Q[0]):
+                    Q = Q[0]  # one information for all: validated and factored once
                 info = channel_data(self.fam, {name: X}, {name: Q})[0]
                 chans.append(info)
                 ids.append(np.array([r[0] for r in rows], dtype=int))
@@ -341,7 +352,7 @@ class Estimator:
         problem = self._problems.get(model)
         if problem is None:  # one per model until the measures or constants change
             problem = self._problems[model] = problem_of(self.fam, model, tuple(chans), self.q0,
-                                                         self.Q0, self._constants)
+                                                         self.Q0, self._constants, checked=True)
         channel = self.channel or (names[0] if len(names) == 1 else None)
         if channel is None:
             raise ValueError(f"channel= is required: measures in {names}")
@@ -369,22 +380,34 @@ class Estimator:
         return samples_for_confidence(self.confidence, self.inlier_ratio,
                                       search.sample_size + search.base_size)
 
-    def _step(self) -> bool:
+    def _step(self, batch: int = 1) -> bool:
         if self._search is None and not self._start_next():
             self._finish()
             return False
         model, parent, search, budget = self._search
-        search.step()
-        self._samples += 1
-        previous = self.history[-1][1] if self.history else -np.inf
+        # the samples left: eq. 25's adaptive bound changes only with a better estimate,
+        # which ends a batch
+        limit = min(batch, self._budget_now(search, budget) - search.samples)
+        if self.adaptive and search.samples < self.min_samples:
+            limit = min(limit, self.min_samples - search.samples)
+        before, previous = search.samples, self.history[-1][1] if self.history else -np.inf
+        level = max(previous, self._best_relevance(search))
+        search.step(max(limit, 1))
+        done = max(search.samples - before, 1)
+        self.history.extend((self._samples + i, level) for i in range(1, done))
+        self._samples += done
         self.history.append((self._samples, max(previous, self._best_relevance(search))))
-        if self.adaptive and search.samples >= self.min_samples:
-            needed = search.samples_needed(self.confidence)
-            budget = min(budget, needed) if needed is not None else budget
-        if search.samples >= budget or search.exhausted:
+        if search.samples >= self._budget_now(search, budget) or search.exhausted:
             self._search = None
             self._conclude(model, parent, search)
         return True
+
+    def _budget_now(self, search: ModelSearch, budget: int) -> int:
+        """The search's budget, lowered by eq. 25 at its best estimate so far (adaptive)."""
+        if self.adaptive and search.samples >= self.min_samples:
+            needed = search.samples_needed(self.confidence)
+            return min(budget, needed) if needed is not None else budget
+        return budget
 
     def _best_relevance(self, search: ModelSearch) -> float:
         """The best relevance of the accepted models so far and of the current search."""
@@ -418,13 +441,14 @@ class Estimator:
                 ranks = manifold_ranks(problem, self.fam.with_slacks(start, problem.k, model))
                 across = self._across(parent, ranks[channel])
                 parent_free = lattice.fixed_by(
-                    self.fam, parent_state, self._free(parent, parent_state.q), model, name,
+                    self.fam, parent_state, self._free(parent), model, name,
                     self._corrected.get(parent, {}).get(name), self._constants, across)
             search = ModelSearch(self.fam, model, problem, channel, start, self._rng,
                                  self.scale, self.scorer, pool=pool, parent_free=parent_free,
                                  base=base, initializer=self.initializers.get(model),
                                  local=self.local if pool is None else 0.0,
-                                 max_threshold=self.max_threshold, ranks=ranks)
+                                 max_threshold=self.max_threshold, ranks=ranks,
+                                 free=self._free(model))
             if search.exhausted:
                 self._skipped[model] = parent
                 self._queue_alternatives(model)
@@ -438,17 +462,21 @@ class Estimator:
             return True
         return False
 
-    def _free(self, model: str, q: np.ndarray) -> int:
-        return free_dof(lambda x: self.fam.c0(model, x, self._constants)[1], q)
+    def _free(self, model: str) -> int:
+        """The model's free degrees of freedom (:meth:`ModelFamily.free_dof`)."""
+        return self.fam.free_dof(model, self._constants)
 
     def _conclude(self, model: str, parent: str | None, search: ModelSearch) -> None:
+        self._from_parent(parent, search)
         estimate = search.finish(self.q0, self.Q0, self.window,
-                                 _BRIEF if self._hopeless(parent, search) else 100)
+                                 _BRIEF if self._hopeless(parent, search) else 100,
+                                 self._short_of(parent, search))
         if estimate is None or not np.all(np.isfinite(estimate.q)):
             self._skipped[model] = parent
             self._queue_alternatives(model)
             return
-        self._shape[model] = (max(search.ranks[search.channel], 1), search.free_dof(estimate.q))
+        self._shape[model] = (max(search.ranks[search.channel], 1),
+                              self._free(model))
         self._corrected[model] = estimate.fit.measures
         _, _, ids = self._channels()
         state = self._state(model, parent, estimate, ids)
@@ -462,6 +490,24 @@ class Estimator:
                     cb(state)
         self._queue_alternatives(model)
 
+    def _from_parent(self, parent: str | None, search: ModelSearch) -> None:
+        """A search whose samples did not clearly beat its parent (relevance up by more
+        than the parent's noise, 1 / SUPPORT) also tries the parent's estimate, refined in
+        its model: taken when it does. A parent that explains only part of the child's
+        structure (a translation holding 169 of a general motion's 200 matches) leaves
+        the rest of it in the pool the child's samples draw from, a small share of it: a
+        sample of it may well not be drawn, and the parent's estimate is the child's best
+        start. Along edges of the same equations per measure only: across them the
+        parent's inliers are a singular configuration of the child."""
+        state = self._states.get(parent) if parent else None
+        if state is None or not state.samples or search.base is None or \
+                self._across(parent, search.ranks[search.channel]):
+            return
+        floor = state.relevance / lattice.SUPPORT
+        if lattice.hopeless(state, search.best_score, 0, False) or search.best_score >= floor:
+            return  # its samples found no structure near the parent's, or beat it already
+        search.consider(state.q, floor)
+
     def _hopeless(self, parent: str | None, search: ModelSearch) -> bool:
         """Can the model searched not replace its parent, by a wide margin
         (:func:`~kanagen.runtime.lattice.hopeless`)? Then its final refinement is brief."""
@@ -471,6 +517,16 @@ class Estimator:
         inliers = sum(r.size for r in search.split(search.best_errors, self.window)[1])
         return lattice.hopeless(state, search.best_score, inliers,
                                 self._across(parent, search.ranks[search.channel]))
+
+    def _short_of(self, parent: str | None, search: ModelSearch) -> float | None:
+        """The inliers the model searched must reach to replace its parent when only their
+        number decides (across a change of equations per measure,
+        :func:`~kanagen.runtime.lattice.explains_more`), else None."""
+        state = self._states.get(parent) if parent else None
+        if state is None or not state.samples or \
+                not self._across(parent, search.ranks[search.channel]):
+            return None
+        return lattice.MORE_SUPPORT * state.inliers.size
 
     def _across(self, parent: str, rank: int) -> bool:
         """Does the edge from ``parent`` to a model of ``rank`` equations per measure (on the

@@ -110,6 +110,7 @@ class ModelFamily:
             name: Reduction(np.array(r["free"], dtype=int), np.array(r["T"], dtype=float),
                             np.array(r["t"], dtype=float))
             for name, r in meta.get("reductions", {}).items()}
+        self._free: dict[tuple[str, bytes], int] = {}  # free_dof's, per model and constants
 
     def __repr__(self) -> str:
         return (f"<ModelFamily {self.name!r}: parameter {list(self.parameter_names)}, "
@@ -248,6 +249,21 @@ class ModelFamily:
         """``q = T r + t`` for ``model`` when its linear constraints are eliminated (report
         §6, :mod:`kanagen.codegen.eliminate`): only with ``eliminate_linear=True``."""
         return self._reductions.get(model) if self.eliminate_linear else None
+
+    def free_dof(self, model: str, constants=None) -> int:
+        """``n − p``: the degrees of freedom ``model``'s constraints leave free, ``p`` their
+        generic rank (:func:`~kanagen.runtime.coherence.free_dof` at the spec's q0 and two
+        perturbations of it: the same anywhere but at special points), once per model and
+        constants."""
+        from .coherence import free_dof
+
+        k = self._k(constants)
+        key = (model, k.tobytes())
+        free = self._free.get(key)
+        if free is None:
+            free = self._free[key] = free_dof(lambda x: self.c0(model, x, k)[1],
+                                              self.with_slacks(self.q0, k, model))
+        return free
 
     def c0(self, model: str, q, constants=None) -> tuple[np.ndarray, np.ndarray]:
         """Constraints ``c0(q)`` (p,) and their Jacobian (p, n)."""

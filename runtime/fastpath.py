@@ -118,7 +118,7 @@ FINGERPRINTS: dict[str, str] = {
     'sqrt.REDUNDANT': 'a11958cb4ea6',
     'kernels.whiten': 'ffc3e108b3d4',
     'kernels.correct': '0e183f7e3c8f',
-    'fit.fit_problem': 'ec1566bdb254',
+    'fit.fit_problem': 'c5c6f2812de1',
     'fit._feasible': 'fc2209c8e66b',
     'fit.derived_values': '9af6131bb8bb',
     'coherence.coherence_errors': 'b6d9e82e820b',
@@ -258,6 +258,12 @@ class FastPath:
         self.sample = lib.kg_sample  # one sample of a robust search (fastsample.py)
         self.sample.argtypes = [ctypes.c_void_p] * 3
         self.sample.restype = ctypes.c_int
+        self.search = lib.kg_search  # samples of a robust search until a better one
+        self.search.argtypes = [ctypes.c_void_p] * 8
+        self.search.restype = ctypes.c_int
+        self.choice = lib.kg_choice_draw  # one draw of kg_search's (fastsample.py)
+        self.choice.argtypes = [ctypes.c_void_p, ctypes.c_long, ctypes.c_long, ctypes.c_void_p]
+        self.choice.restype = None
         self._twins = {}  # the compiled initialisers by name (initializer)
         for name in TWINS:
             fn = getattr(lib, f"kg_{name}")

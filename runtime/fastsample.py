@@ -69,6 +69,11 @@ class Sampler:
         self._sin = ctypes.c_void_p(self.sin.ctypes.data)
         self._out = ctypes.c_void_p(self.out.ctypes.data)
         self.width = 1 + self.n + total
+        # kg_search's counts and output (the best solution: its q and errors)
+        self.iin = np.zeros(5, dtype=np.int64)
+        self.bout = np.empty(4 + self.n + total)
+        self._iin = ctypes.c_void_p(self.iin.ctypes.data)
+        self._bout = ctypes.c_void_p(self.bout.ctypes.data)
 
     def __call__(self, rows: np.ndarray, best: float = -np.inf):
         """The solutions of the sample ``rows``, as ``(q, errors)``; with the scorer
@@ -90,6 +95,70 @@ class Sampler:
                 at += M
             out.append((block[1:1 + self.n], tuple(errors)))
         return out
+
+
+    def burst(self, limit: int, best: float, pool: np.ndarray, kpool: int, base: np.ndarray,
+              kbase: int, rng: np.random.Generator):
+        """Up to ``limit`` samples in one call of ``kg_search``, each of ``kpool`` measures of
+        ``pool`` and ``kbase`` of ``base`` (int64 arrays) drawn with ``rng``'s bit generator
+        as ``rng.choice(pool, kpool, replace=False)`` then ``rng.choice(base, kbase, ...)``
+        draw them (:func:`draws_as_numpy`), scored by relevance against ``best``, stopping
+        after one that beats it:
+        ``(samples scored, of them without a solution, outcome, (q, relevance, errors) of the
+        best, the rows of a sample left to the Python)``, the outcome 0 at the limit, 1 when
+        the last sample beat ``best``, 2 when the C left the sample drawn last to the Python
+        (not counted); None when ``kg_search`` refused its input (nothing drawn)."""
+        self.sin[self.best_at] = best
+        self.iin[:] = (limit, pool.size, kpool, base.size, kbase)
+        bitgen = rng.bit_generator.ctypes.bit_generator
+        if self.fast.search(self.inp, self._sin, pool.ctypes.data, base.ctypes.data, bitgen,
+                            self._iin, self._bout, self._out) != 0:
+            return None
+        out = self.bout
+        done, degenerate, outcome = int(out[0]), int(out[1]), int(out[2])
+        found = rows = None
+        if outcome == 1:
+            q, errors, at = out[4:4 + self.n].copy(), [], 4 + self.n
+            for M in self.sizes:
+                errors.append(out[at:at + M].copy())
+                at += M
+            found = (q, float(out[3]), tuple(errors))
+        elif outcome == 2:
+            rows = self.sin[self.rows_at:].astype(int)
+        return done, degenerate, outcome, found, rows
+
+
+#: Generator.choice(replace=False) switches to a tail shuffle, which kg_choice does not
+#: replicate, above this population when more than 1/_TAIL of it is drawn
+_FLOYD_MAX, _TAIL = 10_000, 50
+_MATCHES: dict[int, bool] = {}  # draws_as_numpy's check, per library
+
+
+def draws_as_numpy(fast, draws) -> bool:
+    """Can the compiled search draw ``(population, count)`` samples (each pair: one
+    ``rng.choice(population, count, replace=False)``) exactly as numpy draws them? Its
+    kg_choice follows numpy's Generator.choice (Floyd's algorithm, then a shuffle, on
+    bounded 32-bit draws); this installation's numpy is checked once, on draws of every
+    kind a search makes: any difference, and the searches draw in Python (the same
+    samples, one call per sample)."""
+    if any(n > _FLOYD_MAX and k > n // _TAIL for n, k in draws):
+        return False
+    key = id(fast)
+    if key not in _MATCHES:
+        _MATCHES[key] = _check_choice(fast)
+    return _MATCHES[key]
+
+
+def _check_choice(fast) -> bool:
+    ours, theirs = np.random.default_rng(2024), np.random.default_rng(2024)
+    bitgen = ours.bit_generator.ctypes.bit_generator
+    idx = np.empty(16, dtype=np.int64)
+    for size, k in [(1, 1), (2, 2), (7, 7), (8, 7), (9, 1), (60, 2), (200, 5), (286, 7),
+                    (1000, 8), (4099, 3), (10_000, 16), (123_457, 4)] * 5:
+        fast.choice(bitgen, size, k, idx.ctypes.data)
+        if not np.array_equal(idx[:k], theirs.choice(size, k, replace=False)):
+            return False
+    return ours.bit_generator.state == theirs.bit_generator.state
 
 
 def sampler_for(search) -> Sampler | None:

@@ -25,8 +25,10 @@ def make_problem(fam: ModelFamily, model: str, data: Mapping, info: Mapping | No
 
 
 def problem_of(fam: ModelFamily, model: str, channels: tuple, q0=None, Q0=None,
-               constants=None, eps: float = EPS) -> Problem:
-    """:func:`make_problem` on channels validated already (:func:`channel_data`'s)."""
+               constants=None, eps: float = EPS, checked: bool = False) -> Problem:
+    """:func:`make_problem` on channels validated already (:func:`channel_data`'s);
+    ``checked``: ``q0`` and ``Q0`` are validated arrays already (the estimator's, one
+    problem per model)."""
     k = fam.constant_vector(constants)
     measures, kernels = [], []
     for ch in channels:
@@ -38,8 +40,8 @@ def problem_of(fam: ModelFamily, model: str, channels: tuple, q0=None, Q0=None,
         measures=tuple(measures),
         kernels=tuple(kernels),
         channels=channels,
-        q0=parameter_vector(fam, q0),
-        Q0=prior_information(Q0, fam.n),
+        q0=q0 if checked else parameter_vector(fam, q0),
+        Q0=Q0 if checked else prior_information(Q0, fam.n),
         k=k,
         eps=eps,
         relations=(lambda q: fam.relations_hold(model, q, k)) if fam.slack_names else None,
@@ -107,7 +109,7 @@ def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
 def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0=None,
                 Q0=None, max_iter: int = 100, xtol: float = 1e-10) -> FitResult:
     """:func:`fit` on a validated problem (optionally with another prior ``q0``, ``Q0``)."""
-    if q0 is not None or Q0 is not None:
+    if (q0 is not None and q0 is not problem.q0) or (Q0 is not None and Q0 is not problem.Q0):
         problem = replace(problem, q0=problem.q0 if q0 is None else q0,
                           Q0=problem.Q0 if Q0 is None else Q0)
     start = problem.q0 if q_start is None else np.asarray(q_start, dtype=float)

@@ -1,6 +1,6 @@
 """Robust estimation of one model by random minimal samples (report §4).
 
-:class:`ModelSearch` is a small state machine the estimator drives one sample at a time
+:class:`ModelSearch` is a small state machine the estimator drives a few samples at a time
 (anytime, suspendable): each :meth:`~ModelSearch.step` draws a minimal sample (eq. 21),
 scores the estimate by the errors of every measure (eq. 22–24, the Sampson first-order error
 here) and keeps the best; :meth:`~ModelSearch.finish` thresholds the error histogram, refines
@@ -10,6 +10,7 @@ on the inliers with the full estimator of §2–3, thresholds once more and refi
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -19,17 +20,21 @@ import numpy as np
 
 from .coherence import coherence_errors, free_dof, manifold_ranks, solve_minimal
 from .family import ModelFamily
-from .fastsample import sampler_for
+from .fastsample import draws_as_numpy, sampler_for
 from .fit import fit_problem, make_problem
 from .initializers import InitializerFn, equivalent, model_initializers, start_from
 from .iterate import MAX_ITER
 from .projector import Problem
 from .results import FitResult
-from .scoring import samples_for_confidence
+from .scoring import relevance, samples_for_confidence
 from .scoring import scorer as get_scorer
 
 _REFINE_ROUNDS = 6  # threshold-and-refine rounds at most (they stop when the inliers do)
 _ROUND_ITER = 20  # iterations of a refinement round whose inliers may still change
+#: a refinement that only its inliers' number can make matter (ModelSearch.finish's
+#: short_of) runs in laps of this many iterations, and stops after a lap that lowered its
+#: cost by less than _PROGRESS of itself
+_LAP, _PROGRESS = 5, 1e-4
 _NEIGHBOURHOOD = 4  # a local sample is drawn among this many sample sizes of nearest measures
 
 
@@ -55,13 +60,9 @@ def outlier_threshold(errors: np.ndarray, scale: float, window: float = 0.35,
     e = np.asarray(errors, dtype=float)
     e = e[np.isfinite(e)]
     top = 20.0 * scale
-    width = scale / 20.0
-    counts, edges = np.histogram(np.clip(e, 0.0, top), bins=int(round(top / width)),
-                                 range=(0.0, top + 1e-12 * top))
+    edges, half, kernel = _histogram_layout(float(scale), float(window))
+    counts = _counts(np.clip(e, 0.0, top), edges)
     counts[-1] = 0  # the clipped tail is not a population of the histogram
-    half = max(1, int(round(window * scale / width / 2)))
-    kernel = np.r_[np.arange(1, half + 1), np.arange(half + 1, 0, -1)].astype(float)
-    kernel /= kernel.sum()  # triangular, of full width window·L*
     padded = np.r_[counts[half - 1::-1], counts]  # errors are >= 0: reflect at 0
     smooth = np.convolve(padded, kernel, mode="same")[half:]
     # A minimum is real when the histogram rises after it by more than its Poisson noise
@@ -81,6 +82,32 @@ def outlier_threshold(errors: np.ndarray, scale: float, window: float = 0.35,
         i += 1
     threshold = max(float(edges[i + 1]), float(scale))
     return threshold if ceiling is None else min(threshold, max(float(ceiling), float(scale)))
+
+
+@functools.lru_cache(maxsize=64)
+def _histogram_layout(scale: float, window: float) -> tuple[np.ndarray, int, np.ndarray]:
+    """:func:`outlier_threshold`'s bins (``L*/20`` wide, up to ``20 L*``: their edges), the
+    half width of its smoothing window in bins and the window's triangular kernel."""
+    top, width = 20.0 * scale, scale / 20.0
+    edges = np.linspace(0.0, top + 1e-12 * top, int(round(top / width)) + 1)
+    edges.flags.writeable = False
+    half = max(1, int(round(window * scale / width / 2)))
+    kernel = np.r_[np.arange(1, half + 1), np.arange(half + 1, 0, -1)].astype(float)
+    kernel /= kernel.sum()  # triangular, of full width window·L*
+    kernel.flags.writeable = False
+    return edges, half, kernel
+
+
+def _counts(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """``np.histogram(values, edges)``'s counts for equal bins and values inside them, by its
+    own arithmetic (the bin from the scaled value, then corrected by one against the edges,
+    the last bin closed), without its generic checks: it is called on every refinement."""
+    bins = edges.size - 1
+    index = (values / edges[-1] * bins).astype(np.intp)
+    index[index == bins] -= 1
+    index[values < edges[index]] -= 1
+    index[(values >= edges[index + 1]) & (index != bins - 1)] += 1
+    return np.bincount(index, minlength=bins)
 
 
 @dataclass(frozen=True)
@@ -150,6 +177,9 @@ class ModelSearch:
     ranks : tuple of int, optional
         Equations per measure of each channel at ``start``
         (:func:`~kanagen.runtime.coherence.manifold_ranks`, computed when not given).
+    free : int, optional
+        The model's free degrees of freedom (:func:`~kanagen.runtime.coherence.free_dof`,
+        computed when not given).
 
     A sample whose independent equations outnumber the free degrees of freedom (a zoom from
     one match: two equations, one unknown; the null model: none) cannot be passed through
@@ -162,7 +192,7 @@ class ModelSearch:
                  sample_size: int | None = None, parent_free: int | None = None,
                  base: np.ndarray | None = None, initializer: InitializerFn | None = None,
                  local: float = 0.0, max_threshold: float | None = None,
-                 ranks: tuple[int, ...] | None = None):
+                 ranks: tuple[int, ...] | None = None, free: int | None = None):
         if not 0.0 <= local <= 1.0:
             raise ValueError(f"local must be a fraction in [0, 1], got {local}")
         self.max_threshold = max_threshold
@@ -171,7 +201,7 @@ class ModelSearch:
         self.problem = problem
         self.channel = channel
         self.start = fam.with_slacks(np.asarray(start, dtype=float), problem.k, model)
-        self._free: int | None = None  # free_dof() at the start
+        self._free = free  # free_dof() at the start (the caller's when it has it)
         self.rng = rng
         self.scale = float(scale)
         self.score_fn = get_scorer(scorer)
@@ -193,6 +223,15 @@ class ModelSearch:
         self.overdetermined = equations > self.free_dof()
         self.local = float(local)
         self._sampler = sampler_for(self)  # the compiled sample, or None
+        # several samples per compiled call (kg_search): eq. 29's relevance scored in C,
+        # uniform samples only, drawn as numpy draws them (fastsample.draws_as_numpy)
+        self._pool64 = self.pool.astype(np.int64)
+        self._base64 = np.zeros(0, np.int64) if self.base is None else \
+            self.base.astype(np.int64)
+        self._bursts = self._sampler is not None and self.score_fn is relevance and \
+            not (self.local > 0.0 and self.base_size == 0) and \
+            draws_as_numpy(self._sampler.fast, ((self.pool.size, self.sample_size),
+                                                (self._base64.size, self.base_size)))
         self._neighbours: np.ndarray | None = None
         self.samples = 0
         self.degenerate = 0
@@ -258,19 +297,66 @@ class ModelSearch:
         short_base = self.base is not None and self.base.size < self.base_size
         return self.pool.size < self.sample_size or short_base
 
-    def step(self) -> bool:
-        """Draw and score one sample; True when it gave a better estimate. Never raises."""
+    def step(self, limit: int = 1) -> bool:
+        """Draw and score one sample, or up to ``limit`` samples stopping after one that gives
+        a better estimate; True when the last one did. Never raises.
+
+        On the compiled backend with the relevance scorer the samples run in C a batch at a
+        time (kg_search), with the same draws, solutions and scores as one by one."""
         if self.exhausted:
             return False
+        while limit > 0:
+            rows = None
+            if self._bursts and limit > 1:
+                done, outcome, rows = self._burst(limit)
+                limit -= done
+                if outcome != 2:  # the limit, or a better estimate
+                    return outcome == 1
+                # the C left the drawn sample `rows` to the Python (a degenerate one)
+            if self._one(rows):
+                return True
+            limit -= 1
+        return False
+
+    def _burst(self, limit: int) -> tuple[int, int, np.ndarray | None]:
+        """Up to ``limit`` samples in one compiled call: (samples scored, outcome, rows),
+        the outcome 0 at the limit, 1 when the last beat the best (taken, and locally
+        optimised), 2 when the C left the sample ``rows`` (drawn, not counted) to the
+        Python."""
+        out = self._sampler.burst(limit, self.best_score, self._pool64, self.sample_size,
+                                  self._base64, self.base_size, self.rng)
+        if out is None:  # refused before drawing: the samples go one by one
+            self._bursts = False
+            return 0, 2, None
+        done, degenerate, outcome, best, rows = out
+        before = self.best_score
+        self.history.extend((self.samples + i, before) for i in range(1, done + 1))
+        self.samples += done
+        self.degenerate += degenerate
+        if outcome == 1:
+            self.best_q, self.best_score, self.best_errors = best
+            try:
+                with np.errstate(all="ignore"):
+                    self._local_optimisation()
+            except (np.linalg.LinAlgError, ValueError, FloatingPointError, ZeroDivisionError):
+                self.degenerate += 1
+            self.history[-1] = (self.samples, self.best_score)
+        return done, outcome, rows
+
+    def _one(self, rows: np.ndarray | None = None) -> bool:
+        """Draw (unless ``rows`` are drawn already) and score one sample."""
         self.samples += 1
-        rows = self._draw()
-        if self.base_size > 0:
-            rows = np.r_[rows, self.rng.choice(self.base, size=self.base_size, replace=False)]
+        compiled = rows is None  # a sample the C left to the Python goes solve by solve
+        if rows is None:
+            rows = self._draw()
+            if self.base_size > 0:
+                rows = np.r_[rows, self.rng.choice(self.base, size=self.base_size,
+                                                   replace=False)]
         improved = False
         solutions = 0
         try:
             with np.errstate(all="ignore"):
-                for q, errors in self._scored(rows):
+                for q, errors in self._scored(rows, compiled):
                     solutions += 1
                     if errors is None:
                         continue  # its relevance is bounded below the best (kg_sample)
@@ -286,11 +372,11 @@ class ModelSearch:
         self.history.append((self.samples, self.best_score))
         return improved
 
-    def _scored(self, rows: np.ndarray):
+    def _scored(self, rows: np.ndarray, compiled: bool = True):
         """The sample's solutions, each with every measure's error (eq. 24): in one compiled
         call (:mod:`~kanagen.runtime.fastsample`) when the search has one, else solve by
         solve."""
-        if self._sampler is not None:
+        if self._sampler is not None and compiled:
             out = self._sampler(rows, self.best_score)
             if out is not None:
                 return out
@@ -349,26 +435,38 @@ class ModelSearch:
                     break  # the other candidates are the same estimate
         return out
 
-    def _race(self, starts, rows, q0, Q0, max_iter: int) -> FitResult:
+    def _race(self, starts, rows, q0, Q0, max_iter: int, laps: bool = False) -> FitResult:
         """The fit of least cost on ``rows`` from several starts: each runs
         :data:`_ROUND_ITER` iterations, and the cheapest goes on to ``max_iter`` in all — a
         start in a degenerate valley (focal lengths running off to the affine limit) crawls
-        on without the others waiting for it."""
+        on without the others waiting for it. ``laps``: see :meth:`_go_on`."""
         sample = self.problem.subset(rows)
         lap = min(max_iter, _ROUND_ITER) if len(starts) > 1 else max_iter
+        if laps:
+            lap = min(lap, _LAP)
         fits = [fit_problem(self.fam, self.model, sample, q_start=start, q0=q0, Q0=Q0,
                             max_iter=lap) for start in starts]
         best = min(fits, key=lambda f: f.cost if np.isfinite(f.cost) else np.inf)
-        return self._go_on(best, sample, q0, Q0, lap, max_iter)
+        return self._go_on(best, sample, q0, Q0, lap, max_iter, laps)
 
     def _go_on(self, fit: FitResult, sample: Problem, q0, Q0, done: int,
-               max_iter: int) -> FitResult:
+               max_iter: int, laps: bool = False) -> FitResult:
         """``fit``, stopped at its cap of ``done`` iterations, taken on from where it stopped
-        to ``max_iter`` in all (as it is when it stopped otherwise)."""
-        if fit.status != MAX_ITER or done >= max_iter or not np.all(np.isfinite(fit.q)):
-            return fit
-        return fit_problem(self.fam, self.model, sample, q_start=fit.q, q0=q0, Q0=Q0,
-                           max_iter=max_iter - done)
+        to ``max_iter`` in all (as it is when it stopped otherwise). With ``laps``, in laps of
+        :data:`_LAP` iterations, stopping after one that lowered the cost by less than
+        :data:`_PROGRESS` of itself: a fit crawling along a degenerate valley (a fundamental
+        matrix on matches of no motion: its cost falls by 1e-6 of itself per iteration)
+        stops there, one still descending (out of a plane's basin, its inliers growing)
+        goes on."""
+        while fit.status == MAX_ITER and done < max_iter and np.all(np.isfinite(fit.q)):
+            lap = min(_LAP, max_iter - done) if laps else max_iter - done
+            more = fit_problem(self.fam, self.model, sample, q_start=fit.q, q0=q0, Q0=Q0,
+                               max_iter=lap)
+            done += lap
+            if laps and not fit.cost - more.cost >= _PROGRESS * abs(fit.cost):
+                return more if more.cost <= fit.cost else fit
+            fit = more
+        return fit
 
     def split(self, errors: tuple[np.ndarray, ...], window: float = 0.35):
         """The outlier threshold of ``errors`` (per channel; :func:`outlier_threshold` with
@@ -383,26 +481,54 @@ class ModelSearch:
         at once on the measures it explains, and the refined estimate kept if it scores
         better. A minimal sample of nearby measures extrapolates badly; without this the
         search keeps a partial structure whenever its budget held few spread samples."""
-        rows = self.split(self.best_errors)[1]
+        refined = self._refined(self.best_q, self.best_errors, max_iter)
+        if refined is not None and refined[1] > self.best_score:
+            self.best_q, self.best_score, self.best_errors = refined
+
+    def _refined(self, q: np.ndarray, errors, max_iter: int = 10):
+        """``q`` refined on the measures it explains (their errors ``errors``):
+        ``(q, score, errors)``, or None when too few to refine or the fit failed."""
+        rows = self.split(errors)[1]
         if sum(r.size for r in rows) <= self.sample_size + self.base_size:
-            return
-        fit = fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=self.best_q,
+            return None
+        fit = fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=q,
                           max_iter=max_iter)
         if not np.all(np.isfinite(fit.q)):
-            return
+            return None
         refined = coherence_errors(self.problem, fit.q, iterations=1, ranks=self.ranks)
-        score = self.score_fn(np.concatenate(refined), self.scale)
-        if score > self.best_score:
-            self.best_q, self.best_score, self.best_errors = fit.q, score, refined
+        return fit.q, self.score_fn(np.concatenate(refined), self.scale), refined
+
+    def consider(self, q: np.ndarray, floor: float) -> bool:
+        """An estimate from elsewhere (the parent's) as a candidate: refined in this model on
+        the measures it explains (:meth:`_local_optimisation`'s refinement), and taken as the
+        best when it scores at least ``floor`` and better than the best so far. True when
+        taken. Never raises."""
+        try:
+            with np.errstate(all="ignore"):
+                q = self.fam.with_slacks(np.asarray(q, dtype=float), self.problem.k,
+                                         self.model)
+                errors = coherence_errors(self.problem, q, iterations=1, ranks=self.ranks)
+                refined = self._refined(q, errors)
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError, ZeroDivisionError):
+            return False
+        if refined is None or not (refined[1] >= floor and refined[1] > self.best_score):
+            return False
+        self.best_q, self.best_score, self.best_errors = refined
+        return True
 
     def finish(self, q0: np.ndarray, Q0: np.ndarray, window: float = 0.35,
-               max_iter: int = 100) -> RobustEstimate | None:
+               max_iter: int = 100, short_of: float | None = None) -> RobustEstimate | None:
         """Threshold, refine on the inliers, threshold again, ... (report §4), until the
         inliers stop changing (at most ``_REFINE_ROUNDS`` refinements): the reported
         estimate (its cost, d, Q̃) is the fit on the reported inliers. With an initializer,
         the first refinement also starts from its closed form on the inliers (the
         eight-point F on all of them, say) and keeps the fit of least cost: a minimal
         sample's estimate can sit in another basin of a non-linear cost.
+
+        ``short_of``: the inliers the model must reach to matter, when only their number
+        decides (its parent's test across a change of equations per measure,
+        :func:`~kanagen.runtime.lattice.explains_more`). While it has fewer, its refinements
+        run in laps and stop when a lap makes no progress (:meth:`_go_on`).
 
         Returns None when no sample gave an estimate.
         """
@@ -411,6 +537,10 @@ class ModelSearch:
         q, errors = self.best_q, self.best_errors
         threshold, rows = self.split(errors, window)
         result = None
+
+        def short(rows) -> bool:
+            return short_of is not None and sum(r.size for r in rows) < short_of
+
         # the first refinement (which picks among the starts) takes max_iter iterations;
         # a later one, whose inliers may still change, a few, and the fit on the stable
         # inliers goes on to max_iter in all (a model that does not fit its data crawls: it
@@ -419,7 +549,7 @@ class ModelSearch:
         for round_ in range(_REFINE_ROUNDS):
             starts = [q] + (self._starts(rows[self.channel])
                             if round_ == 0 and self.initializer is not None else [])
-            result = self._race(starts, rows, q0, Q0, per_round)
+            result = self._race(starts, rows, q0, Q0, per_round, short(rows))
             if not np.all(np.isfinite(result.q)):
                 break
             q = result.q
@@ -427,7 +557,7 @@ class ModelSearch:
             threshold, new = self.split(errors, window)
             if all(np.array_equal(a, b) for a, b in zip(new, rows, strict=True)):
                 result = self._go_on(result, self.problem.subset(rows), q0, Q0, per_round,
-                                     max_iter)
+                                     max_iter, short(rows))
                 if result.q is not q and np.all(np.isfinite(result.q)):
                     errors = coherence_errors(self.problem, result.q)  # at the reported q
                     threshold = self.split(errors, window)[0]

@@ -26,8 +26,11 @@ def relevance(errors: np.ndarray, scale: float) -> float:
     e = np.asarray(errors, dtype=float)
     if e.size == 0:
         return 0.0
-    inside = e < scale
-    return float(np.sum(1.0 - 2.0 * e[inside] / scale) / e.size)
+    terms = 1.0 - 2.0 * e[e < scale] / scale
+    # summed in order (an accumulation, not np.sum's pairwise sum): the compiled search
+    # (kg_search) adds them in the same order, and its scores are these to the last bit
+    total = float(np.add.accumulate(terms)[-1]) if terms.size else 0.0
+    return total / e.size
 
 
 def ransac(errors: np.ndarray, scale: float) -> float:

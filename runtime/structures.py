@@ -228,4 +228,4 @@ def _rows_of(info, rows: np.ndarray, size: int):
 
 
 def _minimal(est: Estimator, state: ModelState) -> int:
-    return max(1, est._free(state.model, state.q))
+    return max(1, est._free(state.model))

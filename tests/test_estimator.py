@@ -172,3 +172,21 @@ def test_a_child_far_from_replacing_its_parent_is_hopeless():
     need = lattice.HOPELESS * lattice.SUPPORT * 0.6
     assert lattice.hopeless(parent, need * 0.99, 0, across=False)
     assert not lattice.hopeless(parent, need * 1.01, 0, across=False)
+
+
+def test_run_in_batches_is_the_step_by_step_search(lattice):
+    """run() takes the samples of a search a batch at a time (ModelSearch.step with a
+    limit, which stops at a better estimate): the same search as step() one by one."""
+    xy, _ = arc("hyperbola", 3)
+    runs = []
+    for stepwise in (False, True):
+        est = kanagen.Estimator(lattice, scale=4.0, seed=3)
+        est.add_measures("point", xy)
+        if stepwise:
+            while est.step():
+                pass
+        else:
+            est.run(max_samples=10_000)
+        runs.append((est.history, [(s.model, s.samples, s.relevance, s.q.tolist())
+                                   for s in est.states()]))
+    assert runs[0] == runs[1]

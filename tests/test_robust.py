@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import kanagen
 from kanagen.runtime.robust import outlier_threshold
@@ -107,3 +109,32 @@ def test_scorers_and_threshold():
         assert np.mean(inliers > t) < 0.05
     with pytest.raises(ValueError, match="25–50 %"):
         outlier_threshold(inliers, 4.0, window=0.1)
+
+
+@given(st.lists(st.floats(0.0, 1e4, allow_nan=False), min_size=1, max_size=400),
+       st.sampled_from([0.37, 1.0, 4.0, 9.0]))
+@settings(max_examples=200, deadline=None)
+def test_threshold_histogram_counts_as_numpy(errors, scale):
+    """outlier_threshold's own binning gives np.histogram's counts (values on the edges
+    included: the bins' edges in units of L*/20)."""
+    from kanagen.runtime.robust import _counts, _histogram_layout
+
+    top = 20.0 * scale
+    e = np.clip(np.r_[errors, np.arange(0, 401) * scale / 20.0], 0.0, top)
+    edges = _histogram_layout(scale, 0.35)[0]
+    expected = np.histogram(e, bins=400, range=(0.0, top + 1e-12 * top))[0]
+    np.testing.assert_array_equal(_counts(e, edges), expected)
+
+
+@pytest.mark.parametrize("spec", ["conic_lattice", "two_view", "line", "conic"])
+def test_free_dof_of_a_model_is_its_generic_rank(spec):
+    """ModelFamily.free_dof (once per model) is free_dof at any point of the model."""
+    from kanagen.runtime.coherence import free_dof
+
+    fam = kanagen.load(spec)
+    k = fam.constant_vector()
+    rng = np.random.default_rng(0)
+    for model in fam.models:
+        for _ in range(3):
+            q = fam.with_slacks(fam.q0 + rng.normal(0, 0.5, fam.n), k, model)
+            assert fam.free_dof(model) == free_dof(lambda x, m=model: fam.c0(m, x, k)[1], q)

@@ -10,6 +10,8 @@
  * has no slacks (start_from's candidates need no with_slacks) and the model's samples are
  * not over-determined (the Python fits those). */
 
+#include <stdint.h>
+
 typedef int (*kg_twin_fn)(long, const double *, const double *, double *);
 /* the compiled twins by number (1, 2, ...): runtime/fastpath.py TWINS, in its order */
 static const kg_twin_fn kg_twins[] = {kg_two_view_fundamental, kg_two_view_homography,
@@ -28,7 +30,7 @@ static const kg_twin_fn kg_twins[] = {kg_two_view_fundamental, kg_two_view_homog
  * every error is there, 0 when abandoned, -1 out of memory. */
 static int kg_sample_errors(const kg_problem *pb, const double *q, int iterations,
                             double tol, const double *caps, double scale, double best,
-                            long total, double *coh, double *errors)
+                            long total, double *coh, double *errors, double *score)
 {
     kg_channel view[KG_NCH > 0 ? KG_NCH : 1];
     kg_problem part = *pb;
@@ -67,6 +69,7 @@ static int kg_sample_errors(const kg_problem *pb, const double *q, int iteration
         }
         view[u].M = 0;
     }
+    *score = total ? sum / (double)total : 0.0; /* eq. 29: relevance (scoring.py) */
     return 1;
 }
 
@@ -85,22 +88,19 @@ int kg_sample_twins(void) { return KG_NTWINS; }
  * (eq. 24), channel after channel. Returns 0, -1 when the twin leaves the
  * sample to the Python (runtime/fastpath.py: a degenerate sample), 1 on bad input, 2 when
  * out of memory. */
-int kg_sample(const double *in, const double *sin, double *out)
+static int kg_sample_core(const kg_problem *ppb, int iterations, double tol,
+                          const double *sin, const double *rows, double *out, double *scores)
 {
-    kg_problem pb;
-    const int n = KG_N;
-    int nch = (int)in[1], iterations;
-    double tol;
-    const double *unused;
-    if (nch < 1 || nch > KG_NCH) return 1;
-    kg_channel channels[nch], sub[nch];
-    if (kg_read(in, &pb, channels, &iterations, &tol, &unused)) return 1;
+    const kg_problem pb = *ppb;
+    const kg_channel *channels = pb.ch;
+    const int n = KG_N, nch = pb.nch;
+    kg_channel sub[KG_NCH > 0 ? KG_NCH : 1];
     const int c = (int)sin[0], twin = (int)sin[2], equivalent = (int)sin[3];
     const long s = (long)sin[1];
     const int full_rank = (int)sin[4], max_iter = (int)sin[5];
     const double xtol = sin[6], eps = sin[7], scale = sin[8], best = sin[9];
     const double *caps = sin + 10, *k3 = caps + nch, *map = k3 + 3;
-    const double *start = map + KG_TWIN_WIDTH, *rows = start + n;
+    const double *start = map + KG_TWIN_WIDTH;
     if (c < 0 || c >= nch || s < 1 || twin < 0 || twin > KG_NTWINS) return 1;
     const kg_channel *ch = &channels[c];
     if (twin && ch->w != 4) return 1;
@@ -171,7 +171,7 @@ int kg_sample(const double *in, const double *sin, double *out)
         if (!(mout[n] != 0.0 && (int)mout[n + 1] >= full_rank)) continue;
         memcpy(at + 1, mout, sizeof(double) * n);
         int done = kg_sample_errors(&pb, mout, iterations, tol, caps, scale, best, total, coh,
-                                    at + 1 + n);
+                                    at + 1 + n, &scores[solutions]);
         if (done < 0) {
             free(buf);
             return 2;
@@ -183,5 +183,157 @@ int kg_sample(const double *in, const double *sin, double *out)
     }
     out[0] = solutions;
     free(buf);
+    return 0;
+}
+
+/* kg_coherence's input in read into pb (channels: room for KG_NCH), and where sin's rows
+ * are; -1 on bad input */
+static long kg_sample_read(const double *in, kg_problem *pb, kg_channel *channels,
+                           int *iterations, double *tol)
+{
+    const double *unused;
+    const int nch = (int)in[1];
+    if (nch < 1 || nch > KG_NCH || kg_read(in, pb, channels, iterations, tol, &unused))
+        return -1;
+    return 10 + nch + 3 + KG_TWIN_WIDTH + KG_N;
+}
+
+int kg_sample(const double *in, const double *sin, double *out)
+{
+    kg_problem pb;
+    kg_channel channels[KG_NCH > 0 ? KG_NCH : 1];
+    int iterations;
+    double tol, scores[KG_TWIN_MAX];
+    const long rows = kg_sample_read(in, &pb, channels, &iterations, &tol);
+    if (rows < 0) return 1;
+    return kg_sample_core(&pb, iterations, tol, sin, sin + rows, out, scores);
+}
+
+/* numpy's bit generator (numpy/random/bitgen.h): a sample's draws come from the search's
+ * own Generator, as runtime/robust.py draws them (_bounded, _draw_into) */
+typedef struct {
+    void *state;
+    uint64_t (*next_uint64)(void *st);
+    uint32_t (*next_uint32)(void *st);
+    double (*next_double)(void *st);
+    uint64_t (*next_raw)(void *st);
+} kg_bitgen;
+
+/* A uniform integer of [0, n), n >= 1: Lemire's multiply-and-reject on 64-bit raw draws
+ * (robust.py _bounded) */
+/* numpy's random_bounded_uint64(bitgen, 0, rng, 0, 0) for rng < 2^32 (numpy/random/src/
+ * distributions/distributions.c): 0 without a draw when rng is 0, else Lemire's
+ * multiply-and-reject on 32-bit words (buffered_bounded_lemire_uint32) */
+static uint64_t kg_bounded(kg_bitgen *bg, uint64_t rng)
+{
+    if (rng == 0) return 0;
+    if (rng == 0xFFFFFFFFu) return bg->next_uint32(bg->state);
+    const uint32_t excl = (uint32_t)rng + 1u;
+    uint64_t m = (uint64_t)bg->next_uint32(bg->state) * excl;
+    uint32_t left = (uint32_t)m;
+    if (left < excl) {
+        const uint32_t floor = (UINT32_MAX - (uint32_t)rng) % excl;
+        while (left < floor) {
+            m = (uint64_t)bg->next_uint32(bg->state) * excl;
+            left = (uint32_t)m;
+        }
+    }
+    return m >> 32;
+}
+
+/* numpy's Generator.choice(size, k, replace=False) (numpy/random/_generator.pyx): Floyd's
+ * algorithm, then a Fisher-Yates shuffle of the k drawn — the same draws, so a search gives
+ * the same samples whichever of the Python and the C draws them. Not numpy's tail shuffle
+ * (size > 10000 and k > size / 50: the Python checks) nor sizes of 2^32 or more.
+ * Checked against numpy at load (runtime/fastsample.py: choice_matches). */
+static void kg_choice(kg_bitgen *bg, long size, long k, int64_t *idx)
+{
+    for (long j = size - k; j < size; ++j) {
+        const int64_t val = (int64_t)kg_bounded(bg, (uint64_t)j);
+        const long t = j - size + k;
+        int seen = 0;
+        for (long u = 0; u < t && !seen; ++u) seen = idx[u] == val;
+        idx[t] = seen ? j : val;
+    }
+    for (long i = k - 1; i >= 1; --i) {
+        const long j = (long)kg_bounded(bg, (uint64_t)i);
+        const int64_t t = idx[j];
+        idx[j] = idx[i];
+        idx[i] = t;
+    }
+}
+
+/* One draw of kg_choice, for the check against numpy's (fastsample.py) */
+void kg_choice_draw(void *bitgen, long size, long k, int64_t *idx)
+{
+    kg_choice(bitgen, size, k, idx);
+}
+
+/* k of the size measures of from, without replacement (Generator.choice(from, k,
+ * replace=False)), into rows */
+static void kg_draw(kg_bitgen *bg, const int64_t *from, long size, long k, double *rows)
+{
+    int64_t idx[k > 0 ? k : 1];
+    kg_choice(bg, size, k, idx);
+    for (long i = 0; i < k; ++i) rows[i] = (double)from[idx[i]];
+}
+
+/* Samples of a search in one call (ModelSearch.step with a limit, the relevance scorer):
+ * each draws its rows (kg_draw: the pool's, then the base's, as ModelSearch._one draws
+ * them), runs kg_sample_core and
+ * scores its solutions, until one beats the best relevance, or the C leaves a sample to
+ * the Python, or limit samples. in, sin: kg_sample's (sin's rows are the drawn ones). pool,
+ * base: the measures drawn from (sizes and counts in iin); bitgen: numpy's bitgen_t.
+ * iin: limit, pool size, pool draws, base size, base draws. out: samples done (scored),
+ * those without a solution, the outcome (0: limit, 1: the last beat the best, 2: the last
+ * is left to the Python, its rows in sin), the best relevance, its q (n) and errors.
+ * work: kg_sample's out. Returns 0, 1 on bad input. */
+int kg_search(const double *in, double *sin, const int64_t *pool, const int64_t *base,
+              void *bitgen,
+              const int64_t *iin, double *out, double *work)
+{
+    kg_problem pb;
+    kg_channel channels[KG_NCH > 0 ? KG_NCH : 1];
+    int iterations;
+    double tol, scores[KG_TWIN_MAX];
+    const long at = kg_sample_read(in, &pb, channels, &iterations, &tol);
+    if (at < 0) return 1;
+    kg_bitgen *bg = bitgen;
+    const int nch = pb.nch;
+    const long limit = (long)iin[0], npool = (long)iin[1], kpool = (long)iin[2],
+               nbase = (long)iin[3], kbase = (long)iin[4];
+    if (kpool > npool || kbase > nbase || kpool + kbase != (long)sin[1]) return 1;
+    double *rows = sin + at;
+    long total = 0;
+    for (int u = 0; u < nch; ++u) total += channels[u].M;
+    const long width = 1 + KG_N + total;
+    double best = sin[9];
+    long done = 0, degenerate = 0;
+    int outcome = 0;
+    while (done < limit) {
+        kg_draw(bg, pool, npool, kpool, rows);
+        kg_draw(bg, base, nbase, kbase, rows + kpool);
+        sin[9] = best;
+        if (kg_sample_core(&pb, iterations, tol, sin, rows, work, scores) != 0) {
+            outcome = 2;
+            break;
+        }
+        ++done;
+        const int count = (int)work[0];
+        degenerate += count == 0;
+        for (int j = 0; j < count; ++j) {
+            const double *block = work + 1 + j * width;
+            if (block[0] != 0.0 && scores[j] > best) {
+                best = scores[j];
+                memcpy(out + 4, block + 1, sizeof(double) * (width - 1));
+                outcome = 1;
+            }
+        }
+        if (outcome) break;
+    }
+    out[0] = (double)done;
+    out[1] = (double)degenerate;
+    out[2] = outcome;
+    out[3] = best;
     return 0;
 }
