@@ -447,8 +447,7 @@ class Estimator:
                                  self.scale, self.scorer, pool=pool, parent_free=parent_free,
                                  base=base, initializer=self.initializers.get(model),
                                  local=self.local if pool is None else 0.0,
-                                 max_threshold=self.max_threshold, ranks=ranks,
-                                 free=self._free(model))
+                                 max_threshold=self.max_threshold, ranks=ranks)
             if search.exhausted:
                 self._skipped[model] = parent
                 self._queue_alternatives(model)
@@ -499,8 +498,8 @@ class Estimator:
         sample of it may well not be drawn, and the parent's estimate is the child's best
         start. Along edges of the same equations per measure only: across them the
         parent's inliers are a singular configuration of the child."""
-        state = self._states.get(parent) if parent else None
-        if state is None or not state.samples or search.base is None or \
+        state = self._searched(parent)
+        if state is None or search.base is None or \
                 self._across(parent, search.ranks[search.channel]):
             return
         floor = state.relevance / lattice.SUPPORT
@@ -511,8 +510,8 @@ class Estimator:
     def _hopeless(self, parent: str | None, search: ModelSearch) -> bool:
         """Can the model searched not replace its parent, by a wide margin
         (:func:`~kanagen.runtime.lattice.hopeless`)? Then its final refinement is brief."""
-        state = self._states.get(parent) if parent else None
-        if state is None or not state.samples or search.best_errors is None:
+        state = self._searched(parent)
+        if state is None or search.best_errors is None:
             return False
         inliers = sum(r.size for r in search.split(search.best_errors, self.window)[1])
         return lattice.hopeless(state, search.best_score, inliers,
@@ -522,11 +521,15 @@ class Estimator:
         """The inliers the model searched must reach to replace its parent when only their
         number decides (across a change of equations per measure,
         :func:`~kanagen.runtime.lattice.explains_more`), else None."""
-        state = self._states.get(parent) if parent else None
-        if state is None or not state.samples or \
-                not self._across(parent, search.ranks[search.channel]):
+        state = self._searched(parent)
+        if state is None or not self._across(parent, search.ranks[search.channel]):
             return None
         return lattice.MORE_SUPPORT * state.inliers.size
+
+    def _searched(self, parent: str | None) -> ModelState | None:
+        """The state of ``parent`` when it was searched (drew samples), else None."""
+        state = self._states.get(parent) if parent else None
+        return state if state is not None and state.samples else None
 
     def _across(self, parent: str, rank: int) -> bool:
         """Does the edge from ``parent`` to a model of ``rank`` equations per measure (on the

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import ctypes
 import inspect
+import weakref
 
 import numpy as np
 
@@ -89,13 +90,13 @@ class Sampler:
             if not block[0]:
                 out.append((block[1:1 + self.n], None))
                 continue
-            errors, at = [], 1 + self.n
-            for M in self.sizes:
-                errors.append(block[at:at + M])
-                at += M
-            out.append((block[1:1 + self.n], tuple(errors)))
+            out.append((block[1:1 + self.n], self._per_channel(block, 1 + self.n)))
         return out
 
+    def _per_channel(self, block: np.ndarray, at: int) -> tuple[np.ndarray, ...]:
+        """The errors of every measure in ``block`` from ``at``, split per channel."""
+        ends = np.cumsum([at, *self.sizes])
+        return tuple(block[a:b] for a, b in zip(ends[:-1], ends[1:], strict=True))
 
     def burst(self, limit: int, best: float, pool: np.ndarray, kpool: int, base: np.ndarray,
               kbase: int, rng: np.random.Generator):
@@ -118,11 +119,8 @@ class Sampler:
         done, degenerate, outcome = int(out[0]), int(out[1]), int(out[2])
         found = rows = None
         if outcome == 1:
-            q, errors, at = out[4:4 + self.n].copy(), [], 4 + self.n
-            for M in self.sizes:
-                errors.append(out[at:at + M].copy())
-                at += M
-            found = (q, float(out[3]), tuple(errors))
+            block = out.copy()
+            found = (block[4:4 + self.n], float(out[3]), self._per_channel(block, 4 + self.n))
         elif outcome == 2:
             rows = self.sin[self.rows_at:].astype(int)
         return done, degenerate, outcome, found, rows
@@ -131,7 +129,7 @@ class Sampler:
 #: Generator.choice(replace=False) switches to a tail shuffle, which kg_choice does not
 #: replicate, above this population when more than 1/_TAIL of it is drawn
 _FLOYD_MAX, _TAIL = 10_000, 50
-_MATCHES: dict[int, bool] = {}  # draws_as_numpy's check, per library
+_MATCHES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # draws_as_numpy's check
 
 
 def draws_as_numpy(fast, draws) -> bool:
@@ -143,10 +141,9 @@ def draws_as_numpy(fast, draws) -> bool:
     samples, one call per sample)."""
     if any(n > _FLOYD_MAX and k > n // _TAIL for n, k in draws):
         return False
-    key = id(fast)
-    if key not in _MATCHES:
-        _MATCHES[key] = _check_choice(fast)
-    return _MATCHES[key]
+    if fast not in _MATCHES:
+        _MATCHES[fast] = _check_choice(fast)
+    return _MATCHES[fast]
 
 
 def _check_choice(fast) -> bool:

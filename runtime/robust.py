@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .coherence import coherence_errors, free_dof, manifold_ranks, solve_minimal
+from .coherence import coherence_errors, manifold_ranks, solve_minimal
 from .family import ModelFamily
 from .fastsample import draws_as_numpy, sampler_for
 from .fit import fit_problem, make_problem
@@ -177,9 +177,6 @@ class ModelSearch:
     ranks : tuple of int, optional
         Equations per measure of each channel at ``start``
         (:func:`~kanagen.runtime.coherence.manifold_ranks`, computed when not given).
-    free : int, optional
-        The model's free degrees of freedom (:func:`~kanagen.runtime.coherence.free_dof`,
-        computed when not given).
 
     A sample whose independent equations outnumber the free degrees of freedom (a zoom from
     one match: two equations, one unknown; the null model: none) cannot be passed through
@@ -192,7 +189,7 @@ class ModelSearch:
                  sample_size: int | None = None, parent_free: int | None = None,
                  base: np.ndarray | None = None, initializer: InitializerFn | None = None,
                  local: float = 0.0, max_threshold: float | None = None,
-                 ranks: tuple[int, ...] | None = None, free: int | None = None):
+                 ranks: tuple[int, ...] | None = None):
         if not 0.0 <= local <= 1.0:
             raise ValueError(f"local must be a fraction in [0, 1], got {local}")
         self.max_threshold = max_threshold
@@ -201,7 +198,6 @@ class ModelSearch:
         self.problem = problem
         self.channel = channel
         self.start = fam.with_slacks(np.asarray(start, dtype=float), problem.k, model)
-        self._free = free  # free_dof() at the start (the caller's when it has it)
         self.rng = rng
         self.scale = float(scale)
         self.score_fn = get_scorer(scorer)
@@ -241,14 +237,10 @@ class ModelSearch:
         self._needed: tuple = (None, None, None)  # samples_needed of the best estimate
         self.history: list[tuple[int, float]] = []
 
-    def free_dof(self, q: np.ndarray | None = None) -> int:
-        """``n − p``: the parameter's degrees of freedom left free by the constraints (at
-        ``q``, default the start: computed once)."""
-        if q is None:
-            if self._free is None:
-                self._free = self.free_dof(self.start)
-            return self._free
-        return free_dof(lambda x: self.problem.c0(x, self.problem.k)[1], q)
+    def free_dof(self) -> int:
+        """``n − p``: the parameter's degrees of freedom left free by the model's constraints
+        (:meth:`~kanagen.runtime.family.ModelFamily.free_dof`, once per model)."""
+        return self.fam.free_dof(self.model, self.problem.k)
 
     def _equations_per_measure(self) -> int:
         """Independent equations of one measure (on its equations' zero set)."""
