@@ -1,10 +1,11 @@
-"""The compiled fast path of the local estimator: ctypes glue to ``kg_fit`` (docs/fastpath.md).
+"""The compiled fast path of the robust search: ctypes glue to ``kg_coherence``,
+``kg_minimal`` and the sampling calls (docs/fastpath.md).
 
-``codegen/c/kanagen_fast.c`` is a mechanical port of the NumPy runtime's fit (the iteration,
-the projector, the square roots, the outputs), compiled with a family's CasADi C into the
-library of ``kanagen.load(..., backend="compiled")``. :class:`FastPath` packs a problem into
-three flat arrays, calls ``kg_fit`` and unpacks a :class:`FitResult` — the one
-:func:`~kanagen.runtime.fit.fit_problem` would return, to rounding level.
+``codegen/c/kanagen_fast.c`` is a mechanical port of the NumPy runtime's measure projection
+(eq. 22–24), square roots and minimal solve (eq. 21), compiled with a family's CasADi C into
+the library of ``kanagen.load(..., backend="compiled")``. :class:`FastPath` packs a problem
+into flat arrays and calls them. (The local fit runs the NumPy iteration: its verified
+trust region has no port.)
 
 The port mirrors the Python functions listed in :data:`PORTED`; their syntax trees
 (docstrings and comments excluded) are fingerprinted in :data:`FINGERPRINTS`. When one of
@@ -20,7 +21,6 @@ import ctypes
 import hashlib
 import importlib
 import inspect
-import math
 import textwrap
 import threading
 import warnings
@@ -30,30 +30,17 @@ from types import ModuleType
 
 import numpy as np
 
-from .compiled_result import SCALARS, CompiledFitResult
-from .inputs import inverse_root
-from .results import FitResult
-
 #: Python functions (and module constants) that codegen/c/kanagen_fast.c ports, by module.
 PORTED: dict[str, tuple[str, ...]] = {
-    "iterate": ("_iterate", "_line_search", "_acceptable", "_restored", "_negligible",
-                "_step_sizes", "_diverging", "iterate", "_trust_region_step", "_damping_for",
-                "_lowers_violation",
-                "_TrustRegion.__init__", "_SHRINK", "_GROW", "_MAX_HALVINGS", "_RESTORATION",
-                "_STAGNATION", "_MU_MIN", "_MU_MAX", "_HALVINGS_PER_DAMPING", "CONVERGED"),
-    "projector": ("evaluate", "point", "project_measures", "_halving", "restore_parameter",
-                  "linearise", "solve", "_seen", "_solve_seen", "project",
-                  "_equilibrium_weights", "_augmentation", "quadratic", "_ROUNDING",
-                  "Point.finite"),
+    # kg_coherence: the measures projected onto their equations (eq. 22–24)
+    "projector": ("project_measures", "_halving", "quadratic", "_ROUNDING"),
     "sqrt": ("closest_sqrt", "reduced_sqrt", "reduced_solve", "triangular_solve",
              "_equilibrium", "_closest_single", "_reduced_single", "_scale", "EPS", "_TINY",
              "REDUNDANT"),
     "kernels": ("whiten", "correct"),
-    "fit": ("fit_problem", "_feasible", "derived_values"),
+    # kg_minimal: eq. 21
     "coherence": ("coherence_errors", "solve_minimal", "_solved", "_FREE_STEPS", "_WATCHDOG",
                   "_SLOW"),
-    "results": ("constrained_covariance", "propagate"),
-    "family": ("ModelFamily.relations_hold",),
     "inputs": ("inverse_root", "ChannelData.scale", "ChannelData.with_corrected"),
     # codegen/c/kanagen_geometry.c: the closed-form initialisers (FastPath.initializer)
     "initializers": ("two_view_fundamental", "two_view_homography", "_rays", "_pose_params",
@@ -69,42 +56,10 @@ PORTED: dict[str, tuple[str, ...]] = {
 
 #: Fingerprints of :data:`PORTED` when the C port was last brought in line with them.
 FINGERPRINTS: dict[str, str] = {
-    'iterate._iterate': '5d15471d31b2',
-    'iterate._line_search': 'd6e9d502152e',
-    'iterate._acceptable': '4e6d29053e7c',
-    'iterate._restored': 'f209b2d5d42e',
-    'iterate._negligible': 'c7e796ee9baa',
-    'iterate._step_sizes': 'ec374cb32cdc',
-    'iterate._diverging': '0c3d2af38f92',
-    'iterate.iterate': '3069efbd2551',
-    'iterate._trust_region_step': 'cbf9a358ceec',
-    'iterate._damping_for': '089e5a7f5fb6',
-    'iterate._lowers_violation': '0d36ac42793d',
-    'iterate._TrustRegion.__init__': 'df8b0da6b9ff',
-    'iterate._SHRINK': '7bffdad8d0c1',
-    'iterate._GROW': '7bffdad8d0c1',
-    'iterate._MAX_HALVINGS': '421b988477a7',
-    'iterate._RESTORATION': 'af8e123bf441',
-    'iterate._STAGNATION': 'b9f041cad9fa',
-    'iterate._MU_MIN': '2b8e962b2b89',
-    'iterate._MU_MAX': '2b8e962b2b89',
-    'iterate._HALVINGS_PER_DAMPING': 'c8803575fa1a',
-    'iterate.CONVERGED': '60135b263528',
-    'projector.evaluate': 'b28081ad3158',
-    'projector.point': '7f8da2f44ac3',
     'projector.project_measures': 'c3d1d84ea5b4',
     'projector._halving': '788448d7ecbd',
-    'projector.restore_parameter': '0da8b4072804',
-    'projector.linearise': 'e91a1b985976',
-    'projector.solve': '91fa8f0821d9',
-    'projector._seen': 'c3bf240b45af',
-    'projector._solve_seen': '0ff1f7352cee',
-    'projector.project': '270ceff578d0',
-    'projector._equilibrium_weights': '2c104d65c08b',
-    'projector._augmentation': '5b7bc91fe778',
     'projector.quadratic': 'ad2172806540',
     'projector._ROUNDING': 'b19a1c4efef9',
-    'projector.Point.finite': 'edcf0b33db9c',
     'sqrt.closest_sqrt': 'b4340982303f',
     'sqrt.reduced_sqrt': '81d2a95ecf3e',
     'sqrt.reduced_solve': 'caecf64cc8c0',
@@ -118,18 +73,12 @@ FINGERPRINTS: dict[str, str] = {
     'sqrt.REDUNDANT': 'a11958cb4ea6',
     'kernels.whiten': 'ffc3e108b3d4',
     'kernels.correct': '0e183f7e3c8f',
-    'fit.fit_problem': 'c5c6f2812de1',
-    'fit._feasible': 'fc2209c8e66b',
-    'fit.derived_values': '9af6131bb8bb',
     'coherence.coherence_errors': 'b6d9e82e820b',
     'coherence.solve_minimal': 'e3604813df72',
     'coherence._solved': 'ac88707f4a75',
     'coherence._FREE_STEPS': '3e5ab2fb8dd8',
     'coherence._WATCHDOG': '533d3f19a9e0',
     'coherence._SLOW': '148df96ae1c0',
-    'results.constrained_covariance': '5d13ed3460e0',
-    'results.propagate': '34f15a8c16a7',
-    'family.ModelFamily.relations_hold': 'bf07113312e4',
     'inputs.inverse_root': '051a001e58d2',
     'inputs.ChannelData.scale': 'eb3f459fe079',
     'inputs.ChannelData.with_corrected': 'f34815e6e497',
@@ -224,7 +173,7 @@ def changed() -> list[str]:
     when their source cannot be read, e.g. an installation without .py files)."""
     try:
         now = fingerprints()
-    except (OSError, TypeError):
+    except (OSError, TypeError, AttributeError, StopIteration):
         return ["<the runtime's source is not available>"]
     return sorted(k for k in now.keys() | FINGERPRINTS.keys()
                   if now.get(k) != FINGERPRINTS.get(k))
@@ -246,9 +195,6 @@ class FastPath:
         self._root = lib.kg_closest_root
         self._root.argtypes = [ctypes.c_long, ctypes.c_void_p, ctypes.c_double, ctypes.c_void_p]
         self._root.restype = ctypes.c_int
-        self._fit = lib.kg_fit
-        self._fit.argtypes = [ctypes.c_void_p] * 2
-        self._fit.restype = ctypes.c_int
         self._coherence = lib.kg_coherence
         self._coherence.argtypes = [ctypes.c_void_p] * 2
         self._coherence.restype = ctypes.c_int
@@ -280,33 +226,11 @@ class FastPath:
                    [ch["components"].index(c) for c in ch["corrected"]])
             for i, (name, ch) in enumerate(meta["channels"].items())}
         self.model_ids = {name: i for i, name in enumerate(meta["models"])}
-        self._strict: dict[str, tuple] = {}  # per model: ModelFamily.strict_slacks
-        n = self.n
-        #: per derived quantity: name, and where its value, covariance and Jacobian are in
-        #: the output, with their shapes
-        self.derived, at = [], SCALARS + n + 2 * n * n
-        for name, shape in meta["derived"].items():
-            shape, s = tuple(shape), math.prod(shape)
-            self.derived.append((name, slice(at, at + s), shape,
-                                 slice(at + s + s * n, at + s + s * n + s * s), (s, s),
-                                 slice(at + s, at + s + s * n), shape + (n,)))
-            at += s + s * n + s * s
-        self.derived_size = at - (SCALARS + n + 2 * n * n)
-        self.fixed_out = at  # the output before the channels
-        #: per model: the derived quantities it reports (derived_values(model))
-        every = list(meta["derived"])
-        self.reports = {name: [d for d in self.derived
-                               if d[0] in m.get("derived", every)]
-                        for name, m in meta["models"].items()}
-        self._identity: dict = {}
-        self._default_k = np.array([v for _, v in meta["constants"]], dtype=float)
-        self._zeros = np.zeros((self.n, self.n))
         self._local = threading.local()  # per thread: reused argument buffers
-        self._plans: dict = {}  # kg_fit's input per shape of fit's simple inputs (_plan)
         sizes = (ctypes.c_longlong * 6)()
         lib.kg_sizes(sizes)
         expected = [self.n, len(meta["constants"]), len(meta["channels"]), len(meta["models"]),
-                    len(self.derived), len(meta.get("slack", ()))]
+                    len(meta["derived"]), len(meta.get("slack", ()))]
         if lib.kg_sample_twins() != len(TWINS):  # kg_sample calls the twins by number
             raise RuntimeError(f"compiled library {library} has {lib.kg_sample_twins()} "
                                f"closed forms in kg_sample, TWINS names {len(TWINS)}")
@@ -325,107 +249,6 @@ class FastPath:
                           "iteration (see docs/fastpath.md)", FastPathWarning, stacklevel=3)
             return None
         return cls(library, module)
-
-    # -- entry points -------------------------------------------------------------------
-    def fit(self, fam, model: str, data, info, q0, Q0, constants, q_start, max_iter: int,
-            xtol: float, eps: float) -> FitResult | None:
-        """:func:`kanagen.fit` on simple inputs (float64 data arrays, scalar or no info, no
-        Q0, no reduction); None when the inputs are not that simple or not finite: the
-        caller then validates them and runs the general path."""
-        if Q0 is not None or model not in self.model_ids or type(data) is not dict \
-                or not data or fam.reduction(model) is not None:
-            return None
-        if info is not None and (type(info) is not dict or not info.keys() <= data.keys()):
-            return None
-        shape = [model, max_iter, eps, xtol]  # what the plan of kg_fit's input depends on
-        for name, X in data.items():
-            ch = self.channels.get(name)
-            if ch is None or type(X) is not np.ndarray or X.ndim != 2 or X.shape[1] != ch[1] \
-                    or X.dtype.char != "d":
-                return None
-            value = None if info is None else info.get(name)
-            if value is not None and (type(value) not in (float, int)
-                                      or not 0 < value < math.inf):
-                return None
-            shape += (name, X.shape[0], value)
-        if q0 is None:
-            q0 = fam._q0
-        elif not (type(q0) is np.ndarray and q0.shape == (self.n,) and q0.dtype.char == "d"):
-            return None
-        start = q0
-        if q_start is not None:
-            if not (type(q_start) is np.ndarray and q_start.shape == (self.n,)
-                    and q_start.dtype.char == "d"):
-                return None
-            start = q_start
-        if constants is not None:  # the general packing, with these constants
-            k = fam.constant_vector(constants)
-            channels = [(name, X, *self._scalar_information(
-                self.channels[name][2], None if info is None else info.get(name)))
-                for name, X in data.items()]
-            if self.slack:
-                start = fam.with_slacks(start, k, model)
-                if not fam.relations_hold(model, start, k):
-                    return None  # fit_problem moves the start inside first (fit._inside)
-            return self._run(model, channels, start, q0, self._zeros, k, eps, max_iter, xtol,
-                             self._strict_slacks(fam, model))
-        if self.slack:
-            start = fam.with_slacks(start, self._default_k, model)
-            if not fam.relations_hold(model, start, self._default_k):
-                return None  # fit_problem moves the start inside first (fit._inside)
-        shape = tuple(shape)
-        plan = self._plans.get(shape)
-        if plan is None:
-            plan = self._plan(fam, model, data, info, max_iter, xtol, eps, shape)
-        template, size_out, at_start, at_q0, at_X, QG = plan
-        ws = self._buffers(template.size, size_out)
-        inp = ws[0]
-        if ws[4] is not plan:  # the header, constants and weights of this plan
-            ws[4] = None
-            inp[:template.size] = template
-            ws[4] = plan
-        n = self.n
-        inp[at_start:at_start + n] = start
-        inp[at_q0:at_q0 + n] = q0
-        channels = []
-        for (name, X), at, (Q, G) in zip(data.items(), at_X, QG, strict=True):
-            inp[at:at + X.size] = X.ravel()
-            channels.append((name, X, Q, G))
-        if self._fit(ws[2], ws[3]) != 0:
-            return None
-        return CompiledFitResult.unpack(self, model, channels, ws[1][:size_out].copy())
-
-    def _strict_slacks(self, fam, model: str) -> tuple:
-        strict = self._strict.get(model)
-        if strict is None:
-            strict = self._strict[model] = fam.strict_slacks(model) if self.slack else ()
-        return strict
-
-    def _plan(self, fam, model, data, info, max_iter, xtol, eps, shape):
-        """kg_fit's input for :meth:`fit` on inputs of this ``shape`` (model, options,
-        channels with their sizes and scalar weights): an array with everything but the
-        start, q0 and the measures filled in, where those go, and each channel's Q and G."""
-        k = self._default_k
-        QG = [self._scalar_information(self.channels[name][2],
-                                       None if info is None else info.get(name))
-              for name in data]
-        channels = [(name, X, *qg) for (name, X), qg in zip(data.items(), QG, strict=True)]
-        size_in, size_out, head, where = self._layout(
-            model, channels, k, eps, max_iter, xtol, self._strict_slacks(fam, model), False)
-        template = np.zeros(size_in)
-        self._pack(template, head, where, channels, k)
-        plan = (template, size_out, where[0], where[1], [w[0] for w in where[4:]], QG)
-        if len(self._plans) > 256:
-            self._plans.clear()
-        self._plans[shape] = plan
-        return plan
-    def fit_problem(self, fam, model: str, problem, start, max_iter: int,
-                    xtol: float) -> FitResult | None:
-        """``fit_problem`` on a validated problem (start with its slacks completed)."""
-        channels = [(ch.name, ch.X, ch.Q, ch.G) for ch in problem.channels]
-        return self._run(model, channels, np.asarray(start, dtype=float), problem.q0,
-                         problem.Q0, problem.k, problem.eps, max_iter, xtol,
-                         problem.strict_slacks)
 
     def coherence(self, model: str, problem, q: np.ndarray, iterations: int, tol: float):
         """``kg_coherence``: per channel of the validated ``problem``, the measures projected
@@ -465,8 +288,8 @@ class FastPath:
         and where each input went (:meth:`_layout`)."""
         channels = [(ch.name, ch.X, ch.Q, ch.G) for ch in problem.channels]
         q = np.asarray(q, dtype=float)
-        size_in, _, head, where = self._layout(model, channels, problem.k, eps, iterations,
-                                               tol, (), False)
+        size_in, head, where = self._layout(model, channels, problem.k, eps, iterations, tol,
+                                            (), False)
         if own:
             inp, out = np.empty(size_in), np.empty(size_out)
             ws = [inp, out, ctypes.c_void_p(inp.ctypes.data),
@@ -546,21 +369,6 @@ class FastPath:
         return L
 
     # -- packing --------------------------------------------------------------------------
-    def _scalar_information(self, k: int, value):
-        """``(Q, G)`` for no info (identity) or a positive finite scalar, else None."""
-        if value is None:
-            value = 1.0
-        elif type(value) not in (float, int) or not 0 < value < math.inf:
-            return None
-        key = (k, float(value))
-        QG = self._identity.get(key)
-        if QG is None:
-            Q = float(value) * np.eye(k)
-            QG = self._identity[key] = (Q, inverse_root(Q))
-            if len(self._identity) > 64:
-                self._identity.pop(next(iter(self._identity)))
-        return QG
-
     def _buffers(self, size_in: int, size_out: int):
         """This thread's argument buffers (grown when too small), their addresses, and what
         the input buffer holds (:meth:`_run`)."""
@@ -573,17 +381,13 @@ class FastPath:
         return ws
 
     def _layout(self, model, channels, k, eps, max_iter, xtol, strict, prior):
-        """Where each input goes in kg_fit's input array: (size_in, size_out, head, the
-        offsets of start, q0, Q0, k, and per channel of X, Q, G)."""
+        """Where each input goes in the C's input array: (size_in, head, the offsets of
+        start, q0, Q0, k, and per channel of X, Q, G)."""
         n = self.n
         head = [self.model_ids[model], len(channels), max_iter, 1 if self.slack else 0, eps,
                 xtol, len(strict), prior]
-        size_out = self.fixed_out
         for name, X, Q, _ in channels:
-            M = X.shape[0]
-            ch = self.channels[name]
-            head += (ch[0], M, Q.ndim == 3)
-            size_out += M * (ch[2] + 1)
+            head += (self.channels[name][0], X.shape[0], Q.ndim == 3)
         for pair in strict:
             head += pair
         at = len(head)
@@ -594,7 +398,7 @@ class FastPath:
         for _, X, Q, G in channels:
             where.append((at, at + X.size, at + X.size + Q.size))
             at += X.size + Q.size + G.size
-        return at, size_out, np.array(head, dtype=float), where
+        return at, np.array(head, dtype=float), where
 
     @staticmethod
     def _pack(inp, head, where, channels, k):
@@ -604,27 +408,6 @@ class FastPath:
         for (_, _, Q, G), (_, q_at, g_at) in zip(channels, where[4:], strict=True):
             inp[q_at:q_at + Q.size] = Q.ravel()
             inp[g_at:g_at + G.size] = G.ravel()
-
-    def _run(self, model, channels, start, q0, Q0, k, eps, max_iter, xtol, strict=()):
-        """Pack every input into this thread's buffer, call kg_fit, unpack its output."""
-        n = self.n
-        prior = Q0 is not self._zeros  # no prior: Q0 = 0 is not copied
-        size_in, size_out, head, where = self._layout(model, channels, k, eps, max_iter,
-                                                      xtol, strict, prior)
-        ws = self._buffers(size_in, size_out)
-        ws[4] = None  # no plan's template any more
-        inp = ws[0]
-        self._pack(inp, head, where, channels, k)
-        inp[where[0]:where[0] + n] = start
-        inp[where[1]:where[1] + n] = q0
-        if prior:
-            inp[where[2]:where[2] + n * n] = Q0.ravel()
-        for (_, X, _, _), (x_at, _, _) in zip(channels, where[4:], strict=True):
-            inp[x_at:x_at + X.size] = X.ravel()
-        if self._fit(ws[2], ws[3]) != 0:
-            return None
-        return CompiledFitResult.unpack(self, model, channels, ws[1][:size_out].copy())
-
 
 def main() -> None:
     """Print :data:`FINGERPRINTS` as they should read now (after porting a change)."""

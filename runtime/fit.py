@@ -9,7 +9,7 @@ import numpy as np
 
 from .family import ModelFamily
 from .inputs import channel_data, parameter_vector, prior_information
-from .iterate import CONVERGED, FAILED, STALLED, iterate
+from .iterate import CONVERGED, iterate
 from .projector import Problem, evaluate, project
 from .reduce import reduced_problem
 from .results import DerivedValue, FitResult, constrained_covariance, propagate
@@ -47,6 +47,7 @@ def problem_of(fam: ModelFamily, model: str, channels: tuple, q0=None, Q0=None,
         relations=(lambda q: fam.relations_hold(model, q, k)) if fam.slack_names else None,
         strict_slacks=fam.strict_slacks(model),
         compiled=None if fam.fastpath is None else (fam.fastpath, model),
+        names=fam.parameter_names,
     )
 
 
@@ -96,11 +97,6 @@ def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
     ... # doctest: +SKIP
     """
     model = model or fam.null_model
-    if fam.fastpath is not None:  # the compiled estimator, on simple inputs
-        res = fam.fastpath.fit(fam, model, data, info, q0, Q0, constants, q_start, max_iter,
-                               xtol, eps)
-        if res is not None:
-            return res
     problem = make_problem(fam, model, data or {}, info, q0, Q0, constants, eps)
     start = problem.q0 if q_start is None else parameter_vector(fam, q_start, "q_start")
     return fit_problem(fam, model, problem, q_start=start, max_iter=max_iter, xtol=xtol)
@@ -116,10 +112,6 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
     start = fam.with_slacks(start, problem.k, model)  # its slacks consistent with the start
     start = _inside(problem, start)
     red = fam.reduction(model)
-    if red is None and fam.fastpath is not None:  # the compiled estimator (same results)
-        res = fam.fastpath.fit_problem(fam, model, problem, start, max_iter, xtol)
-        if res is not None:
-            return res
     if red is None:
         out = iterate(problem, start, max_iter=max_iter, xtol=xtol)
         x, lin, proj = out.point, out.lin, out.proj
@@ -145,8 +137,7 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
         ranks = tuple(np.zeros(ch.size, dtype=int) for ch in problem.channels)
         covariance = np.full((n, n), np.nan)
     dof = n - rank0 + int(sum(int(r.sum()) for r in ranks))
-    success = out.status in (CONVERGED, STALLED) and _feasible(x, out.start_violation,
-                                                                residual, ranks)
+    success = out.status == CONVERGED and _feasible(x, out.start_violation, residual, ranks)
     measures = {ch.name: ch.with_corrected(m) for ch, m in zip(problem.channels, x.mt,
                                                                  strict=True)}
     return FitResult(
@@ -161,7 +152,7 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
         residual=residual,
         constraint_violation=x.delta,
         iterations=out.iterations,
-        success=bool(success and out.status != FAILED),
+        success=bool(success),
         status=out.status,
         message=out.message,
         ranks={ch.name: r for ch, r in zip(problem.channels, ranks, strict=True)},

@@ -1,55 +1,56 @@
-"""The non-linear iteration of the report (eq. 18), with restoration, damping and a filter.
+"""The non-linear iteration of the report (eq. 18), globalised by a trust region on restored
+points, its end verified (SPEC §2: a success is a local minimum).
 
-Report rule: with ``δ_n = ‖c(x_n)‖∞``, step ``x_{n+1} = P(x_n)`` while ``δ`` does not grow
-(by more than ``ε``), else halve back towards the previous point.
+Report rule: step ``x_{n+1} = P(x_n)`` while the violation ``δ = ‖c(x)‖∞`` does not grow,
+else halve back. On errors-in-variables problems that rule cannot tell a good step from a
+bad one — corrected measures can always be made to satisfy their equations — so here:
 
-Restoration (ours): every trial point (and the start) has its measures projected back onto
-their equations for its ``q`` (the report's eq. 22 projection, a few vectorised steps), so
-points are compared at their true cost and δ measures what the measures cannot absorb.
+Restored points (ours). Every point the iteration compares has its parameter moved back
+onto ``c0(q) = 0`` (a few Gauss–Newton steps in the metric of the information, a
+retraction) and its measures projected onto their equations for that ``q`` (report eq. 22,
+iterated to convergence). The cost at such a point is the profile ``F(q) = min L²`` over the
+corrected measures, a function of ``q`` alone, and the projector's right-hand side is its
+exact gradient (eq. 44's multipliers): ``P`` is a Gauss–Newton step on ``F``.
 
-Trust region (ours): without parameter constraints eq. 18 has only the cost to watch (a
-Gauss–Newton iteration on the measures' distances); it is globalised by a trust region on
-``‖Δq‖`` (:class:`_TrustRegion`), which keeps a first step from a far start from jumping to
-a plateau (NIST BoxBOD, MGH10, MGH17 from their first starts).
+Trust region (ours; Moré 1978, Nocedal & Wright §4). The projector's step is tried first
+whatever its length and taken when the cost falls as the linearisation predicts, to 5 %
+(a linear problem in one step, Newton's iterates: report §3.6); otherwise a step within a
+radius on ``‖Δq‖`` (Levenberg–Marquardt damping of the parameter block, the linearised
+equations still solved exactly) is taken when the cost falls by at least 1e-4 of the
+prediction, the radius shrinking or growing with the ratio ``ρ`` of actual to predicted
+fall. On curved constraints the prediction includes the multipliers' curvature,
+``λ0ᵀ c0(q + s)``, so ``ρ`` tends to one. The first radius is the size of the start, as in
+scipy's ``trf``. While the start is not yet on its equations (a minimal solve that failed),
+eq. 18's rule is kept: a step is taken when it lowers the violation.
 
-Globalisation (ours): with parameter constraints, when the report's step is refused and a
-few halvings (eq. 18) do not help, the parameter step is damped Levenberg–Marquardt style
-(``μ diag(H)`` added to the information, the linearised equations still solved exactly),
-``μ`` growing tenfold until a step is accepted and shrinking tenfold after. Far from the
-solution this follows the gradient of the cost instead of a Gauss–Newton step that
-overshoots.
+Inequalities (appendix F): once an iterate satisfies the model's inequality relations, a
+trial point that breaks them is refused; a strict relation whose slack diverges stops the
+iteration at the boundary (status 4).
 
-Safeguard (ours): eq. 18 watches only the constraints, so near a feasible point it can walk
-uphill in cost, and it refuses every long step there, since curvature raises δ a little. A
-trial point is accepted by a small filter over (cost, δ), see :func:`_acceptable`: it lowers
-δ (above δ's rounding level); or it raises neither the cost nor δ; or it clearly lowers the
-cost while δ stays below a hundredth of its starting value. Far from feasibility this is
-eq. 18 (a Newton-like step that lowers the violation is taken even if the cost grows); once
-feasible, the projector step is a descent direction of the cost to first order.
-
-Inequalities (ours, appendix F): once an iterate satisfies the model's inequality relations
-(``c > 0`` of an ``ellipse`` model, say), a trial point that breaks them is refused, so the
-iteration approaches the boundary instead of jumping across it.
-
-Stopping (ours): when the step stops shrinking at the rounding level while the cost stays
-put, the iteration stops as "stalled" (the precision limit) instead of wandering.
+The end (:mod:`.verify`): wherever the iteration stops, the point is checked — stationary
+(the Newton decrement of the projector's step small against the cost), no negative
+curvature of the Lagrangian on the constraints' tangent space (finite differences of the
+exact gradient), every parameter seen by the data. A saddle or a maximum (report footnote 5)
+is left along its negative-curvature direction and the iteration goes on; only a verified
+minimum is status 0.
 
 Status codes (``FitResult.status``):
-0 converged — the projector step is below the tolerance (a fixed point of ``P``);
-1 the iteration cap was reached;
-2 stalled — no fraction of the step is acceptable, only a negligible one is, or the step has
-  stopped shrinking (rounding noise): the precision limit; returns the best point (a success
-  when the equations hold there);
+0 converged — a verified local minimum;
+1 iteration cap reached before a verified minimum;
+2 stalled — no step lowers the cost while the point is not stationary;
 3 numerical failure — non-finite values at the start or in the projector;
 4 at the boundary of a strict inequality (``c > 0``, ``c != 0``: appendix F) — the
-  relation's slack diverges (``c = 1/s² → 0``, below 1e-8 of its start): the infimum lies
-  on the boundary, outside the open set the model allows, so no minimum is attained;
-  returns the first iterate that close to the boundary (not a success).
+  relation's slack diverges (``c = 1/s² → 0``, below 1e-8 of its start): no minimum inside
+  the open set the model allows; returns the first iterate that close to the boundary;
+5 saddle — negative curvature that no step along it could use;
+6 plateau — the equations no longer depend on some parameter (a flat direction: the
+  minimum is not attained, or the model is not identifiable from these measures);
+7 infeasible — the measures or the constraints could not be brought onto their equations.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -61,28 +62,36 @@ from .projector import (
     Projection,
     evaluate,
     linearise,
-    point,
-    project_measures,
+    parameter_step,
     quadratic,
     restore_parameter,
     solve,
 )
-from .sqrt import closest_sqrt
+from .restoration import restore_measures
+from .sqrt import closest_sqrt, reduced_solve, reduced_sqrt, triangular_solve
+from .verify import Verdict, cost_rounding, escape, feasible, stationary, verify
 
-CONVERGED, MAX_ITER, STALLED, FAILED, BOUNDARY = 0, 1, 2, 3, 4
+CONVERGED, MAX_ITER, STALLED, FAILED, BOUNDARY, SADDLE, PLATEAU, INFEASIBLE = range(8)
 MESSAGES = {
-    CONVERGED: "converged: the projector step is below the tolerance",
+    CONVERGED: "converged: a local minimum (stationary, no negative curvature)",
     MAX_ITER: "stopped: iteration cap reached",
-    STALLED: "stalled: no fraction of the projector step improves the constraints or the cost",
+    STALLED: "stalled away from a stationary point: no step lowers the cost",
     FAILED: "numerical failure: non-finite values",
     BOUNDARY: "at the boundary of a strict inequality: its slack diverges (no minimum inside "
               "the open set the model allows); returning the last point inside",
+    SADDLE: "saddle point: the cost falls along a direction no step could follow",
+    PLATEAU: "plateau",
+    INFEASIBLE: "infeasible: the equations could not be satisfied near this point",
 }
-_MAX_HALVINGS = 40
-_RESTORATION = 2  # one projection step restores the measures of a trial point
-_STAGNATION = 5  # iterations without a smaller projector step
-_MU_MIN, _MU_MAX = 1e-4, 1e8  # Levenberg–Marquardt damping range, relative to diag(H)
-_HALVINGS_PER_DAMPING = 4
+_RETRACTION = 64  # Gauss–Newton steps onto c0 = 0, at most (a double root: linear)
+_ACCEPT = 1e-4  # ρ above which a step within the radius is taken
+_EXACT = 0.05  # |ρ − 1| within which the projector's step is taken whatever its length
+_SHRINK, _GROW = 0.25, 0.75  # ρ below which the radius shrinks, above which it grows
+_STAGNATION = 5  # accepted steps in a row that lower the cost by rounding only
+_ESCAPES = 6  # negative-curvature escapes in one fit, at most
+_COST_NOISE = 1e-13  # the relative rounding of a cost summed over many measures
+_MAX_REFUSALS = 40  # trial points refused in one iteration, at most
+_LINE_STEPS = 3  # halvings of the projector's step before damping
 
 
 @dataclass(frozen=True)
@@ -94,21 +103,20 @@ class Outcome:
     status: int
     message: str
     start_violation: float = 0.0
+    verdict: Verdict | None = None
 
 
-def _step_sizes(problem: Problem, x: Point, proj: Projection) -> tuple[float, float]:
-    """Size of the projector step: q components relative to themselves (floored at the
-    rounding level of q), and measures in standard deviations (their information metric)."""
-    floor = max(_ROUNDING * float(np.max(np.abs(x.q), initial=0.0)), np.finfo(float).tiny)
-    size_q = float(np.max(np.abs(proj.q - x.q) / (np.abs(x.q) + floor), initial=0.0))
-    size_m = 0.0
-    for ch, m_new, m_old in zip(problem.channels, proj.mt, x.mt, strict=True):
-        if ch.size:
-            size_m = max(size_m, float(np.max(quadratic(m_new - m_old, ch.Q))))
-    return size_q, np.sqrt(size_m)
+def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
+            xtol: float = 1e-10, verify_end: bool = True) -> Outcome:
+    """Run the iteration from ``(q_start, m)``; never raises on numerical trouble.
+
+    ``verify_end=False`` skips the verification of a point where ``max_iter`` stops the
+    iteration (a refinement taken on in laps verifies its last lap only)."""
+    with np.errstate(all="ignore"):
+        return _Run(problem, max_iter, xtol, verify_end).run(q_start)
 
 
-def _negligible(problem: Problem, q_old, q_new, mt_old, mt_new, xtol: float) -> bool:
+def negligible(problem: Problem, q_old, q_new, mt_old, mt_new, xtol: float) -> bool:
     """A move is negligible when each component of q moves by less than ``xtol`` relative to
     itself, each measure by less than ``xtol`` standard deviations (its information metric) —
     or, for both, by no more than the rounding level of the values."""
@@ -124,199 +132,357 @@ def _negligible(problem: Problem, q_old, q_new, mt_old, mt_new, xtol: float) -> 
     return True
 
 
-def _diverging(problem: Problem, q_old: np.ndarray, q_new: np.ndarray,
-               start: np.ndarray) -> bool:
-    """A slack of a strict inequality diverges: it at least doubles in this step and its
-    relation ``c = 1/s²`` (``1/s`` for ``c != 0``) has fallen below 1e-8 of its starting
-    value. The parameter is then within that of the boundary of the open set the model
-    allows; letting the slack grow on would only make its equation ill-conditioned."""
-    for index, power in problem.strict_slacks:
-        s_old, s_new = abs(q_old[index]), abs(q_new[index])
-        if s_new > 2.0 * s_old and (abs(start[index]) / s_new) ** power < 1e-8:
-            return True
-    return False
+def restored(problem: Problem, q: np.ndarray, mt, root: np.ndarray | None = None,
+             iterations: int | None = None, retract: bool = True) -> tuple[Point, float]:
+    """The point with ``q`` moved back onto ``c0 = 0`` (a retraction, in the metric ``root``:
+    the information's closest square root; Euclidean when that fails) and its measures
+    projected onto their equations for that ``q`` (report eq. 22, iterated). Returns the
+    point and its violation ``E²`` in cost units: the measures' whitened violations plus
+    ``‖c0‖²`` in the metric of the step. ``retract=False``: ``q`` as it is."""
+    if retract and problem.c0(q, problem.k)[0].size:
+        best = None
+        for metric in ((root, None) if root is not None else (None,)):
+            candidate = restore_parameter(problem, q, metric, _RETRACTION)
+            worst = float(np.max(np.abs(problem.c0(candidate, problem.k)[0])))
+            if best is None or worst < best[1]:
+                best = (candidate, worst)
+            if worst <= _c0_rounding(candidate):
+                break
+        q = best[0]
+    x, violation = restore_measures(problem, q, mt) if iterations is None else \
+        restore_measures(problem, q, mt, iterations)
+    return x, violation + _c0_violation(x, root)
 
 
-def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
-            xtol: float = 1e-10) -> Outcome:
-    """Run eq. 18 from ``(q_start, m)``; never raises on numerical trouble."""
-    with np.errstate(all="ignore"):
-        return _iterate(problem, q_start, max_iter, xtol)
+def _c0_rounding(q: np.ndarray) -> float:
+    return 1e-13 * (1.0 + float(np.max(np.abs(q), initial=0.0))) ** 2
 
 
-def _acceptable(trial: Point, x: Point, eps_delta: float, delta_cap: float) -> bool:
-    """A small filter over (cost, violation): accept a trial point that
-
-    * lowers the violation δ (eq. 18's aim), or
-    * does not raise the cost and does not raise δ (eq. 18's rule plus our cost guard), or
-    * clearly lowers the cost while δ stays below ``delta_cap`` (a hundredth of the starting
-      violation, measures restored: what the constraints start with): near feasibility, a
-      long step raises δ by second-order terms that the next projection removes, and eq. 18
-      alone would refuse every such step — but a feasible start stays feasible.
-    """
-    if not trial.finite:
-        return False
-    if _lowers_violation(trial, x, eps_delta):
-        return True
-    # At rounding-level feasibility, moving costs λ·δ of the same order: rounding too.
-    slack = 1e-10 if x.delta <= eps_delta else 1e-13
-    if trial.delta < x.delta + eps_delta and trial.cost <= x.cost * (1 + slack) + 1e-300:
-        return True
-    return trial.delta <= delta_cap and trial.cost < x.cost * (1 - 1e-10)
+def _c0_violation(x: Point, root: np.ndarray | None) -> float:
+    """``‖c0‖²`` whitened by ``C0 Q̃⁻¹ C0ᵀ`` (in cost units: what moving ``q`` onto the
+    constraints would cost the data), or 0 when it is below rounding."""
+    if not x.c0.size or float(np.max(np.abs(x.c0))) <= _c0_rounding(x.q):
+        return 0.0
+    if root is None:
+        return float(x.c0 @ x.c0)
+    C0bar_t = triangular_solve(root, x.C0.T)
+    L0, kept0 = reduced_sqrt(C0bar_t.T @ C0bar_t)
+    e0 = reduced_solve(L0, kept0, x.c0)
+    return float(e0 @ e0) if np.all(np.isfinite(e0)) else np.inf
 
 
-def _lowers_violation(trial: Point, x: Point, eps_delta: float) -> bool:
-    """Eq. 18's aim: the violation δ falls (a fall within its rounding level is no
-    progress)."""
-    return x.delta > eps_delta and trial.delta <= (1 - 1e-4) * x.delta
+class _Run:
+    """One run of the iteration (its state between iterations)."""
 
+    def __init__(self, problem: Problem, max_iter: int, xtol: float, verify_end: bool):
+        self.problem = problem
+        self.max_iter = max_iter
+        self.xtol = xtol
+        self.verify_end = verify_end
+        self.escapes = 0
+        self.info_start = None  # diagonal of the information at the start (plateaus)
 
-def _restored(problem: Problem, q: np.ndarray, mt, root: np.ndarray | None = None) -> Point:
-    """The point with ``q`` projected back onto the parameter constraints (in the metric of
-    the step, when ``root`` is given) and its measures onto their equations for that ``q``
-    (report eq. 22, a few measure-space steps): trial points are compared at their true cost
-    and violation."""
-    if root is not None:
-        q = restore_parameter(problem, q, root)
-    mt, _, _, evals = project_measures(problem, q, mt, _RESTORATION)
-    return point(problem, q, mt, evals)
+    def run(self, q_start: np.ndarray) -> Outcome:
+        problem = self.problem
+        raw = evaluate(problem, q_start, tuple(ch.m.copy() for ch in problem.channels))
+        self.delta0 = raw.delta
+        if not raw.finite:
+            return self.outcome(raw, 0, FAILED, " at the starting point")
+        self.q_start = q_start
+        # the start moved onto its constraints (Newton's method in the information's metric,
+        # report §3.6); where that fails, eq. 18's steps take it there
+        lin0, _ = _project(problem, raw)
+        root = None if lin0 is None else closest_sqrt(lin0.info, problem.eps)
+        x, violation = restored(problem, q_start, raw.mt, root)
+        if not (x.finite and _on_constraints(x, violation)):
+            x, violation = restored(problem, q_start, raw.mt, retract=False)
+        if not x.finite:
+            x, violation = raw, np.inf
+        self.radius = self.size0 = float(np.linalg.norm(q_start)) or 1.0
+        since_progress = 0
+        lin = proj = None
+        for it in range(1, self.max_iter + 1):
+            lin, proj = _project(problem, x)
+            if lin is None:
+                return self.outcome(x, it, FAILED, " in the projector")
+            if self.info_start is None:
+                self.info_start = np.abs(np.diagonal(lin.info)).copy()
+            x_feasible = feasible(violation, x.cost)
+            model = lagrangian(problem, lin, proj)
+            if x_feasible and (stationary(problem, *model) or _at_rounding(x.q, model[1].q)) \
+                    and negligible(problem, x.q, model[1].q, x.mt, model[1].mt, self.xtol):
+                end = self.end(x, lin, proj, it)
+                if end is not None:
+                    return end
+                x, violation = self.x, self.violation
+                continue
+            step = self.step(x, violation, *model)
+            if step is None:  # nothing acceptable, down to the rounding level
+                end = self.end(x, lin, proj, it)
+                if end is not None:
+                    return end
+                x, violation = self.x, self.violation
+                continue
+            trial, trial_violation = step
+            if _diverging(problem, x.q, trial.q, q_start):
+                return self.outcome(trial, it, BOUNDARY)
+            fall = x.cost - trial.cost
+            progress = not _on_constraints(x, violation) or fall > 1e-14 * x.cost
+            since_progress = 0 if progress else since_progress + 1
+            x, violation = trial, trial_violation
+            if since_progress >= _STAGNATION:  # rounding noise about the point
+                end = self.end(x, None, None, it)
+                if end is not None:
+                    return end
+                x, violation = self.x, self.violation
+                since_progress = 0
+        lin, proj = _project(problem, x)
+        if self.verify_end and lin is not None and feasible(violation, x.cost):
+            verdict = verify(problem, x, lin, proj, self.info_start,
+                             model=lagrangian(problem, lin, proj))
+            if verdict.minimum:
+                return self.outcome(x, self.max_iter, CONVERGED, "", lin, proj, verdict)
+        return self.outcome(x, self.max_iter, MAX_ITER, "", lin, proj)
 
+    def end(self, x: Point, lin, proj, it: int):
+        """Verify ``x``; return the outcome, or None after an escape from a saddle (the
+        iteration goes on from ``self.x``)."""
+        problem = self.problem
+        if lin is None or lin.x is not x:
+            lin, proj = _project(problem, x)
+            if lin is None:
+                return self.outcome(x, it, FAILED, " in the projector")
+        _, violation = restored(problem, x.q, x.mt, closest_sqrt(lin.info, problem.eps))
+        if not feasible(violation, x.cost):
+            return self.outcome(x, it, INFEASIBLE, "", lin, proj)
+        model = lagrangian(problem, lin, proj)
+        verdict = verify(problem, x, lin, proj, self.info_start, model=model,
+                         at_rounding=_at_rounding(x.q, model[1].q))
+        if verdict.minimum:
+            return self.outcome(x, it, CONVERGED, "", lin, proj, verdict)
+        if verdict.plateau:
+            return self.outcome(x, it, PLATEAU, verdict.plateau, lin, proj, verdict)
+        if not verdict.stationary:
+            return self.outcome(x, it, STALLED, verdict.describe(), lin, proj, verdict)
+        # a stationary point with negative curvature: leave it along that direction
+        if self.escapes < _ESCAPES and verdict.direction is not None:
+            self.escapes += 1
+            moved = escape(problem, x, lin, verdict, self.retract)
+            if moved is not None:
+                self.x, self.violation = moved
+                self.radius = max(self.radius, float(np.linalg.norm(moved[0].q - x.q)))
+                return None
+        return self.outcome(x, it, SADDLE, verdict.describe(), lin, proj, verdict)
 
-def _iterate(problem: Problem, q_start: np.ndarray, max_iter: int, xtol: float) -> Outcome:
-    x = evaluate(problem, q_start, tuple(ch.m.copy() for ch in problem.channels))
-    if not x.finite:
-        return Outcome(x, None, None, 0, FAILED, MESSAGES[FAILED] + " at the starting point")
-    eps_delta = 1e-12 * (1.0 + x.delta)
-    delta0 = x.delta
-    restored = _restored(problem, q_start, x.mt)
-    if restored.finite and restored.delta <= x.delta:
-        x = restored
-    # what the measures cannot absorb at the start (restored): the parameter constraints
-    delta_cap = 1e-2 * x.delta
-    lin = proj = None
-    mu = 0.0  # Levenberg–Marquardt damping, raised only when the plain step is refused
-    best = (np.inf, np.inf)
-    since_best = 0
-    last_cost = np.inf
-    # no parameter constraints: eq. 18 has nothing to watch but the cost (Gauss–Newton on
-    # the measures' distances), globalised by a trust region
-    region = _TrustRegion(x.q) if not x.c0.size else None
+    def retract(self, q: np.ndarray, mt, root=None) -> tuple[Point, float]:
+        return restored(self.problem, q, mt, root)
 
-    def outcome(point, it, status, linearisation=None, projection=None):
-        return Outcome(point, linearisation, projection, it, status, MESSAGES[status], delta0)
+    def outcome(self, x, it, status, detail="", lin=None, proj=None, verdict=None) -> Outcome:
+        """``detail``: a phrase appended to the status's message (one that starts with a
+        space is appended as it is, others after a colon)."""
+        message = MESSAGES[status] + (detail if detail.startswith(" ") else
+                                      f": {detail}" if detail else "")
+        return Outcome(x, lin, proj, it, status, message, self.delta0, verdict)
 
-    for it in range(1, max_iter + 1):
-        try:
-            lin = linearise(problem, x)
-            proj = solve(problem, lin)
-            ok = np.all(np.isfinite(proj.q)) and all(np.all(np.isfinite(m)) for m in proj.mt)
-        except (np.linalg.LinAlgError, ValueError, ZeroDivisionError, FloatingPointError):
-            ok = False
-        if not ok:
-            return Outcome(x, None, None, it, FAILED, MESSAGES[FAILED] + " in the projector",
-                           delta0)
-        if _negligible(problem, x.q, proj.q, x.mt, proj.mt, xtol):
-            new = evaluate(problem, proj.q, proj.mt)
-            return outcome(new if new.finite else x, it, CONVERGED, lin, proj)
-        # Under linear convergence the step shrinks every iteration; once it stops shrinking
-        # while the cost stays put, it is rounding noise around the solution: stop there.
-        sizes = _step_sizes(problem, x, proj)
-        if (sizes[0] < 0.9 * best[0] or sizes[1] < 0.9 * best[1]
-                or x.cost < (1 - 1e-12) * last_cost):
-            best = (min(best[0], sizes[0]), min(best[1], sizes[1]))
-            since_best = 0
-        else:
-            since_best += 1
-            if since_best >= _STAGNATION:
-                return outcome(x, it, STALLED, lin, proj)
+    # -- one step -------------------------------------------------------------------------
+    def step(self, x: Point, violation: float, lin: Linearisation, proj: Projection):
+        """An acceptable restored point: the projector's step; else that step shortened
+        (a line search along the Gauss–Newton direction, which follows a curved valley
+        where damping would turn towards the gradient); else a damped step within the trust
+        radius. Returns (point, violation) or None."""
+        problem = self.problem
+        root = closest_sqrt(lin.info, problem.eps)
         guard = problem.relations if problem.relations is not None and \
             problem.relations(x.q) else None
-        if region is not None:
-            trial = _trust_region_step(problem, lin, proj, x, region, eps_delta, delta_cap)
-        else:
-            trial = _line_search(problem, lin, proj, x, mu, eps_delta, delta_cap, guard)
-        if trial is None:
-            return outcome(x, it, STALLED, lin, proj)
-        trial, mu_used, alpha = trial
-        if _diverging(problem, x.q, trial.q, q_start):
-            return outcome(trial, it, BOUNDARY)  # on the boundary of the open set
-        mu = mu_used / 10 if mu_used > _MU_MIN else 0.0
-        if alpha < 1 and _negligible(problem, x.q, trial.q, x.mt, trial.mt, xtol):
-            return outcome(trial, it, STALLED, lin, proj)
-        last_cost = x.cost
-        x = trial
-    return outcome(x, max_iter, MAX_ITER, lin, proj)
-
-
-_SHRINK, _GROW = 0.25, 0.75  # ρ below which the trust radius shrinks, above which it grows
-
-
-class _TrustRegion:
-    """The trust region of the unconstrained iteration: a radius on ``‖Δq‖``, first the size of
-    the start ``‖q_start‖`` (1 at the origin), as scipy's ``trf``; steps beyond it are damped,
-    ``(H + μ I) Δq = rhs``, with μ just large enough. Measured on NIST StRD: MINPACK's scaled
-    norm ``‖D Δq‖`` (``D²`` the running maximum of ``diag(Q̃)``) leaves Bennett5's first start
-    crawling along its valley for 500 iterations; the plain norm solves all 54 cases. The
-    parameter's units set the shape of the region: declare it in comparable units."""
-
-    def __init__(self, q_start: np.ndarray) -> None:
-        self.radius = float(np.linalg.norm(q_start)) or 1.0
-        self.weights = np.ones(q_start.size)
-
-
-def _trust_region_step(problem, lin, proj, x, region, eps_delta, delta_cap):
-    """An acceptable point within the trust radius (Moré 1978; Nocedal & Wright §4.1): the
-    projector's step if it fits, else the damped step with ``‖Δq‖`` at the radius. A step that
-    lowers the violation δ is taken as eq. 18 takes it; otherwise a step is taken when the
-    cost falls by more than 1e-4 of what the linearisation predicts (ratio
-    ``ρ``); the radius shrinks to a quarter of the step when ``ρ < ¼`` (or the step is
-    refused) and doubles when ``ρ > ¾``. Returns (point, μ, 1) or None."""
-    length = float(np.linalg.norm(proj.q - x.q))
-    for attempt in range(_MAX_HALVINGS):
-        mu = 0.0
-        # the projector's step is tried first whatever its length: taken beyond the radius
-        # only if the linearisation predicts its fall of the cost to 5 % (a linear problem in
-        # one step, report §3.6)
-        beyond = attempt == 0 and length > region.radius
-        if attempt and length > region.radius:
-            mu = _damping_for(problem, lin, region.radius, region.weights)
-        target = proj if mu == 0.0 else solve(problem, lin, mu, region.weights)
-        trial = _restored(problem, target.q, target.mt)
-        s = trial.q - x.q
-        size = float(np.linalg.norm(s))
-        pred = float(s @ lin.rhs - 0.5 * s @ lin.info @ s)  # the linearised fall of L²
-        if trial.finite and _lowers_violation(trial, x, eps_delta):
-            return trial, mu, 1.0  # eq. 18: the violation falls (the cost may rise meanwhile)
-        if trial.finite and _acceptable(trial, x, eps_delta, delta_cap):
-            rounding = pred <= 1e-13 * x.cost  # the cost's rounding level: no ratio to read
-            rho = (x.cost - trial.cost) / pred if pred > 0.0 else 0.0
-            if mu == 0.0 and beyond and not abs(rho - 1.0) <= 0.05:
+        lam0 = _multipliers(x, lin)
+        on = _on_constraints(x, violation)
+        weights = self.weights(x.q)
+        full = proj.q - x.q
+        length = float(np.sqrt(full @ (weights * full)))
+        alpha = 1.0
+        # the projector's step, then — when it was within the radius — shortened
+        line_steps = 0 if length > self.radius else _LINE_STEPS
+        for attempt in range(_MAX_REFUSALS):
+            line = attempt <= line_steps
+            beyond = attempt == 0 and length > self.radius
+            if line:
+                target_q = x.q + alpha * full
+                target_mt = tuple(a + alpha * (b - a) for a, b in zip(x.mt, proj.mt,
+                                                                      strict=True))
+            else:
+                damped = solve(problem, lin, _damping_for(problem, lin, self.radius, weights),
+                               weights)
+                target_q, target_mt = damped.q, damped.mt
+            s = target_q - x.q
+            size = float(np.sqrt(s @ (weights * s)))
+            if not on:
+                taken = self.towards_constraints(x, violation, target_q, target_mt, root,
+                                                 guard)
+                if taken is not None:
+                    return taken
+            else:
+                trial = restored(problem, target_q, target_mt, root)
+                if trial[0].finite and (guard is None or guard(trial[0].q)) and \
+                        _on_constraints(*trial):
+                    pred = _predicted_fall(problem, lin, x, s, target_q, lam0)
+                    rho = (x.cost - trial[0].cost) / pred if pred > 0.0 else -np.inf
+                    # a fall the cost cannot resolve: the model is trusted, the cost must
+                    # not rise beyond its rounding (Newton's last steps, §3.6)
+                    noise = _COST_NOISE * x.cost + cost_rounding(problem)
+                    rounding = abs(pred) <= 1e2 * noise and trial[0].cost <= x.cost + noise
+                    if beyond:
+                        if abs(rho - 1.0) <= _EXACT:
+                            self.radius = max(self.radius, 2.0 * size)
+                            return trial
+                    elif rounding or rho > _ACCEPT:
+                        if rho < _SHRINK and not rounding:
+                            self.radius = _SHRINK * size
+                        elif rho > _GROW:
+                            self.radius = max(self.radius, 2.0 * size)
+                        return trial
+            if line:
+                alpha /= 2
+            if beyond or line:
                 continue
-            if rounding or rho > 1e-4:
-                if rho < _SHRINK and not rounding:
-                    region.radius = 0.25 * size
-                elif rho > _GROW:
-                    region.radius = max(region.radius, 2.0 * size)
-                return trial, mu, 1.0
-        if mu == 0.0 and beyond:
-            continue  # the projector's step beyond the radius: damp it
-        region.radius = 0.25 * (min(region.radius, size) if np.isfinite(size) else region.radius)
-        if not region.radius > 0.0:
+            self.radius = _SHRINK * (min(self.radius, size) if np.isfinite(size)
+                                     else self.radius)
+            if not self.radius > 1e-15 * (1.0 + float(np.linalg.norm(x.q))):
+                return None
+        return None
+
+    def weights(self, q: np.ndarray) -> np.ndarray:
+        """The trust region's norm, ``‖Δq‖² = Σ w_j Δq_j²``: Euclidean, but for the slacks of
+        strict relations (``c = 1/s²``), whose steps are measured relative to themselves —
+        they diverge geometrically at the boundary of the open set."""
+        w = np.ones(q.size)
+        for index, _ in self.problem.strict_slacks:
+            w[index] = (self.size0 / max(abs(q[index]), np.finfo(float).tiny)) ** 2
+        return w
+
+    def towards_constraints(self, x: Point, violation: float, target_q, target_mt, root,
+                            guard):
+        """Eq. 18 while ``x`` is off its equations (its start could not be moved onto them):
+        the trial point is taken when it lowers the violation, or keeps it (to its rounding
+        level) without raising the cost; once close to the constraints, it is moved onto
+        them (the trust region then takes over)."""
+        problem = self.problem
+        trial = restored(problem, target_q, target_mt, root, retract=False)
+        if not (trial[0].finite and (guard is None or guard(trial[0].q))
+                and _lowers_violation(trial, x, violation)):
             return None
-    return None
+        if feasible(trial[1], trial[0].cost):
+            onto = restored(problem, trial[0].q, trial[0].mt, root)
+            if onto[0].finite and _on_constraints(*onto):
+                return onto
+        return trial
+
+
+def _lowers_violation(trial: tuple[Point, float], x: Point, violation: float) -> bool:
+    """Eq. 18's rule on restored points: the violation falls, or stays within its rounding
+    level (``1e-14`` of the cost) while the cost does not rise."""
+    noise = 1e-14 * max(1.0, x.cost)
+    return trial[1] < (1 - 1e-4) * violation - noise or (
+        trial[1] <= violation + noise and trial[0].cost <= x.cost)
+
+
+def _on_constraints(x: Point, violation: float) -> bool:
+    """The measures are on their equations (the violation negligible against the cost) and
+    the parameter on its constraints to their rounding level: from here on, every trial
+    point is moved back onto them. Until then eq. 18 rules (a Newton iteration on the
+    constraints, report §3.6)."""
+    return feasible(violation, x.cost) and (
+        not x.c0.size or float(np.max(np.abs(x.c0))) <= _c0_rounding(x.q))
+
+
+def _at_rounding(q: np.ndarray, q_new: np.ndarray) -> bool:
+    """The step moves no component beyond the rounding level of ``q``."""
+    return bool(np.all(np.abs(q_new - q) <= _ROUNDING * np.max(np.abs(q), initial=0.0)))
+
+
+def _project(problem: Problem, x: Point):
+    try:
+        lin = linearise(problem, x)
+        return lin, solve(problem, lin)
+    except (np.linalg.LinAlgError, ValueError, ZeroDivisionError, FloatingPointError):
+        return None, None
+
+
+def lagrangian(problem: Problem, lin: Linearisation,
+               proj: Projection) -> tuple[Linearisation, Projection]:
+    """The linearisation with the curvature of the constraints, ``Σ λ0k ∇²c0k`` (its positive
+    part), added to the information — the Hessian of the Lagrangian the step's model needs on
+    curved constraints: a slack ``s`` of ``c − s² = 0`` at an active inequality (``s = 0``)
+    has no information from the data, and without the curvature ``−2 λ0`` the model would
+    move it without bound — and the projector's point with it. The data's own ``lin, proj``
+    when the constraints are linear or their multipliers vanish."""
+    x = lin.x
+    lam0 = _multipliers(x, lin)
+    if not lam0.size or not np.any(lam0):
+        return lin, proj
+    K = _constraint_curvature(problem, x.q, lam0)
+    for index, _ in problem.strict_slacks:
+        # a strict relation's slack (c = 1/s²) diverges at the boundary: its curvature would
+        # hold it to steps of s/3 (Newton on 1/s²), the trust region lets it grow
+        K[index, :] = K[:, index] = 0.0
+    w, V = np.linalg.eigh(K)
+    top = float(np.max(np.abs(np.diagonal(lin.H)), initial=0.0))
+    if not np.all(np.isfinite(w)) or float(w.max(initial=0.0)) <= 1e-14 * top:
+        return lin, proj
+    K = (V * np.maximum(w, 0.0)) @ V.T
+    model = replace(lin, H=lin.H + K, info=lin.info + K)
+    try:
+        return model, solve(problem, model)
+    except (np.linalg.LinAlgError, ValueError, ZeroDivisionError, FloatingPointError):
+        return lin, proj
+
+
+def _constraint_curvature(problem: Problem, q: np.ndarray, lam0: np.ndarray) -> np.ndarray:
+    """``Σ λ0k ∇²c0k`` by central differences of the constraints' Jacobian (exact for the
+    quadratic constraints of unit norms and slacks, up to rounding)."""
+    n = q.size
+    K = np.zeros((n, n))
+    scale = float(np.max(np.abs(q), initial=0.0))
+    for j in range(n):
+        h = 1e-5 * max(abs(q[j]), 1e-3 * scale, 1e-8)
+        up, down = q.copy(), q.copy()
+        up[j] += h
+        down[j] -= h
+        K[:, j] = (problem.c0(up, problem.k)[1] - problem.c0(down, problem.k)[1]).T @ lam0 / (2 * h)
+    return 0.5 * (K + K.T)
+
+
+def _multipliers(x: Point, lin: Linearisation) -> np.ndarray:
+    """``λ0``: least-squares multipliers of the parameter constraints at ``x``,
+    ``C0ᵀ λ0 = −∇F``."""
+    if not x.C0.shape[0]:
+        return np.zeros(0)
+    lam, *_ = np.linalg.lstsq(x.C0.T, -lin.gradient, rcond=None)
+    return lam
+
+
+def _predicted_fall(problem: Problem, lin: Linearisation, x: Point, s: np.ndarray,
+                    target_q: np.ndarray, lam0: np.ndarray) -> float:
+    """The fall of the cost the linearisation predicts for the step ``s`` (Gauss–Newton
+    model of the profile), the retraction onto curved constraints included:
+    ``−(gᵀs + ½ sᵀ Q̃ s + λ0ᵀ c0(q + s))``."""
+    fall = -float(lin.gradient @ s + 0.5 * s @ lin.info @ s)
+    if lam0.size:
+        fall -= float(lam0 @ problem.c0(target_q, problem.k)[0]) - float(lam0 @ x.c0)
+    return fall
 
 
 def _damping_for(problem: Problem, lin: Linearisation, radius: float,
                  weights: np.ndarray) -> float:
-    """The damping μ (of ``μ diag(weights)``) whose step has ``‖Δq‖`` just within ``radius``
+    """The damping μ (of ``μ diag(w)``) whose step has ``‖Δq‖_w`` just within ``radius``
     (bisection on log μ)."""
 
     def size(log_mu: float) -> float:
-        return float(np.linalg.norm(solve(problem, lin, 10.0 ** log_mu, weights).q - lin.x.q))
+        s = parameter_step(problem, lin, 10.0 ** log_mu, weights)
+        return float(np.sqrt(s @ (weights * s)))
 
     lo, hi = -12.0, 12.0
-    while size(hi) > radius and hi < 300.0:
-        lo, hi = hi, 2.0 * hi
+    if size(hi) > radius:  # the constraints' linearisation alone asks more: its step
+        return 10.0**hi
     while hi - lo > 0.02:
         mid = 0.5 * (lo + hi)
         if size(mid) > radius:
@@ -326,52 +492,14 @@ def _damping_for(problem: Problem, lin: Linearisation, radius: float,
     return 10.0 ** hi
 
 
-def _line_search(problem, lin, proj, x, mu, eps_delta, delta_cap, guard=None):
-    """Find an acceptable point: the report's step (or the damped one the last iteration
-    needed) — as it is, or else with its parameter restored onto the constraints (a
-    second-order correction) — halved back towards ``x`` a few times as eq. 18 does; if
-    still refused, damp more (Levenberg–Marquardt, tenfold, up to ``_MU_MAX``) and halve
-    again — at the last damping level for as long as eq. 18 would. Returns (point, μ used,
-    α) or None."""
-    root = None  # the information's closest square root, the metric of the correction
-    correctable = bool(x.c0.size)
-    while True:
-        target = proj if mu == 0.0 else solve(problem, lin, mu)
-        alpha = 1.0
-        for _ in range(_MAX_HALVINGS if mu >= _MU_MAX else _HALVINGS_PER_DAMPING):
-            q = x.q + alpha * (target.q - x.q)
-            mt = tuple(a + alpha * (b - a) for a, b in zip(x.mt, target.mt, strict=True))
-            # the plain step first (eq. 18: linear problems in one step, Newton's iterates);
-            # if it lowers the cost but is refused for its violation — curvature of the
-            # constraints, the Maratos effect — with its second-order correction onto them
-            trial = _restored(problem, q, mt)
-            if correctable and trial.finite and trial.cost < x.cost and \
-                    not _acceptable(trial, x, eps_delta, delta_cap):
-                if root is None:
-                    root = closest_sqrt(lin.info, problem.eps)
-                # second order: small against the step, else this is no Maratos effect. In
-                # the step's metric first (it moves what the data do not see, a slack,
-                # first); without slacks, else in the Euclidean one, the textbook
-                # correction: a direction the data see only weakly (a focal length near a
-                # pure rotation) makes the metric's correction refused, and the iteration
-                # would crawl along it (a rotation fit: 102 iterations, now 10)
-                metrics = (root,) if problem.relations is not None else (root, np.eye(q.size))
-                chosen = None
-                for metric in metrics:
-                    corrected = _restored(problem, q, mt, metric)
-                    if np.linalg.norm(corrected.q - q) > 0.5 * np.linalg.norm(q - x.q):
-                        continue
-                    accepted = _acceptable(corrected, x, eps_delta, delta_cap)
-                    if chosen is None or accepted:
-                        chosen = corrected
-                    if accepted:
-                        break
-                if chosen is not None:
-                    trial = chosen
-            # once the model's inequalities hold, they hold at every later iterate
-            if (guard is None or guard(trial.q)) and _acceptable(trial, x, eps_delta, delta_cap):
-                return trial, mu, alpha
-            alpha /= 2
-        if mu >= _MU_MAX:
-            return None
-        mu = max(10 * mu, _MU_MIN)
+def _diverging(problem: Problem, q_old: np.ndarray, q_new: np.ndarray,
+               start: np.ndarray) -> bool:
+    """A slack of a strict inequality diverges: it grows by a tenth at least in this step
+    and its relation ``c = 1/s²`` (``1/s`` for ``c != 0``) has fallen below 1e-8 of its
+    starting value. The parameter is then within that of the boundary of the open set the model
+    allows; letting the slack grow on would only make its equation ill-conditioned."""
+    for index, power in problem.strict_slacks:
+        s_old, s_new = abs(q_old[index]), abs(q_new[index])
+        if s_new > 1.1 * s_old and (abs(start[index]) / s_new) ** power < 1e-8:
+            return True
+    return False

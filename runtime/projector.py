@@ -36,6 +36,7 @@ class Problem:
     strict_slacks: tuple[tuple[int, int], ...] = ()
     # (FastPath, model) when the family is compiled: coherence errors in C (fastpath.py)
     compiled: tuple | None = None
+    names: tuple[str, ...] = ()  # the parameter's components, for messages
 
 
     def subset(self, rows) -> Problem:
@@ -74,6 +75,8 @@ class Linearisation:
     info: np.ndarray  # Q̃ = Q0 + A
     H: np.ndarray  # Q̃ + ρ C0ᵀC0 (augmented form of the same KKT system)
     rhs: np.ndarray  # Q0 (q0 − q•) + Σ C̄ᵀ r̄' + ρ C0ᵀ (−c0)
+    gradient: np.ndarray  # ∇q L² = Q0 (q• − q0) − Σ C̄ᵀ r̄' (exact where the measures are
+    # projected onto their equations: r̄' is then the whitened ν of eq. 44's multipliers)
     whitened: tuple  # per channel: (C̄, r̄', kernel state) or None
     ranks: tuple[np.ndarray, ...]  # p_i per measure, per channel
     residual: float  # Σ ‖W_i c_i‖², the measurement part of E²
@@ -166,7 +169,7 @@ def project_measures(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...]
     return tuple(out_mt), tuple(out_violation), tuple(out_rank), tuple(out_evals)
 
 
-def restore_parameter(problem: Problem, q: np.ndarray, root: np.ndarray,
+def restore_parameter(problem: Problem, q: np.ndarray, root: np.ndarray | None,
                       iterations: int = 3) -> np.ndarray:
     """Project ``q`` back onto ``c0(q) = 0`` with the least move in the metric ``Q̃ = Ā Āᵀ``
     (``root``, the closest square root of the information): ``Δq = −Q̃⁻¹ C0ᵀ (C0 Q̃⁻¹ C0ᵀ)⁻
@@ -177,12 +180,15 @@ def restore_parameter(problem: Problem, q: np.ndarray, root: np.ndarray,
     This is the parameter-space twin of :func:`project_measures` — a second-order correction:
     a long projector step leaves a violation of the order of its square on curved
     constraints (a unit norm, a slack's ``c·s² − 1``), which would make eq. 18 refuse it.
-    Steps that do not lower ``‖c0‖∞`` are not taken (call under np.errstate).
+    Steps that do not lower ``‖c0‖∞`` are not taken (call under np.errstate). ``root``
+    None: the Euclidean metric.
     """
     c0, C0 = problem.c0(q, problem.k)
     if not c0.size:
         return q
     worst = float(np.max(np.abs(c0)))
+    if root is None:
+        root = np.eye(q.size)
     for _ in range(iterations):
         if not worst > _ROUNDING * (1.0 + float(np.max(np.abs(q)))) * 1e-3:
             break
@@ -249,6 +255,7 @@ def linearise(problem: Problem, x: Point) -> Linearisation:
         ranks.append(kept.sum(axis=1))
     info = problem.Q0 + A
     rhs = problem.Q0 @ (problem.q0 - q) + g
+    gradient = -rhs
     H = info
     C0 = x.C0
     if C0.shape[0]:
@@ -260,7 +267,7 @@ def linearise(problem: Problem, x: Point) -> Linearisation:
         rho = _augmentation(H, gram)
         H = H + rho * gram
         rhs = rhs - rho * (C0.T @ x.c0)
-    return Linearisation(x, info, H, rhs, tuple(whitened), tuple(ranks), residual)
+    return Linearisation(x, info, H, rhs, gradient, tuple(whitened), tuple(ranks), residual)
 
 
 def solve(problem: Problem, lin: Linearisation, mu: float = 0.0,
@@ -271,6 +278,29 @@ def solve(problem: Problem, lin: Linearisation, mu: float = 0.0,
     globalisation for starts far from the solution), ``w`` the given ``weights`` or else
     ``diag(H)``; ``mu = 0`` is the report's projector.
     """
+    x = lin.x
+    dq, rank0, kept0, residual = _parameter_block(problem, lin, mu, weights)
+    mt_new = []
+    for (_, correct), ch, w in zip(problem.kernels, problem.channels, lin.whitened,
+                                   strict=True):
+        if w is None:
+            mt_new.append(ch.m.copy())
+            continue
+        Cbar, rbar, state = w
+        mt_new.append(ch.m + correct(state, ch.G, rbar - Cbar @ dq))  # eq. 44
+    return Projection(x.q + dq, tuple(mt_new), x.C0[kept0], rank0, residual)
+
+
+def parameter_step(problem: Problem, lin: Linearisation, mu: float = 0.0,
+                   weights: np.ndarray | None = None) -> np.ndarray:
+    """``Δq`` of :func:`solve` alone (the measures not corrected)."""
+    return _parameter_block(problem, lin, mu, weights)[0]
+
+
+def _parameter_block(problem: Problem, lin: Linearisation, mu: float,
+                     weights: np.ndarray | None) -> tuple[np.ndarray, int, np.ndarray, float]:
+    """``Δq`` of eq. 43 (damped by ``μ diag(w)``), the rank of the constraints, the rows kept
+    and the residual E²."""
     x = lin.x
     H = lin.H
     if mu > 0.0:
@@ -288,15 +318,7 @@ def solve(problem: Problem, lin: Linearisation, mu: float = 0.0,
     rank0, kept0 = 0, np.zeros(x.C0.shape[0], dtype=bool)
     if seen.any():  # none seen, e.g. every gradient vanishes at the start: q stays
         rank0, kept0, residual = _solve_seen(problem, x, H, rhs, C0, seen, dq, residual)
-    mt_new = []
-    for (_, correct), ch, w in zip(problem.kernels, problem.channels, lin.whitened,
-                                   strict=True):
-        if w is None:
-            mt_new.append(ch.m.copy())
-            continue
-        Cbar, rbar, state = w
-        mt_new.append(ch.m + correct(state, ch.G, rbar - Cbar @ dq))  # eq. 44
-    return Projection(x.q + dq, tuple(mt_new), x.C0[kept0], rank0, residual)
+    return dq, rank0, kept0, residual
 
 
 def _solve_seen(problem: Problem, x: Point, H: np.ndarray, rhs: np.ndarray, C0: np.ndarray,

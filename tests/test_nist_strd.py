@@ -74,11 +74,17 @@ def _rounded_params_atol(problem: Problem) -> float:
     return problem.y.size * (1e-10 * float(np.max(np.abs(problem.y)))) ** 2
 
 
+#: A generous iteration budget: Bennett5 crawls along its valley from its first start (scipy's
+#: trf takes 353 evaluations there, kanagen's trust region about 1,500 iterations).
+GENEROUS = 3000
+
+
 @functools.cache
-def _results(name: str, start: int) -> tuple[RunResult, RunResult]:
+def _results(name: str, start: int, max_iter: int = GENEROUS) -> tuple[RunResult, RunResult]:
     """kanagen and SciPy on one case, both posed as NIST does (Nelson: ``transformed``)."""
     problem = load_problem(name)
-    return run_kanagen(problem, start, transformed=True), run_scipy(problem, start)
+    return (run_kanagen(problem, start, transformed=True, max_iter=max_iter),
+            run_scipy(problem, start))
 
 
 def _describe(run: RunResult, problem: Problem) -> str:
@@ -222,7 +228,7 @@ def test_nelson_literal_log_spec_reaches_its_ml_optimum(start: int) -> None:
     assert np.max(ml.lre) < SOLVED_DIGITS
 
 
-def _solved_counts() -> tuple[int, int, int]:
+def _solved_counts() -> tuple[int, int, int]:  # at the generous budget
     runs = [_results(name, start) for name, start in CASES]
     return sum(kg.solved for kg, _ in runs), sum(sc.solved for _, sc in runs), len(runs)
 
@@ -233,3 +239,11 @@ def test_kanagen_solves_at_least_as_many_as_scipy() -> None:
     assert kanagen_solved >= scipy_solved, (
         f"kanagen solved {kanagen_solved}/{total}, scipy trf solved {scipy_solved}/{total}"
     )
+
+
+@needs_data
+def test_at_the_default_budget_kanagen_solves_48_of_54() -> None:
+    """``kanagen.fit``'s default of 100 iterations: the valley crawls (Bennett5, MGH09,
+    MGH10, MGH17 from their first starts) need more; the others are solved."""
+    solved = sum(_results(name, start, 100)[0].solved for name, start in CASES)
+    assert solved >= 48, f"kanagen solved {solved}/{len(CASES)} at max_iter=100"
