@@ -32,6 +32,7 @@ import jinja2
 from ..modelspec.ir import Family
 from .describe import Description, Function, describe
 from .printer import TablePrinter
+from .safe import comment_text
 
 
 @dataclass(frozen=True)
@@ -55,7 +56,9 @@ class Backend:
 
 @cache
 def environment(folder: str) -> jinja2.Environment:
-    return jinja2.Environment(
+    """The templates' environment; ``comment`` is the one filter text of a spec goes
+    through inside comments and docstrings (:func:`~kanagen.codegen.safe.comment_text`)."""
+    env = jinja2.Environment(
         loader=jinja2.PackageLoader("kanagen.codegen", f"templates/{folder}"),
         undefined=jinja2.StrictUndefined,
         trim_blocks=True,
@@ -63,6 +66,8 @@ def environment(folder: str) -> jinja2.Environment:
         keep_trailing_newline=True,
         autoescape=False,
     )
+    env.filters["comment"] = comment_text
+    return env
 
 
 def tidy(text: str) -> str:

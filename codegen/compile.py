@@ -175,7 +175,8 @@ def compile_family(module: ModuleType, family: dict, cache: Path) -> Path:
         return library
     command = compiler()
     folder.mkdir(parents=True, exist_ok=True)
-    source = folder / f"{name}.c"
+    # this process's own source and output: concurrent first compiles share no partial file
+    source = folder / f"{name}.{os.getpid()}.c"
     source.write_text(c_source(module, family), encoding="utf-8")
     partial = folder / f"{name}.{os.getpid()}.so.tmp"
     for tuning in (TUNING, ()):
@@ -191,6 +192,7 @@ def compile_family(module: ModuleType, family: dict, cache: Path) -> Path:
         tail = "\n".join(done.stderr.strip().splitlines()[-10:])
         raise CompileError(f"the C compiler failed ({shlex.join(cmd)}):\n{tail}")
     partial.replace(library)  # atomic: concurrent loaders never see half a library
+    source.unlink(missing_ok=True)
     return library
 
 

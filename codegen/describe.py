@@ -232,6 +232,9 @@ def describe(family: Family, source_name: str) -> Description:
             entry = ModelEntry(entry.c0, entry.channels, reduction,
                                f"c0_{model.name}__reduced", reduced)
         models.append((model.name, entry))
+    names = [f.name for f in functions]
+    if len(set(names)) != len(names):  # the spec's names are checked to keep them apart
+        raise ValueError(f"generated function names collide: {sorted(names)}")
     return Description(
         source=source_name,
         sha256=family.sha256,

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import importlib
+import os
+import tempfile
 import warnings
 from pathlib import Path
 
@@ -115,7 +117,14 @@ def _module_for(family: Family, backend: str):
     path = folder / target
     if not path.exists() or path.read_text(encoding="utf-8") != text:
         folder.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(text, encoding="utf-8")
-        tmp.replace(path)  # atomic: concurrent loaders never see half a file
+        # a temporary file of this process's own, then an atomic rename: concurrent first
+        # loads never share a partial file, and a loader never sees half a module
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{stem}.", suffix=".tmp")
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as out:
+                out.write(text)
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
     return import_file(path, f"kanagen_cache_{stem}_{key}")

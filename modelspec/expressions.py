@@ -71,22 +71,33 @@ CONSTANTS: dict[str, sp.Expr] = {"pi": sp.pi}
 #: Names a spec may not declare (they would shadow the language).
 RESERVED = frozenset(FUNCTIONS) | frozenset(MATRIX_FUNCTIONS) | frozenset(CONSTANTS)
 
-_IDENTIFIER = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+_IDENTIFIER = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+#: Longest name a spec may declare (generated file and function names are built from them).
+MAX_NAME = 64
 _MAX_LENGTH = 20_000
 _MAX_POWER = 64
 
 
 def check_identifier(name: object, what: str, source: str, line: int | None) -> str:
-    """Return ``name`` if it is a plain identifier usable in generated code, else raise."""
+    """Return ``name`` if it is a plain identifier usable in generated code, else raise.
+
+    ``__`` is refused: generated names join names with it (``measure_<channel>__<model>``,
+    ``c0_<model>__reduced``), which keeps them injective."""
     import keyword
 
-    if not isinstance(name, str) or not _IDENTIFIER.match(name):
+    if not isinstance(name, str) or not _IDENTIFIER.fullmatch(name):
         raise SpecError(
             f"{what} name {name!r} is not an identifier (letters, digits, '_', starting with a "
             "letter)",
             source,
             line,
         )
+    if "__" in name:
+        raise SpecError(f"{what} name {name!r} contains '__' (generated names are joined "
+                        "with it)", source, line)
+    if len(name) > MAX_NAME:
+        raise SpecError(f"{what} name {name[:20]!r}... is longer than {MAX_NAME} characters",
+                        source, line)
     if keyword.iskeyword(name) or name in RESERVED:
         raise SpecError(f"{what} name {name!r} is reserved", source, line)
     return name
