@@ -9,6 +9,7 @@ from functools import cache
 from pathlib import Path
 
 from ..modelspec import Family, load_spec
+from ..modelspec.limits import DEFAULT, Limits
 from .backend import Backend
 from .casadi_backend import BACKEND as CASADI
 from .describe import FORMAT, describe
@@ -39,15 +40,16 @@ def render_spec(family: Family, backends: Iterable[str] = ("numpy",)) -> dict[st
 
 
 def build(spec: str | Path, out_dir: str | Path,
-          backends: Iterable[str] = ("numpy",)) -> list[Path]:
+          backends: Iterable[str] = ("numpy",), limits: Limits = DEFAULT) -> list[Path]:
     """Generate the module(s) of ``spec`` into ``out_dir``; returns the written paths.
 
-    Files are rewritten only when their text changes.
+    Files are rewritten only when their text changes; ``limits``: what reading the spec may
+    cost (:mod:`kanagen.modelspec.limits`).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []
-    for name, text in render_spec(load_spec(spec), backends).items():
+    for name, text in render_spec(load_spec(spec, limits), backends).items():
         path = out / name
         if not path.exists() or path.read_text(encoding="utf-8") != text:
             path.write_text(text, encoding="utf-8")

@@ -26,6 +26,7 @@ import numpy as np
 
 from .dataio import read_measures
 from .fitjob import FitOptions, resolve_channel, run_job
+from .modelspec.limits import DEFAULT, Limits
 from .resultsdb import ResultsDB, Row, encode
 
 _IN_FLIGHT = 2  # datasets sent ahead per worker thread: busy workers, little lost on a kill
@@ -75,7 +76,7 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
           retry_errors: bool = False, progress: Callable[[Outcome], None] | None = None,
           on_start: Callable[[int, int], None] | None = None,
           options: FitOptions | None = None, backend: str = "numpy",
-          **fit_options) -> BatchSummary:
+          limits: Limits = DEFAULT, **fit_options) -> BatchSummary:
     """Estimate every dataset with the same spec and options; results go to ``db``.
 
     Parameters
@@ -96,6 +97,8 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
     backend : ``"numpy"``, ``"casadi"`` or ``"compiled"`` (as :func:`kanagen.load`; each
         worker loads, and for ``"compiled"`` compiles once into the shared cache). The same
         estimates whatever the backend: not part of what a re-run resumes on.
+    limits : what reading the spec may cost (:class:`kanagen.modelspec.Limits`), in the
+        parent and on every worker.
 
     Returns
     -------
@@ -123,7 +126,7 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
         raise ValueError(f"workers must be at least 1, got {workers}")
     paths = _expand(datasets)
     spec_text, source = _spec_source(spec)
-    fam = load(spec, backend=backend)
+    fam = load(spec, backend=backend, limits=limits)
     channel = resolve_channel(fam, channel)
     options.check(fam)
     key = options.key(channel)
@@ -156,7 +159,7 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
                     continue
                 yield path, X
 
-        task = (spec_text, source, channel, options.to_dict(), backend)
+        task = (spec_text, source, channel, options.to_dict(), backend, limits)
         with _client(workers, scheduler, bool(todo)) as (client, slots):
             for path, out in _run(client, slots, task, jobs()):
                 if "error" in out:
@@ -251,13 +254,13 @@ def _run(client, slots: int, task: tuple, jobs: Iterator[tuple[str, np.ndarray]]
 
 
 def estimate_dataset(spec_text: str | None, source: str, channel: str, options: dict,
-                     backend: str, X: np.ndarray, dataset: str) -> dict:
+                     backend: str, limits: Limits, X: np.ndarray, dataset: str) -> dict:
     """One dataset on a worker: its record encoded for the database (``"encoded"``,
     ``"found"``, ``"stop_reason"``) or ``"error"``, with ``"seconds"`` (wall) and ``"cpu"``
     (the process's CPU time); never raises (a dataset's failure is its outcome)."""
     started, cpu = time.perf_counter(), time.process_time()
     try:
-        fam = _family(spec_text, source, backend)
+        fam = _family(spec_text, source, backend, limits)
         rec = run_job(fam, X, channel, FitOptions(**options), spec=source, data=dataset)
         out = {"encoded": encode(rec), "found": rec["found"],
                "stop_reason": rec.get("stop_reason") or ""}
@@ -267,9 +270,9 @@ def estimate_dataset(spec_text: str | None, source: str, channel: str, options: 
 
 
 @lru_cache(maxsize=8)
-def _family(spec_text: str | None, source: str, backend: str):
+def _family(spec_text: str | None, source: str, backend: str, limits: Limits):
     """The family on a worker, loaded once per process."""
     from . import load, load_text
 
-    return load(source, backend=backend) if spec_text is None else \
-        load_text(spec_text, source, backend=backend)
+    return load(source, backend=backend, limits=limits) if spec_text is None else \
+        load_text(spec_text, source, backend=backend, limits=limits)

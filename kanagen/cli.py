@@ -17,6 +17,27 @@ def _fail(message: str, code: int = 2):
     sys.exit(code)
 
 
+def limit_options(command):
+    """``--trusted`` and ``--limit NAME=VALUE``: what reading a spec may cost (the bounds of
+    :class:`kanagen.modelspec.Limits`, documented in the README)."""
+    command = click.option(
+        "--limit", "limit", multiple=True, metavar="NAME=VALUE",
+        help="Raise one bound on what reading SPEC may cost (repeatable), e.g. "
+             "max_nodes=1000000; see the README's limits.")(command)
+    return click.option(
+        "--trusted", is_flag=True,
+        help="Lift every bound on what reading SPEC may cost (a spec you wrote).")(command)
+
+
+def _limits(trusted: bool, limit: tuple[str, ...]):
+    from .modelspec import Limits
+
+    try:
+        return (Limits.trusted() if trusted else Limits()).with_options(limit)
+    except ValueError as exc:
+        _fail(str(exc))
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="kanagen")
 def main():
@@ -50,11 +71,13 @@ def main():
 @click.option("--check", is_flag=True,
               help="Regenerate in memory and fail with a diff if a file in OUT differs "
                    "(default SPECS: examples/*.yaml).")
-def build(specs, out_dir, backends, compile_, check):
+@limit_options
+def build(specs, out_dir, backends, compile_, check, trusted, limit):
     """Generate the estimation module of each SPEC (YAML) into OUT."""
     from .codegen import build as build_spec
     from .codegen import check as check_specs
 
+    limits = _limits(trusted, limit)
     if not specs:
         if not check:
             _fail("no spec given (kanagen build SPEC.yaml [-o DIR])")
@@ -74,22 +97,22 @@ def build(specs, out_dir, backends, compile_, check):
             return
         names = ("numpy", *(b for b in backends if b != "numpy"))
         for spec in specs:
-            for path in build_spec(spec, out_dir, names):
+            for path in build_spec(spec, out_dir, names, limits):
                 click.echo(f"{spec} -> {path}")
             if compile_:
-                _compile(spec)
+                _compile(spec, limits)
     except SpecError as exc:
         _fail(str(exc))
 
 
-def _compile(spec: str) -> None:
+def _compile(spec: str, limits) -> None:
     """Compile the CasADi functions of ``spec`` into the cache; a warning without compiler."""
     from .codegen.compile import CompileError, compile_family
     from .loader import _module_for
     from .modelspec import load_spec
     from .runtime.family import cache_dir
 
-    family = load_spec(spec)
+    family = load_spec(spec, limits)
     try:
         library = compile_family(_module_for(family, "casadi"),
                                  _module_for(family, "numpy").FAMILY, cache_dir())
@@ -102,12 +125,13 @@ def _compile(spec: str) -> None:
 
 @main.command()
 @click.argument("spec", type=click.Path(exists=True, dir_okay=False))
-def show(spec):
+@limit_options
+def show(spec, trusted, limit):
     """Print what SPEC declares: parameter, constants, channels, models and their lattice."""
     from .modelspec import load_spec
 
     try:
-        fam = load_spec(spec)
+        fam = load_spec(spec, _limits(trusted, limit))
     except SpecError as exc:
         _fail(str(exc))
     click.echo(f"family {fam.name!r} (sha256 {fam.sha256[:12]}...) from {spec}")
@@ -200,7 +224,8 @@ def _fit_options(scale, scorer, phi, seed, max_samples, model, local, sigma, con
               help="Also write the result as JSON to this file; '-': to stdout, the text "
                    "going to stderr. Infinite or undefined numbers are null.")
 @backend_option
-def fit(spec, data, channel, json_out, backend, **options):
+@limit_options
+def fit(spec, data, channel, json_out, backend, trusted, limit, **options):
     """Find the model of SPEC that the measures in DATA support, despite outliers.
 
     DATA is a CSV file whose header names the channel's components (in any order, other
@@ -234,7 +259,7 @@ def fit(spec, data, channel, json_out, backend, **options):
 
     opts = _fit_options(**options)
     try:
-        fam = load(spec, backend=backend)
+        fam = load(spec, backend=backend, limits=_limits(trusted, limit))
         channel = resolve_channel(fam, channel)
         opts.check(fam)
         X = read_measures(data, fam.channel(channel).components, channel)
@@ -270,7 +295,9 @@ def fit(spec, data, channel, json_out, backend, **options):
 @click.option("--retry-errors", is_flag=True,
               help="Estimate again the datasets whose earlier run failed.")
 @backend_option
-def batch(spec, data_glob, channel, db, workers, scheduler, retry_errors, backend, **options):
+@limit_options
+def batch(spec, data_glob, channel, db, workers, scheduler, retry_errors, backend, trusted, limit,
+          **options):
     """Estimate every dataset matching DATA_GLOB with SPEC and the same options, in parallel.
 
     One estimation per data file (formats as for `kanagen fit`; quote the glob, ** matches
@@ -317,7 +344,8 @@ def batch(spec, data_glob, channel, db, workers, scheduler, retry_errors, backen
     try:
         summary = run_batch(spec, data_glob, db=db, channel=channel, workers=workers,
                             scheduler=scheduler, retry_errors=retry_errors, progress=step,
-                            on_start=start, options=opts, backend=backend)
+                            on_start=start, options=opts, backend=backend,
+                            limits=_limits(trusted, limit))
     except (SpecError, ValueError, OSError, ImportError) as exc:
         _fail(str(exc))
     except KeyboardInterrupt:

@@ -10,7 +10,8 @@ from pathlib import Path
 
 from .codegen import BACKENDS, FORMAT, generator_fingerprint, render_spec
 from .codegen.compile import CompileError, CompileWarning, compile_family, load_compiled
-from .modelspec import Family, load_spec, parse_spec
+from .modelspec import Family, Limits, load_spec, parse_spec
+from .modelspec.limits import DEFAULT
 from .runtime.backends import CasadiFunctions, CompiledFunctions
 from .runtime.family import ModelFamily, cache_dir, cache_key, import_file, shipped_module
 from .runtime.fastpath import FastPath
@@ -20,7 +21,8 @@ LOAD_BACKENDS = ("numpy", "casadi", "compiled")
 
 
 def load(spec: str | Path | Family, *, backend: str = "numpy",
-         use_generated_kernels: bool = True, eliminate_linear: bool = False) -> ModelFamily:
+         use_generated_kernels: bool = True, eliminate_linear: bool = False,
+         limits: Limits = DEFAULT) -> ModelFamily:
     """Load a model family.
 
     Parameters
@@ -41,6 +43,9 @@ def load(spec: str | Path | Family, *, backend: str = "numpy",
     eliminate_linear : bool
         Fit models with linear parameter constraints in their free components (the
         constraints solved at build time, report §6); same results.
+    limits : Limits
+        What reading a spec may cost (:class:`kanagen.modelspec.Limits`; a spec may come
+        from anyone): ``Limits.trusted()`` lifts every bound.
 
     The committed modules under ``kanagen.generated`` are used when they were generated from
     the same spec text; otherwise the spec is built into a cache directory
@@ -63,7 +68,7 @@ def load(spec: str | Path | Family, *, backend: str = "numpy",
     else:
         path = Path(spec)
         if path.suffix in (".yaml", ".yml") or path.exists():
-            family = load_spec(path)
+            family = load_spec(path, limits)
         else:
             family = None
             module = _shipped_by_name(str(spec))
@@ -89,10 +94,11 @@ def load(spec: str | Path | Family, *, backend: str = "numpy",
     return ModelFamily(module, use_generated_kernels, functions, eliminate_linear, fastpath)
 
 
-def load_text(text: str, source: str = "<spec>", **options) -> ModelFamily:
+def load_text(text: str, source: str = "<spec>", *, limits: Limits = DEFAULT,
+              **options) -> ModelFamily:
     """Load a family from YAML text; ``source`` names it in errors and in the header.
-    ``options`` are those of :func:`load`."""
-    return load(parse_spec(text, source), **options)
+    ``limits`` and ``options`` are those of :func:`load`."""
+    return load(parse_spec(text, source, limits), **options)
 
 
 def _shipped_by_name(name: str):

@@ -3,6 +3,7 @@
 from .errors import SpecError
 from .expressions import FUNCTIONS, parse_expression
 from .ir import Alternative, Channel, Derived, Family, Model, symbol
+from .limits import Limits
 from .parse import family_from_data, load_spec, parse_spec
 
 __all__ = [
@@ -11,6 +12,7 @@ __all__ = [
     "Channel",
     "Derived",
     "Family",
+    "Limits",
     "Model",
     "SpecError",
     "family_from_data",

@@ -26,7 +26,9 @@ from sympy.logic.boolalg import BooleanFalse, BooleanTrue, to_cnf
 
 from .errors import SpecError
 from .expressions import parse_expression
+from .guards import scan
 from .ir import symbol
+from .limits import DEFAULT, Limits
 
 _COMPARE = {ast.Eq: sp.Eq, ast.NotEq: sp.Ne, ast.Gt: sp.Gt, ast.GtE: sp.Ge, ast.Lt: sp.Lt,
             ast.LtE: sp.Le}
@@ -62,18 +64,24 @@ def is_formula(text: object) -> bool:
         isinstance(tree.body, ast.UnaryOp) and isinstance(tree.body.op, ast.Not))
 
 
-def parse_formula(text: str, symbols: Mapping[str, sp.Symbol], source: str, line: int | None):
+def parse_formula(text: str, symbols: Mapping[str, sp.Symbol], source: str, line: int | None,
+                  limits: Limits = DEFAULT):
     """A constraint formula as a SymPy boolean (relations, And, Or, Not)."""
+    if scan(text)[0] > limits.max_depth:
+        raise SpecError(f"constraint {text[:80]!r} nested deeper than {limits.max_depth} "
+                        "(limit max_depth)", source, line)
     try:
         tree = ast.parse(text.strip(), mode="eval")
     except SyntaxError as exc:
         raise SpecError(f"cannot parse constraint {text!r}: {exc.msg}", source, line) from None
+    except (RecursionError, MemoryError, ValueError):
+        raise SpecError(f"constraint {text[:80]!r} too deeply nested", source, line) from None
 
     def fail(what):
         return SpecError(f"{what} in constraint {text!r}", source, line)
 
     def term(node):
-        return parse_expression(ast.unparse(node), symbols, source, line)
+        return parse_expression(ast.unparse(node), symbols, source, line, limits)
 
     def formula(node):
         if isinstance(node, ast.BoolOp):
@@ -116,7 +124,7 @@ def parse_formula(text: str, symbols: Mapping[str, sp.Symbol], source: str, line
 
 
 def compile_formula(formula, label: str, source: str = "<spec>",
-                    line: int | None = None) -> Compiled:
+                    line: int | None = None, limits: Limits = DEFAULT) -> Compiled:
     """Equations and slacks for a constraint formula (report appendix F).
 
     The conjunctive normal form is cleaned before it becomes equations: clauses holding a
@@ -127,6 +135,11 @@ def compile_formula(formula, label: str, source: str = "<spec>",
         return Compiled((), ())
     if isinstance(formula, BooleanFalse):
         raise SpecError(f"constraint {label!r} is always false", source, line)
+    clauses, literals = cnf_size(formula)
+    if clauses > limits.max_clauses or literals > limits.max_slacks:
+        raise SpecError(f"constraint {label!r}: its conjunctive normal form has {clauses} "
+                        f"clauses of {literals} relations in all (limits max_clauses = "
+                        f"{limits.max_clauses}, max_slacks = {limits.max_slacks})", source, line)
     cnf = to_cnf(formula, simplify=False)
     if isinstance(cnf, BooleanTrue):
         return Compiled((), ())
@@ -157,6 +170,40 @@ def compile_formula(formula, label: str, source: str = "<spec>",
         slacks[0] = Slack(f"s_{label}", slacks[0].kind, slacks[0].measure)
         equations = [e.subs(symbol(f"s_{label}_1"), symbol(f"s_{label}")) for e in equations]
     return Compiled(tuple(equations), tuple(slacks), tuple(only_inequalities))
+
+
+def cnf_size(formula) -> tuple[int, int]:
+    """The clauses of ``formula``'s conjunctive normal form and the relations they hold in
+    all, counted before distributing (``(a and b) or (c and d) or ...`` doubles them per
+    term). Computed for the formula and its negation together, as NOT flips them."""
+    cap = 10**9
+
+    def sizes(f) -> tuple[tuple[int, int], tuple[int, int]]:
+        """((clauses, literals) of f, of not f)."""
+        if isinstance(f, sp.Not):
+            pos, neg = sizes(f.args[0])
+            return neg, pos
+        if isinstance(f, sp.And | sp.Or):
+            parts = [sizes(a) for a in f.args]
+            conj = lambda ps: (min(cap, sum(p[0] for p in ps)),  # noqa: E731
+                               min(cap, sum(p[1] for p in ps)))
+            disj = lambda ps: _distributed(ps, cap)  # noqa: E731
+            pos, neg = [p for p, _ in parts], [n for _, n in parts]
+            return (conj(pos), disj(neg)) if isinstance(f, sp.And) else (disj(pos), conj(neg))
+        return (1, 1), (1, 1)
+
+    return sizes(formula)[0]
+
+
+def _distributed(parts, cap: int) -> tuple[int, int]:
+    """Clauses and literals of an OR of CNFs: every choice of one clause per part."""
+    clauses, literals = 1, 0
+    for c, lits in parts:
+        # each clause of the product holds one clause of this part: literals add up over
+        # the clauses of the others
+        literals = min(cap, literals * c + lits * clauses)
+        clauses = min(cap, clauses * c)
+    return clauses, literals
 
 
 def _exprs(atoms):

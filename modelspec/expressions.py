@@ -14,12 +14,15 @@ arithmetic at parse time: the IR and the code generators only ever see scalars.
 from __future__ import annotations
 
 import ast
+import math
 import re
 from collections.abc import Mapping
 
 import sympy as sp
 
 from .errors import SpecError
+from .guards import constant_problem, long_groups, power_digits, scan, tree_size
+from .limits import DEFAULT, Limits
 
 #: The functions a spec may call: name in the spec -> SymPy function. Code generators map these
 #: SymPy classes to their target library through one table each (see ``kanagen.codegen.printer``).
@@ -65,6 +68,9 @@ MATRIX_FUNCTIONS: dict[str, tuple[int | None, str, object]] = {
     "diag": (None, "scalars", lambda *d: Matrix(sp.diag(*d))),
 }
 
+#: Parenthesised sums longer than this are parsed on their own (Python's parser nests).
+_LONG_GROUP = 100
+
 #: Named constants of the expression language.
 CONSTANTS: dict[str, sp.Expr] = {"pi": sp.pi}
 
@@ -74,8 +80,6 @@ RESERVED = frozenset(FUNCTIONS) | frozenset(MATRIX_FUNCTIONS) | frozenset(CONSTA
 _IDENTIFIER = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 #: Longest name a spec may declare (generated file and function names are built from them).
 MAX_NAME = 64
-_MAX_LENGTH = 20_000
-_MAX_POWER = 64
 
 
 def check_identifier(name: object, what: str, source: str, line: int | None) -> str:
@@ -108,6 +112,7 @@ def parse_expression(
     symbols: Mapping[str, sp.Expr | Matrix],
     source: str = "<spec>",
     line: int | None = None,
+    limits: Limits = DEFAULT,
 ) -> sp.Expr | Matrix:
     """Parse one expression.
 
@@ -122,6 +127,8 @@ def parse_expression(
         helper definitions.
     source, line : str, int
         Where the text comes from, for error messages.
+    limits : Limits
+        What the expression may cost (:mod:`kanagen.modelspec.limits`).
 
     Returns
     -------
@@ -139,18 +146,50 @@ def parse_expression(
     if isinstance(text, bool):
         raise SpecError(f"expected an expression, got the boolean {text}", source, line)
     if isinstance(text, int | float):
-        return sp.Float(text) if isinstance(text, float) else sp.Integer(text)
+        value = sp.Float(text) if isinstance(text, float) else sp.Integer(text)
+        return _Builder(symbols, source, line, repr(text), limits).checked(value)
     if not isinstance(text, str):
         raise SpecError(
             f"expected an expression, got {type(text).__name__} {text!r}", source, line
         )
-    if len(text) > _MAX_LENGTH:
-        raise SpecError(f"expression longer than {_MAX_LENGTH} characters", source, line)
+    if len(text) > limits.max_bytes:
+        raise SpecError(f"expression longer than {limits.max_bytes} characters (limit "
+                        "max_bytes)", source, line)
+    text = text.strip()
+    builder = _Builder(symbols, source, line, text, limits)
+    if scan(text)[0] > limits.max_depth:
+        raise builder.fail(f"nesting deeper than {limits.max_depth} (limit max_depth)")
+    groups = long_groups(text, _LONG_GROUP)
+    if groups:  # each long parenthesised sum parsed on its own, then used by name
+        symbols = dict(symbols)
+        pieces, at = [], 0
+        for number, (start, end) in enumerate(groups):
+            name = f"_kg_group{number}"
+            symbols[name] = parse_expression(text[start:end], symbols, source, line, limits)
+            pieces += [text[at:start], name]
+            at = end
+        text = "".join(pieces + [text[at:]])
+        builder = _Builder(symbols, source, line, builder.text, limits)
+    terms = scan(text)[1]
     try:
-        tree = ast.parse(text.strip(), mode="eval")
-    except SyntaxError as exc:
-        raise SpecError(f"cannot parse expression {text!r}: {exc.msg}", source, line) from None
-    return _Builder(symbols, source, line, text).build(tree.body)
+        if terms is None:
+            value = builder.build(builder.tree(text))
+        else:  # a long sum, term by term: Python's parser nests one level per term
+            parts = [(sign, builder.build(builder.tree(term))) for sign, term in terms]
+            if any(isinstance(v, Matrix) for _, v in parts):
+                value = parts[0][1] if parts[0][0] == "+" else -parts[0][1]
+                for sign, v in parts[1:]:
+                    value = builder.add(value, v, sign)
+            else:
+                value = sp.Add(*(v if sign == "+" else -v for sign, v in parts))
+    except RecursionError:
+        raise builder.fail("too deeply nested (split it into definitions)") from None
+    return builder.sized(value)
+
+
+def _short(value) -> str:
+    text = str(value)
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def shape_text(value) -> str:
@@ -159,14 +198,57 @@ def shape_text(value) -> str:
 
 
 class _Builder:
-    def __init__(self, symbols, source, line, text):
+    def __init__(self, symbols, source, line, text, limits: Limits):
         self.symbols = symbols
         self.source = source
         self.line = line
         self.text = text
+        self.limits = limits
 
     def fail(self, what: str) -> SpecError:
-        return SpecError(f"{what} in expression {self.text!r}", self.source, self.line)
+        shown = self.text if len(self.text) <= 200 else self.text[:200] + "..."
+        return SpecError(f"{what} in expression {shown!r}", self.source, self.line)
+
+    def tree(self, text: str) -> ast.AST:
+        try:
+            return ast.parse(text, mode="eval").body
+        except SyntaxError as exc:
+            raise SpecError(f"cannot parse expression {self.text!r}: {exc.msg}", self.source,
+                            self.line) from None
+        except (RecursionError, MemoryError, ValueError):
+            raise self.fail("too deeply nested or too large (split it into definitions)") \
+                from None
+
+    def checked(self, value):
+        """``value`` if it is no constant, or a real, finite one of bounded size."""
+        if isinstance(value, Matrix):
+            if max(value.shape) > self.limits.max_matrix:
+                raise self.fail(f"a {shape_text(value)} (limit max_matrix = "
+                                f"{self.limits.max_matrix})")
+            return value
+        if isinstance(value, sp.Basic) and not value.free_symbols and value.is_number:
+            problem = constant_problem(value, self.limits.max_number_digits)
+            if problem is not None:
+                raise self.fail(f"the constant {_short(value)} is {problem}")
+        return value
+
+    def sized(self, value):
+        """``value`` if its tree (definitions substituted) is within ``max_nodes``."""
+        cap = self.limits.max_nodes
+        parts = list(value) if isinstance(value, Matrix) else [value]
+        total = 0
+        for part in parts:
+            total += tree_size(part, cap)
+            if total > cap:
+                raise self.fail(f"more than {cap} terms and factors once its definitions "
+                                "are substituted (limit max_nodes)")
+        return value
+
+    def add(self, left, right, sign: str):
+        shapes = (isinstance(left, Matrix), isinstance(right, Matrix))
+        if shapes[0] != shapes[1] or (all(shapes) and left.shape != right.shape):
+            raise self.fail(f"cannot add a {shape_text(left)} and a {shape_text(right)}")
+        return left + right if sign == "+" else left - right
 
     def scalar(self, node: ast.AST, what: str) -> sp.Expr:
         value = self.build(node)
@@ -179,7 +261,10 @@ class _Builder:
             value = node.value
             if isinstance(value, bool) or not isinstance(value, int | float):
                 raise self.fail(f"literal {value!r} is not a number")
-            return sp.Integer(value) if isinstance(value, int) else sp.Float(value)
+            if isinstance(value, float) and not math.isfinite(value):
+                raise self.fail(f"literal {value!r} is not finite")
+            return self.checked(sp.Integer(value) if isinstance(value, int)
+                                else sp.Float(value))
         if isinstance(node, ast.Name):
             if node.id in self.symbols:
                 return self.symbols[node.id]
@@ -210,28 +295,46 @@ class _Builder:
         op = node.op
         shapes = (isinstance(left, Matrix), isinstance(right, Matrix))
         if isinstance(op, ast.Add | ast.Sub):
-            if shapes[0] != shapes[1] or (all(shapes) and left.shape != right.shape):
-                raise self.fail(f"cannot add a {shape_text(left)} and a {shape_text(right)}")
-            return left + right if isinstance(op, ast.Add) else left - right
+            return self.checked(self.add(left, right, "+" if isinstance(op, ast.Add) else "-"))
         if isinstance(op, ast.Mult):
             if all(shapes):
                 raise self.fail("'*' of two matrices: write '@' for the matrix product")
-            return left * right
+            return self.checked(left * right)
         if isinstance(op, ast.MatMult):
             if not all(shapes) or left.cols != right.rows:
                 raise self.fail(f"'@' of a {shape_text(left)} and a {shape_text(right)}")
-            return left @ right
+            return self.checked(left @ right)
         if isinstance(op, ast.Div):
             if shapes[1]:
                 raise self.fail(f"division by a {shape_text(right)}")
-            return left / right
+            if right == 0:
+                raise self.fail("division by zero: not finite")
+            return self.checked(left / right)
         if isinstance(op, ast.Pow):
             if any(shapes):
                 raise self.fail("'**' of a matrix not allowed")
-            if right.is_Number and abs(float(right)) > _MAX_POWER:
-                raise self.fail(f"exponent {right} larger than {_MAX_POWER}")
-            return left**right
+            return self.power(left, right)
         raise self.fail(f"operator {type(op).__name__} not allowed")
+
+    def power(self, base: sp.Expr, exponent: sp.Expr) -> sp.Expr:
+        """``base ** exponent``, refused before it is computed when numbers would grow beyond
+        ``max_number_digits``, and after when a symbol's folded exponent exceeds
+        ``max_exponent`` (``(x**64)**64`` is ``x**4096``)."""
+        limit = self.limits.max_exponent
+        if exponent.is_Number and abs(exponent) > limit:
+            raise self.fail(f"exponent {_short(exponent)} larger than {limit} (limit "
+                            "max_exponent)")
+        if base.is_number and exponent.is_number and not base.free_symbols and \
+                power_digits(base, exponent) > self.limits.max_number_digits:
+            raise self.fail(f"the constant {_short(base)}**{_short(exponent)} has more than "
+                            f"{self.limits.max_number_digits} digits (limit "
+                            "max_number_digits)")
+        value = base**exponent
+        for part in (value, *value.args):
+            if part.is_Pow and part.exp.is_Number and abs(part.exp) > limit:
+                raise self.fail(f"exponent {_short(part.exp)} after folding, larger than "
+                                f"{limit} (limit max_exponent)")
+        return self.checked(value)
 
     def call(self, node: ast.Call) -> sp.Expr | Matrix:
         name = node.func.id if isinstance(node.func, ast.Name) else None
@@ -245,14 +348,14 @@ class _Builder:
             arity = _ARITY.get(name, 1)
             if len(node.args) != arity:
                 raise self.fail(f"{name} takes {arity} argument(s), got {len(node.args)}")
-            return FUNCTIONS[name](*(self.scalar(a, name) for a in node.args))
+            return self.checked(FUNCTIONS[name](*(self.scalar(a, name) for a in node.args)))
         arity, kind, fn = MATRIX_FUNCTIONS[name]
         if arity is not None and len(node.args) != arity:
             raise self.fail(f"{name} takes {arity} argument(s), got {len(node.args)}")
         if kind == "scalars":
             if not node.args:
                 raise self.fail(f"{name} takes at least one argument")
-            return fn(*(self.scalar(a, name) for a in node.args))
+            return self.checked(fn(*(self.scalar(a, name) for a in node.args)))
         args = [self.build(a) for a in node.args]
         for value in args:
             if not isinstance(value, Matrix):
@@ -262,7 +365,11 @@ class _Builder:
                     (kind == "vector3" and (not vector or len(value) != 3)) or \
                     (kind == "vectors" and (not vector or len(value) != len(args[0]))):
                 raise self.fail(f"{name} of a {shape_text(value)} not allowed")
-        return fn(*args)
+        if name == "det" and args[0].rows > self.limits.max_det:
+            raise self.fail(f"det of a {shape_text(args[0])}: its expansion has "
+                            f"{math.factorial(args[0].rows)} terms (limit max_det = "
+                            f"{self.limits.max_det})")
+        return self.checked(fn(*args))
 
     def matrix(self, node: ast.List) -> Matrix:
         if not node.elts:
@@ -271,8 +378,8 @@ class _Builder:
             rows = [[self.scalar(e, "a matrix entry") for e in row.elts] for row in node.elts]
             if len({len(r) for r in rows}) != 1 or not rows[0]:
                 raise self.fail("matrix rows of unequal length")
-            return Matrix(rows)
-        return Matrix([[self.scalar(e, "a vector entry")] for e in node.elts])
+            return self.checked(Matrix(rows))
+        return self.checked(Matrix([[self.scalar(e, "a vector entry")] for e in node.elts]))
 
     def subscript(self, node: ast.Subscript) -> sp.Expr:
         value = self.build(node.value)

@@ -23,7 +23,9 @@ from .expressions import (
     parse_expression,
     shape_text,
 )
+from .guards import tree_size
 from .ir import Alternative, Channel, Derived, Family, Model, sha256_text, symbol
+from .limits import DEFAULT, Limits
 from .yamlsrc import Located, read_yaml
 
 _TOP_KEYS = ("name", "description", "constants", "parameter", "define", "channels", "models",
@@ -35,8 +37,8 @@ _PHI_WORDS = ("aic", "ftest", "exp")
 _SYMPY_FUNCS = tuple(f for f in FUNCTIONS.values() if isinstance(f, type))  # sqrt is a Pow
 
 
-def load_spec(path: str | Path) -> Family:
-    """Read and validate a YAML spec file.
+def load_spec(path: str | Path, limits: Limits = DEFAULT) -> Family:
+    """Read and validate a YAML spec file (within ``limits``: :mod:`.limits`).
 
     Examples
     --------
@@ -44,18 +46,27 @@ def load_spec(path: str | Path) -> Family:
     """
     path = Path(path)
     try:
+        size = path.stat().st_size
+        if size > limits.max_bytes:
+            raise SpecError(f"the spec is {size} bytes, more than {limits.max_bytes} (limit "
+                            "max_bytes)", str(path))
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise SpecError(f"cannot read spec: {exc.strerror}", str(path)) from None
-    return parse_spec(text, source=str(path))
+    except UnicodeDecodeError as exc:
+        raise SpecError(f"the spec is not UTF-8 text ({exc.reason} at byte {exc.start})",
+                        str(path)) from None
+    return parse_spec(text, source=str(path), limits=limits)
 
 
-def parse_spec(text: str, source: str = "<spec>") -> Family:
-    """Validate a YAML spec given as text; ``source`` names it in errors."""
-    return _Builder(read_yaml(text, source), sha256_text(text)).family()
+def parse_spec(text: str, source: str = "<spec>", limits: Limits = DEFAULT) -> Family:
+    """Validate a YAML spec given as text; ``source`` names it in errors; ``limits`` bound
+    what it may cost (:mod:`.limits`)."""
+    return _Builder(read_yaml(text, source, limits), sha256_text(text), limits).family()
 
 
-def family_from_data(data: Mapping, source: str = "<python>") -> Family:
+def family_from_data(data: Mapping, source: str = "<python>",
+                     limits: Limits = DEFAULT) -> Family:
     """Validate a spec given as Python data: the YAML layout, with SymPy expressions or text.
 
     Symbols may be given as ``sympy.Symbol`` or as names, anywhere a name is expected.
@@ -73,7 +84,7 @@ def family_from_data(data: Mapping, source: str = "<python>") -> Family:
     """
     plain = _plain(data)
     digest = hashlib.sha256(sp.srepr(_sympy_only(plain)).encode("utf-8")).hexdigest()
-    return _Builder(Located(plain, {}, source), digest).family()
+    return _Builder(Located(plain, {}, source), digest, limits).family()
 
 
 def _plain(value):
@@ -100,9 +111,10 @@ def _sympy_only(value):
 
 
 class _Builder:
-    def __init__(self, located: Located, digest: str):
+    def __init__(self, located: Located, digest: str, limits: Limits = DEFAULT):
         self.src = located
         self.digest = digest
+        self.limits = limits
 
     def error(self, message: str, *path) -> SpecError:
         return SpecError(message, self.src.source, self.src.line(*path))
@@ -161,7 +173,8 @@ class _Builder:
         if isinstance(value, sp.Basic):
             expr = self.check_sympy(value, allowed, *path)
         else:
-            expr = parse_expression(value, allowed, self.src.source, self.src.line(*path))
+            expr = parse_expression(value, allowed, self.src.source, self.src.line(*path),
+                                    self.limits)
         if expr.has(sp.zoo, sp.oo, -sp.oo, sp.nan):
             raise self.error(f"expression {value!r} is not finite (division by zero?)", *path)
         symbols = {v for k, v in allowed.items() if isinstance(v, sp.Symbol) and v.name == k}
@@ -202,7 +215,11 @@ class _Builder:
             if isinstance(allowed[s.name], Matrix):
                 raise self.error(f"definition {s.name!r} is a matrix: a SymPy expression may "
                                  "not use it as a symbol", *path)
-        return expr.xreplace({s: allowed[s.name] for s in expr.free_symbols})
+        expr = expr.xreplace({s: allowed[s.name] for s in expr.free_symbols})
+        if tree_size(expr, self.limits.max_nodes) > self.limits.max_nodes:
+            raise self.error(f"expression of more than {self.limits.max_nodes} terms and "
+                             "factors (limit max_nodes)", *path)
+        return expr
 
     # -- the family --------------------------------------------------------------------------
     def family(self) -> Family:
@@ -363,8 +380,8 @@ class _Builder:
             if is_formula(text):
                 line = self.src.line(*where)
                 formula = (text if isinstance(text, sp.Basic)
-                           else parse_formula(text, base, self.src.source, line))
-                compiled = compile_formula(formula, label, self.src.source, line)
+                           else parse_formula(text, base, self.src.source, line, self.limits))
+                compiled = compile_formula(formula, label, self.src.source, line, self.limits)
                 for slack in compiled.slacks:
                     declare(slack.name, "slack component", *where)
                 # an equation an earlier constraint already states is dropped (a repeated
