@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .dataio import read_measures
+from .dataio import DataError, read_measures
 from .fitjob import FitOptions, resolve_channel, run_job
 from .modelspec.limits import DEFAULT, Limits
-from .resultsdb import ResultsDB, Row, encode
+from .resultsdb import ResultsDB, Row, claim_owner, encode
 
 _IN_FLIGHT = 2  # datasets sent ahead per worker thread: busy workers, little lost on a kill
 
@@ -49,7 +49,7 @@ class BatchSummary:
     """The counts of a batch run."""
 
     datasets: int  # matched
-    skipped: int  # already in the database (resumed)
+    skipped: int  # already in the database (resumed), or taken by another run on it
     ok: int  # estimated now, a model found
     no_model: int  # estimated now, no model (or not converged)
     errors: int  # failed now
@@ -131,7 +131,8 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
     options.check(fam)
     key = options.key(channel)
     components = fam.channel(channel).components
-    counts = {"ok": 0, "no model": 0, "error": 0}
+    counts = {"ok": 0, "no model": 0, "error": 0, "elsewhere": 0}
+    owner = claim_owner()
     with ResultsDB(db) as store:
         done = store.done(fam.sha256, key, retry_errors)
         todo = [p for p in paths if p not in done]
@@ -150,24 +151,34 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
 
         def jobs() -> Iterator[tuple[str, np.ndarray]]:
             for path in todo:
+                # another run on the same database may have taken it (or done it) since
+                if not store.claim(path, fam.sha256, key, owner, retry_errors):
+                    counts["elsewhere"] += 1
+                    continue
                 try:
                     X = read_measures(path, components, channel)
                     if X.ndim != 2 or X.shape[0] == 0:
-                        raise ValueError(f"{path}: no measures for channel {channel!r}")
-                except ValueError as exc:
-                    record(path, "error", str(exc))
+                        raise DataError(f"{path}: no measures for channel {channel!r}")
+                except Exception as exc:  # any unreadable dataset: recorded, the run goes on
+                    record(path, "error", str(exc) if isinstance(exc, DataError)
+                           else f"{path}: cannot read data: {type(exc).__name__}")
                     continue
                 yield path, X
 
         task = (spec_text, source, channel, options.to_dict(), backend, limits)
-        with _client(workers, scheduler, bool(todo)) as (client, slots):
-            for path, out in _run(client, slots, task, jobs()):
-                if "error" in out:
-                    record(path, "error", out["error"], out)
-                else:
-                    record(path, "ok" if out["found"] else "no model", out["stop_reason"], out)
-    return BatchSummary(len(paths), len(paths) - len(todo), counts["ok"], counts["no model"],
-                        counts["error"], time.perf_counter() - started, slots, str(db))
+        try:
+            with _client(workers, scheduler, bool(todo)) as (client, slots):
+                for path, out in _run(client, slots, task, jobs()):
+                    if "error" in out:
+                        record(path, "error", out["error"], out)
+                    else:
+                        record(path, "ok" if out["found"] else "no model",
+                               out["stop_reason"], out)
+        finally:
+            store.release(owner)
+    return BatchSummary(len(paths), len(paths) - len(todo) + counts["elsewhere"], counts["ok"],
+                        counts["no model"], counts["error"], time.perf_counter() - started,
+                        slots, str(db))
 
 
 def _expand(datasets) -> list[str]:

@@ -276,7 +276,7 @@ def fit(spec, data, channel, json_out, backend, trusted, limit, **options):
         click.echo(res.summary(), err=to_err)
         _write_json(record, json_out)
         sys.exit(0 if res.success else 1)
-    found = _report_robust(est, fam, channel, len(X), json_out, to_err, opts, spec=spec,
+    found = _report_robust(est, fam, channel, X, json_out, to_err, opts, spec=spec,
                            data=data)
     sys.exit(0 if found else 1)
 
@@ -410,7 +410,7 @@ def _parse_constants(items) -> dict[str, float]:
     return constants
 
 
-def _report_robust(est, fam, channel, measures, json_out, to_err, opts, *, spec,
+def _report_robust(est, fam, channel, X, json_out, to_err, opts, *, spec,
                    data) -> bool:
     """Run the search, print the lattice and the chosen model; True when a model was found."""
     from .fitjob import robust_record
@@ -420,8 +420,9 @@ def _report_robust(est, fam, channel, measures, json_out, to_err, opts, *, spec,
         samples = _search(est, opts.max_samples)
     except KeyboardInterrupt:  # anytime: report the best model so far
         samples, interrupted = len(est.history), True
-    record = robust_record(est, fam, opts, channel=channel, measures=measures,
-                           samples=samples, spec=spec, data=data, interrupted=interrupted)
+    record = robust_record(est, fam, opts, channel=channel, X=X, samples=samples, spec=spec,
+                           data=data, interrupted=interrupted)
+    measures = len(X)
     click.echo(f"family {fam.name!r}, channel {channel!r}: {measures} measures, "
                f"L* = {opts.scale:g}, scorer {opts.scorer}, {samples} sample(s): "
                f"{record['stop_reason']}", err=to_err)

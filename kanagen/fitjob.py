@@ -8,6 +8,7 @@ estimated by either gives the same record, bit for bit.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from collections.abc import Callable, Mapping
@@ -179,7 +180,7 @@ def search(est: Estimator, max_samples: int,
 
 
 def robust_record(est: Estimator, fam: ModelFamily, opts: FitOptions, *, channel: str,
-                  measures: int, samples: int, spec: str, data: str,
+                  X: np.ndarray, samples: int, spec: str, data: str,
                   interrupted: bool = False) -> dict:
     """The JSON record of a robust search (``kanagen fit --json``); ``"found"`` says whether
     a model was found."""
@@ -188,10 +189,10 @@ def robust_record(est: Estimator, fam: ModelFamily, opts: FitOptions, *, channel
     status = f"interrupted ({est.status})" if interrupted else est.status
     if not interrupted and samples >= opts.max_samples and est.status != "done":
         status = f"stopped at --max-samples {opts.max_samples} ({est.status})"
-    record = estimator_to_json(est, best.model if found else None, measures)
-    record.update(_header(fam, channel, spec, data))
+    record = estimator_to_json(est, best.model if found else None, len(X))
+    record.update(_header(fam, channel, spec, data, X))
     record.update({"scale": opts.scale, "scorer": opts.scorer, "phi": opts.phi,
-                   "seed": opts.seed, "max_samples": opts.max_samples, "measures": measures,
+                   "seed": opts.seed, "max_samples": opts.max_samples, "measures": len(X),
                    "total_samples": samples, "status": est.status, "stop_reason": status,
                    "found": found})
     return record
@@ -211,15 +212,22 @@ def local_record(fam: ModelFamily, X: np.ndarray, channel: str, opts: FitOptions
     errors = np.full(len(X), np.nan)
     if np.all(np.isfinite(res.q)):
         errors = coherence(fam, res.model, res.q, {channel: X}, info, constants)[channel]
-    record.update(_header(fam, channel, spec, data))
+    record.update(_header(fam, channel, spec, data, X))
     record.update({"local": True, "errors": errors, "found": bool(res.success),
                    "stop_reason": res.message, "max_iter": opts.max_iter})
     return res, record
 
 
-def _header(fam: ModelFamily, channel: str, spec: str, data: str) -> dict:
+def measures_sha256(X: np.ndarray) -> str:
+    """The hash of a dataset's measures as read (float64): a record names its data file with
+    it, so a report reads only a file that holds those very measures."""
+    return hashlib.sha256(np.ascontiguousarray(X, dtype=float).tobytes()).hexdigest()
+
+
+def _header(fam: ModelFamily, channel: str, spec: str, data: str, X: np.ndarray) -> dict:
     return {"format": RECORD_FORMAT, "family": fam.name, "spec": str(spec),
-            "spec_sha256": fam.sha256, "data": str(data), "channel": channel,
+            "spec_sha256": fam.sha256, "data": str(data),
+            "data_sha256": measures_sha256(X), "channel": channel,
             "channel_components": list(fam.channel(channel).components),
             "edges": [[m, alt, phi] for m, info in fam.models.items()
                       for alt, phi in info.alternatives],
@@ -234,8 +242,8 @@ def run_job(fam: ModelFamily, X: np.ndarray, channel: str, opts: FitOptions, *,
         return finite(local_record(fam, X, channel, opts, spec=spec, data=data)[1])
     est = make_estimator(fam, X, channel, opts)
     samples = search(est, opts.max_samples)
-    return finite(robust_record(est, fam, opts, channel=channel, measures=len(X),
-                                samples=samples, spec=spec, data=data))
+    return finite(robust_record(est, fam, opts, channel=channel, X=X, samples=samples,
+                                spec=spec, data=data))
 
 
 def std(covariance) -> np.ndarray:

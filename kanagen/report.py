@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .dataio import read_measures
+from .fitjob import measures_sha256
 
 
 def load_record(result: str | Path | None = None, *, db: str | Path | None = None,
@@ -43,20 +44,28 @@ def load_record(result: str | Path | None = None, *, db: str | Path | None = Non
 
 def read_data(record: dict, data: str | Path | None = None,
               base: str | Path | None = None) -> np.ndarray | None:
-    """The measures of a record: from ``data`` if given, else from the path it names (as is,
-    or relative to ``base``); None when that file is not there."""
+    """The measures of a record: from ``data`` if given; else from the file it names (as
+    is, or relative to ``base``) when that file holds the very measures the record was
+    estimated from (their hash, ``data_sha256``) — a result file may come from anyone, and
+    must not make a report read and draw another file. None otherwise."""
     components = record.get("channel_components")
     if not components:
         return None
-    if data is None:
-        named = record.get("data")
-        if not named:
-            return None
-        candidates = [Path(named)] + ([Path(base) / named] if base is not None else [])
-        data = next((p for p in candidates if p.is_file()), None)
-        if data is None:
-            return None
-    return read_measures(data, tuple(components), record["channel"])
+    if data is not None:
+        return read_measures(data, tuple(components), record["channel"])
+    named, digest = record.get("data"), record.get("data_sha256")
+    if not (isinstance(named, str) and named and isinstance(digest, str)):
+        return None
+    for path in [Path(named)] + ([Path(base) / named] if base is not None else []):
+        try:
+            if not path.is_file():
+                continue
+            measures = read_measures(path, tuple(components), record["channel"])
+        except (OSError, ValueError):
+            continue
+        if measures_sha256(measures) == digest:
+            return measures
+    return None
 
 
 def render_report(record: dict, *, measures: np.ndarray | None = None,

@@ -11,7 +11,11 @@ says: keep the database off network shares.)
 from __future__ import annotations
 
 import json
+import os
+import socket
 import sqlite3
+import time
+import uuid
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -46,6 +50,13 @@ CREATE TABLE IF NOT EXISTS results (
     PRIMARY KEY (dataset, spec_sha256, options)
 );
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS claims (   -- datasets a running batch has taken
+    dataset TEXT NOT NULL,
+    spec_sha256 TEXT NOT NULL,
+    options TEXT NOT NULL,
+    owner TEXT NOT NULL,            -- host:pid:run of the batch
+    PRIMARY KEY (dataset, spec_sha256, options)
+);
 """
 
 _COLUMNS = ("dataset", "spec_sha256", "options", "family", "channel", "status", "model",
@@ -124,23 +135,32 @@ class ResultsDB:
 
     Parameters
     ----------
-    path : path of the SQLite file (created, with its folder, when missing).
+    path : path of the SQLite file (created, with its folder, when missing). An existing
+        SQLite file that is not a kanagen results database is refused before anything in it
+        changes (kanagen's databases carry :data:`APPLICATION_ID`).
     """
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._db = _connect(self.path)
         try:
-            self._db.execute("PRAGMA journal_mode=WAL")
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._db = _connect(self.path)
+            self._db.execute("PRAGMA schema_version").fetchone()  # opens the file
+        except (OSError, sqlite3.DatabaseError) as exc:
+            if "not a database" in str(exc):
+                raise ValueError(f"{self.path}: not a kanagen results database ({exc})") \
+                    from None
+            raise ValueError(f"cannot open the results database {self.path}: "
+                             f"{getattr(exc, 'strerror', None) or exc}") from None
+        try:
+            _adopt(self._db, self.path)
+            _retry(lambda: self._db.execute("PRAGMA journal_mode=WAL"))
             self._db.execute("PRAGMA synchronous=FULL")  # a committed row survives anything
-            self._db.executescript(_SCHEMA)
-            with _transaction(self._db):
-                self._db.execute("INSERT OR IGNORE INTO meta VALUES ('schema', ?)",
-                                 (str(SCHEMA_VERSION),))
             _check_schema(self._db, self.path)
         except (sqlite3.DatabaseError, ValueError) as exc:
             self._db.close()
+            if isinstance(exc, ValueError):
+                raise
             raise ValueError(f"{self.path}: not a kanagen results database ({exc})") from None
 
     def close(self) -> None:
@@ -160,9 +180,35 @@ class ResultsDB:
             sql += " AND status != 'error'"
         return {r[0] for r in self._db.execute(sql, (spec_sha256, options))}
 
+    def claim(self, dataset: str, spec_sha256: str, options: str, owner: str,
+              retry_errors: bool = False) -> bool:
+        """Take ``dataset`` for this run (``owner``), in one transaction: False when it has
+        a result already (a failed one counts unless ``retry_errors``) or another live run
+        holds it (:func:`_alive`). Two runs on one database so estimate each dataset once."""
+        with _transaction(self._db):
+            row = self._db.execute(
+                "SELECT status FROM results WHERE dataset = ? AND spec_sha256 = ? AND "
+                "options = ?", (dataset, spec_sha256, options)).fetchone()
+            if row is not None and (row[0] != "error" or not retry_errors):
+                return False
+            held = self._db.execute(
+                "SELECT owner FROM claims WHERE dataset = ? AND spec_sha256 = ? AND "
+                "options = ?", (dataset, spec_sha256, options)).fetchone()
+            if held is not None and held[0] != owner and _alive(held[0]):
+                return False
+            self._db.execute("INSERT OR REPLACE INTO claims VALUES (?, ?, ?, ?)",
+                             (dataset, spec_sha256, options, owner))
+        return True
+
+    def release(self, owner: str) -> None:
+        """Drop this run's claims (its datasets not estimated: a later run takes them)."""
+        with _transaction(self._db):
+            self._db.execute("DELETE FROM claims WHERE owner = ?", (owner,))
+
     def write(self, row: Row) -> bool:
-        """Record one dataset in its own transaction; True when written. A failed dataset's
-        row is replaced by a new outcome; any other row is kept (the first writer wins)."""
+        """Record one dataset in its own transaction (its claim dropped); True when written.
+        A failed dataset's row is replaced by a new outcome; any other row is kept (the
+        first writer wins)."""
         if row.status not in STATUSES:
             raise ValueError(f"unknown status {row.status!r}")
         updates = ", ".join(f"{c} = excluded.{c}" for c in _COLUMNS[3:])
@@ -172,7 +218,67 @@ class ResultsDB:
                 f"VALUES ({', '.join('?' * len(_COLUMNS))}) "
                 f"ON CONFLICT (dataset, spec_sha256, options) DO UPDATE SET {updates} "
                 "WHERE results.status = 'error'", row.values())
+            self._db.execute("DELETE FROM claims WHERE dataset = ? AND spec_sha256 = ? AND "
+                             "options = ?", (row.dataset, row.spec_sha256, row.options))
         return cur.rowcount > 0
+
+
+#: ``PRAGMA application_id`` of a kanagen results database ("KGRS").
+APPLICATION_ID = 0x4B475253
+
+
+def _adopt(db: sqlite3.Connection, path: Path) -> None:
+    """Make ``db`` a kanagen results database — a new (empty) file, or one that is one
+    already — or refuse it, changing nothing: an unrelated SQLite file passed as ``--db``
+    must not gain kanagen's tables and WAL mode."""
+    with _transaction(db):
+        app = db.execute("PRAGMA application_id").fetchone()[0]
+        tables = {r[0] for r in db.execute(
+            "SELECT name FROM sqlite_master WHERE type = 'table'")}
+        ours = app == APPLICATION_ID or (app == 0 and {"results", "meta"} <= tables)
+        if tables and not ours:
+            raise ValueError(f"{path}: an SQLite database that is not a kanagen results "
+                             f"database (tables: {', '.join(sorted(tables)[:8])}); give "
+                             "another --db")
+        for statement in _SCHEMA.split(";"):
+            if statement.strip():
+                db.execute(statement)
+        db.execute("INSERT OR IGNORE INTO meta VALUES ('schema', ?)", (str(SCHEMA_VERSION),))
+        db.execute(f"PRAGMA application_id = {APPLICATION_ID}")
+
+
+def _retry(action, seconds: float = 60.0):
+    """``action()``, again while another connection holds the lock it needs (switching to
+    WAL takes an exclusive lock that SQLite's busy timeout does not wait for)."""
+    deadline = time.monotonic() + seconds
+    while True:
+        try:
+            return action()
+        except sqlite3.OperationalError as exc:
+            if "locked" not in str(exc) or time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
+
+
+def _alive(owner: str) -> bool:
+    """Whether the run that wrote a claim (``host:pid:run``) may still be running: on this
+    host, its process exists; on another host it is presumed alive."""
+    host, _, rest = owner.partition(":")
+    pid = rest.partition(":")[0]
+    if host != socket.gethostname():
+        return True
+    try:
+        os.kill(int(pid), 0)
+    except (ValueError, ProcessLookupError):
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def claim_owner() -> str:
+    """This run's name in the claims table: ``host:pid:random``."""
+    return f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
 
 
 class _transaction:
