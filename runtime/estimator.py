@@ -20,7 +20,13 @@ from .coherence import manifold_ranks
 from .family import ModelFamily
 from .fit import fit_problem
 from .initializers import model_initializers
-from .inputs import ChannelData, channel_data, parameter_vector, prior_information
+from .inputs import (
+    ChannelData,
+    channel_data,
+    check_search_options,
+    parameter_vector,
+    prior_information,
+)
 from .phi import phi as get_phi
 from .projector import Problem
 from .results import DerivedValue
@@ -122,8 +128,9 @@ class Estimator:
                  q0=None, Q0=None, constants=None, model: str | None = None,
                  initializers: dict | None = None, local: float = 0.0,
                  max_threshold: float | None = None):
-        if not scale > 0:
-            raise ValueError(f"scale (L*) must be positive, got {scale}")
+        check_search_options(scale=scale, seed=seed, samples_per_model=samples_per_model,
+                       confidence=confidence, inlier_ratio=inlier_ratio,
+                       min_samples=min_samples, window=window)
         get_scorer(scorer)  # validate now: a bad choice must not surface mid-run
         if phi is not None:
             get_phi(phi)
@@ -162,6 +169,9 @@ class Estimator:
         self._stopped = False
         self._on_model: list[Callable] = []
         self._on_done: list[Callable] = []
+        self._pending: list[tuple[Callable, object]] = []  # callbacks to call, lock released
+        #: Errors absorbed (a scorer, initializer or callback that raised), in order.
+        self.errors: list[str] = []
         self.history: list[tuple[int, float]] = []
         self.status = "no measures"
         self._restart()
@@ -196,6 +206,17 @@ class Estimator:
             self._problem = None
             touched = [s for s in self._states.values()
                        if s.accepted and gone & set(s.inliers.tolist())]
+            # the states forget the removed measures at once (best() must not list them)
+            removed = np.fromiter(gone, dtype=int, count=len(gone))
+            for name, state in self._states.items():
+                kept = ~np.isin(state.measure_ids, removed)
+                self._states[name] = replace(
+                    state, inliers=state.inliers[~np.isin(state.inliers, removed)],
+                    outliers=state.outliers[~np.isin(state.outliers, removed)],
+                    measure_ids=state.measure_ids[kept],
+                    errors=state.errors[kept] if state.errors.size == kept.size
+                    else state.errors)
+            self._selected.clear()
             for state in touched:
                 self._requeue(state.parent or state.model)
                 self._requeue(state.model)
@@ -226,7 +247,8 @@ class Estimator:
         self._running.set()
 
     def stop(self) -> None:
-        """End :meth:`run` after the current sample (thread-safe); :meth:`step` still works."""
+        """End :meth:`run` after the current sample (thread-safe; before :meth:`run`, the next
+        run returns at once); :meth:`step` still works."""
         self._stopped = True
         self._running.set()
 
@@ -235,8 +257,8 @@ class Estimator:
             until: Callable[[list[tuple[int, float]]], bool] | None = None) -> ModelState | None:
         """Step until the lattice is explored, or ``max_samples`` more samples, or
         ``time_budget`` seconds, or ``no_gain`` samples without a better relevance, or
-        ``until(history)`` is true, or :meth:`stop`; returns the best model."""
-        self._stopped = False
+        ``until(history)`` is true, or :meth:`stop` (also one called before this run); returns
+        the best model. ``time_budget`` counts while suspended too."""
         started = time.perf_counter()
         budget = self._samples + max_samples
         batch = _BATCH if no_gain is None and until is None else 1
@@ -245,8 +267,14 @@ class Estimator:
             if self._samples >= budget:
                 reason = "sample budget"
                 break
+            remaining = None if time_budget is None else \
+                time_budget - (time.perf_counter() - started)
+            if remaining is not None and (remaining <= 0 or not self._running.wait(remaining)):
+                reason = "time budget"
+                break
             self._running.wait()
             if self._stopped:
+                self._stopped = False  # consumed: the next run goes on
                 reason = "stop()"
             elif not self._locked_step(min(batch, budget - self._samples)):
                 break  # done: the status says so
@@ -258,7 +286,9 @@ class Estimator:
             elif until is not None and until(self.history):
                 reason = "until()"
         if reason is not None and not self._done:
-            self.status = f"paused ({reason}); {self.status}"
+            base = self.status.split("; ", 1)[1] if self.status.startswith("paused (") \
+                else self.status
+            self.status = f"paused ({reason}); {base}"
         return self.best()
 
     @property
@@ -272,16 +302,29 @@ class Estimator:
 
     def _locked_step(self, batch: int) -> bool:
         """Up to ``batch`` samples of the current search (fewer when one improves it or its
-        budget ends), under the lock; numerical trouble is absorbed into the status."""
+        budget ends), under the lock; then the callbacks it triggered, the lock released
+        (a callback may query the estimator from another thread). Numerical trouble and a
+        scorer or initializer that raises are absorbed: the search stops, and the status
+        and :attr:`errors` say why."""
         with self._lock:
             try:
-                return self._step(batch)
-            except Exception as exc:  # absorbed: numerical trouble shows in the status
-                self.status = f"error absorbed in step: {type(exc).__name__}: {exc}"
+                going = self._step(batch)
+            except Exception as exc:  # absorbed: the reason stays in the status
+                self.errors.append(f"{type(exc).__name__}: {exc}")
                 self._queue.clear()
                 self._search = None
                 self._finish()
-                return False
+                going = False
+            pending, self._pending = self._pending, []
+        for callback, argument in pending:
+            try:
+                callback(argument)
+            except Exception as exc:  # a user's callback: noted, the search goes on
+                with self._lock:
+                    self.errors.append(f"callback {getattr(callback, '__name__', '?')} "
+                                       f"raised {type(exc).__name__}: {exc}")
+                    self.status = self._status_with_errors(self.status)
+        return going
 
     # -- outputs --------------------------------------------------------------------------------
     def best(self) -> ModelState | None:
@@ -485,8 +528,7 @@ class Estimator:
         if state.accepted:
             best = self._best_state()
             if best is state:
-                for cb in self._on_model:
-                    cb(state)
+                self._pending.extend((cb, state) for cb in self._on_model)
         self._queue_alternatives(model)
 
     def _from_parent(self, parent: str | None, search: ModelSearch) -> None:
@@ -641,9 +683,17 @@ class Estimator:
             return
         self._done = True
         best = self._best_state()
-        self.status = "done" if best is not None else self.status
-        for cb in self._on_done:
-            cb(best)
+        status = "done" if best is not None and not self.errors else self.status
+        self.status = self._status_with_errors(status)
+        self._pending.extend((cb, best) for cb in self._on_done)
+
+    def _status_with_errors(self, status: str) -> str:
+        """``status`` with the absorbed errors said (once, the first one in full)."""
+        if not self.errors:
+            return status
+        base = status.split(" — ", 1)[0]
+        more = f" (and {len(self.errors) - 1} more)" if len(self.errors) > 1 else ""
+        return f"{base} — stopped by an error: {self.errors[0]}{more}"
 
 
 

@@ -97,9 +97,25 @@ def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
     ... # doctest: +SKIP
     """
     model = model or fam.null_model
+    check_options(max_iter, xtol, eps)
     problem = make_problem(fam, model, data or {}, info, q0, Q0, constants, eps)
+    if not any(ch.size for ch in problem.channels) and not np.any(problem.Q0):
+        raise ValueError("nothing to estimate: no measures (data has no rows) and no prior "
+                         "information (Q0)")
     start = problem.q0 if q_start is None else parameter_vector(fam, q_start, "q_start")
     return fit_problem(fam, model, problem, q_start=start, max_iter=max_iter, xtol=xtol)
+
+
+def check_options(max_iter, xtol, eps) -> None:
+    """The local estimator's options: an iteration cap (an integer, at least 0), a step
+    tolerance and a pivot threshold (positive and finite)."""
+    if isinstance(max_iter, bool) or not isinstance(max_iter, int | np.integer) or \
+            max_iter < 0:
+        raise ValueError(f"max_iter must be an integer >= 0, got {max_iter!r}")
+    for name, value in (("xtol", xtol), ("eps", eps)):
+        if isinstance(value, bool) or not isinstance(value, int | float | np.floating) or \
+                not 0 < value < np.inf:
+            raise ValueError(f"{name} must be a positive finite number, got {value!r}")
 
 
 def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0=None,

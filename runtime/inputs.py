@@ -54,6 +54,20 @@ class ChannelData:
         return X
 
 
+def real_array(value, what: str) -> np.ndarray:
+    """``value`` as a float array: complex numbers (their imaginary part would be lost),
+    booleans (they would pass for 0 and 1), text and objects (even "1") are refused, naming
+    ``what``."""
+    array = np.asarray(value)
+    if array.dtype.kind == "c":
+        raise ValueError(f"{what} holds complex numbers; measures and information are real")
+    if array.dtype.kind == "b":
+        raise ValueError(f"{what} holds booleans, not numbers")
+    if array.dtype.kind not in "iuf":
+        raise ValueError(f"{what} must be numbers, got {array.dtype.name} values")
+    return np.array(array, dtype=float)
+
+
 def _finite(a: np.ndarray, what: str) -> None:
     bad = ~np.isfinite(a)
     if bad.any():
@@ -79,7 +93,7 @@ def information(value, k: int, M: int, what: str) -> np.ndarray:
     """Normalise an information specification to (k, k) or (M, k, k), validated."""
     if value is None:
         return np.eye(k)
-    Q = np.asarray(value, dtype=float)
+    Q = real_array(value, what)
     _finite(Q, what)
     if Q.ndim == 0:
         if Q <= 0:
@@ -116,7 +130,7 @@ def channel_data(fam: ModelFamily, data: Mapping, info: Mapping | None) -> list[
     out = []
     for name, value in data.items():
         ch = fam.channel(name)
-        X = np.array(value, dtype=float)
+        X = real_array(value, f"data for channel {name!r}")
         width = len(ch.components)
         if X.ndim == 1 and width == 1:
             X = X[:, None]
@@ -128,6 +142,35 @@ def channel_data(fam: ModelFamily, data: Mapping, info: Mapping | None) -> list[
         Q = information(info.get(name), len(idx), X.shape[0], f"info for channel {name!r}")
         out.append(ChannelData(name, X, idx, X[:, idx].copy(), Q, inverse_root(Q)))
     return out
+
+
+def check_search_options(*, scale, seed=0, samples_per_model=None, confidence=0.99,
+                         inlier_ratio=0.5, min_samples=0, window=0.35,
+                         max_samples=None) -> None:
+    """The robust search's numeric options (:class:`~kanagen.Estimator`, ``robust_fit``,
+    ``find_structures``), checked before any work: a bad value must not surface mid-run
+    (``confidence=nan`` drew no sample and said "done")."""
+    def number(value) -> bool:
+        return not isinstance(value, bool) and isinstance(value, int | float | np.number)
+
+    if not (number(scale) and 0 < scale < np.inf):
+        raise ValueError(f"scale (L*) must be a positive finite number, got {scale!r}")
+    if not (number(confidence) and 0 < confidence < 1):
+        raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
+    if not (number(inlier_ratio) and 0 < inlier_ratio <= 1):
+        raise ValueError(f"inlier_ratio must be in (0, 1], got {inlier_ratio!r}")
+    if not (number(window) and 0 < window < np.inf):
+        raise ValueError(f"window must be a positive fraction of L*, got {window!r}")
+    for name, value, least in (("min_samples", min_samples, 0),
+                               ("samples_per_model", samples_per_model, 1),
+                               ("max_samples", max_samples, 0)):
+        if value is None and name != "min_samples":
+            continue
+        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < least:
+            raise ValueError(f"{name} must be an integer >= {least}, got {value!r}")
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer)
+                             or seed < 0):
+        raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
 
 
 def parameter_vector(fam: ModelFamily, q, what: str = "q0") -> np.ndarray:
@@ -142,7 +185,7 @@ def parameter_vector(fam: ModelFamily, q, what: str = "q0") -> np.ndarray:
                                  f"{list(fam.parameter_names)})")
             out[fam.parameter_names.index(key)] = float(value)
     else:
-        out = np.array(q, dtype=float)
+        out = real_array(q, what)
         n_user = fam.n - len(fam.slack_names)
         if fam.slack_names and out.shape == (n_user,):
             out = fam.with_slacks(out)  # slack components follow from the parameter
@@ -158,7 +201,7 @@ def prior_information(Q0, n: int) -> np.ndarray:
     """Q0 given as None (no prior), a scalar, a diagonal (n,) or a matrix (n, n)."""
     if Q0 is None:
         return np.zeros((n, n))
-    Q = np.asarray(Q0, dtype=float)
+    Q = real_array(Q0, "Q0")
     _finite(Q, "Q0")
     if Q.ndim == 0:
         if Q < 0:

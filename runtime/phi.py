@@ -55,20 +55,33 @@ def ftest(confidence: float = DEFAULT_CONFIDENCE) -> Phi:
     return phi
 
 
+def _number(text: str, choice) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"cost factor {choice!r}: {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise ValueError(f"cost factor {choice!r}: {text!r} is not finite")
+    return value
+
+
 def phi(choice: float | str | Phi) -> Phi:
     """The Φ function for a spec's or a user's choice."""
     if callable(choice):
         return choice
-    if isinstance(choice, int | float):
-        if choice <= 0:
-            raise ValueError(f"a constant Φ must be positive, got {choice}")
+    if isinstance(choice, int | float) and not isinstance(choice, bool):
+        if not 0 < choice < math.inf:
+            raise ValueError(f"a constant Φ must be positive and finite, got {choice}")
         return constant(choice)
     word, _, arg = str(choice).partition(":")
     if word == "aic" and not arg:
         return aic
     if word == "ftest":
-        return ftest(float(arg) if arg else DEFAULT_CONFIDENCE)
+        confidence = _number(arg, choice) if arg else DEFAULT_CONFIDENCE
+        if not 0.0 < confidence < 1.0:
+            raise ValueError(f"the confidence P of {choice!r} must be in (0, 1)")
+        return ftest(confidence)
     if word == "exp" and arg:
-        return exponential(float(arg))
+        return exponential(_number(arg, choice))
     raise ValueError(f"unknown cost factor {choice!r} (a number, 'aic', 'ftest', 'ftest:P', "
                      "'exp:kappa' or a callable f(d, d_general))")

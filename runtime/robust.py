@@ -23,6 +23,7 @@ from .family import ModelFamily
 from .fastsample import draws_as_numpy, sampler_for
 from .fit import fit_problem, make_problem
 from .initializers import InitializerFn, equivalent, model_initializers, start_from
+from .inputs import check_search_options
 from .iterate import MAX_ITER
 from .projector import Problem
 from .results import FitResult
@@ -614,8 +615,10 @@ def robust_fit(fam: ModelFamily, model: str | None = None, data: Mapping | None 
         channel = names[0]
     if channel not in names:
         raise ValueError(f"no data for channel {channel!r} (data has {names})")
-    if not scale > 0:
-        raise ValueError(f"scale (L*) must be positive, got {scale}")
+    check_search_options(scale=scale, seed=seed, max_samples=max_samples,
+                         confidence=0.99 if confidence is None else confidence,
+                         inlier_ratio=0.5 if inlier_ratio is None else inlier_ratio,
+                         window=window)
     search = ModelSearch(fam, model, problem, names.index(channel), problem.q0,
                          np.random.default_rng(seed), scale, scorer,
                          initializer=model_initializers(fam, initializers).get(model))

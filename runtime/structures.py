@@ -12,6 +12,7 @@ from .coherence import coherence_errors
 from .estimator import Estimator, ModelState
 from .family import ModelFamily
 from .fit import fit_problem, make_problem
+from .inputs import check_search_options
 from .robust import outlier_threshold
 from .scoring import scorer as get_scorer
 
@@ -70,6 +71,10 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
         arrays given (ids follow the rows of ``data``, channel after channel). A measure is
         an inlier of one structure at most.
     """
+    check_search_options(scale=options.get("scale", 1.0), seed=options.get("seed", 0),
+                         max_samples=max_samples)
+    if not (isinstance(max_structures, int) and max_structures >= 1):
+        raise ValueError(f"max_structures must be an integer >= 1, got {max_structures!r}")
     if reassign < 0:
         raise ValueError(f"reassign must be a number of rounds >= 0, got {reassign}")
     if retries < 0:
