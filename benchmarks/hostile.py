@@ -134,6 +134,88 @@ def run_spec(text: str, timeout: float = 120.0) -> dict:
                     "seconds": float("nan"), "mb": float("nan")}
 
 
+def bad_data_files(folder: Path) -> dict[str, str]:
+    """One unreadable dataset of each kind in ``folder``: file name -> what its error must
+    say (issue 15 item 3)."""
+    import zipfile
+
+    import numpy as np
+
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "field.csv").write_text("x,y\n1," + "9" * 200_000 + "\n")
+    (folder / "corrupt.npz").write_bytes(b"PK\x03\x04" + bytes(range(256)) * 2)
+    np.save(folder / "renamed.npy", np.ones((5, 2)))
+    (folder / "renamed.npy").rename(folder / "renamed.npz")
+    (folder / "nested.json").write_text("[" * 100_000 + "]" * 100_000)
+    (folder / "latin1.csv").write_bytes("x,y\n1,2\n\xe9,3\n".encode("latin-1"))
+    np.savez(folder / "complex.npz", point=np.ones((4, 2)) * (1 + 2j))
+    np.savez(folder / "bools.npz", point=np.ones((4, 2), dtype=bool))
+    (folder / "twice.csv").write_text("x,y,x\n1,2,3\n")
+    (folder / "text.json").write_text(json.dumps({"point": [["1", "2"], ["3", "4"]]}))
+    with zipfile.ZipFile(folder / "pickled.npz", "w") as z:
+        z.writestr("point.npy", b"\x93NUMPY\x01\x00v\x00{'descr': '|O', 'fortran_order': "
+                                b"False, 'shape': (2,), }" + b" " * 60 + b"\n\x80\x04N.")
+    return {"field.csv": "not CSV", "corrupt.npz": "cannot read data",
+            "renamed.npz": "not an .npz archive", "nested.json": "nested too deeply",
+            "latin1.csv": "not UTF-8", "complex.npz": "complex", "bools.npz": "booleans",
+            "twice.csv": "named twice", "text.json": "list of rows of numbers",
+            "pickled.npz": "cannot read data"}
+
+
+def _batch_table(folder: Path) -> bool:
+    """A batch over good datasets and one unreadable file of each kind, then two concurrent
+    batches on a new database."""
+    import numpy as np
+
+    import kanagen
+
+    spec = str(Path(__file__).resolve().parents[1] / "examples" / "conic_lattice.yaml")
+    data = folder / "data"
+    reasons = bad_data_files(data)
+    t = np.linspace(0.3, 2.5, 20)
+    for k in range(4):
+        xy = np.c_[100 * np.cos(t) + 10 * k, 60 * np.sin(t)]
+        np.savetxt(data / f"good{k}.csv", xy, delimiter=",", header="x,y", comments="")
+    summary = kanagen.batch(spec, str(data / "*"), db=folder / "a.sqlite", workers=1,
+                            scale=4.0, max_samples=20)
+    rows = {Path(r["dataset"]).name: r for r in kanagen.read_results(folder / "a.sqlite")}
+    recorded = all(rows[n]["status"] == "error" and why in rows[n]["message"]
+                   for n, why in reasons.items())
+    print(f"\nbatch over {summary.datasets} files ({len(reasons)} unreadable): "
+          f"{summary.ok + summary.no_model} estimated, {summary.errors} recorded as failed "
+          f"with their reason: {'PASS' if recorded and summary.errors == len(reasons) else 'FAIL'}")
+    for name in reasons:
+        print(f"  {name:14s} {rows[name]['message'][len(str(data)) + 1:][:90]}")
+    runs = [subprocess.Popen([sys.executable, "-m", "kanagen", "batch", spec,
+                              str(data / "good*.csv"), "--db", str(folder / "b.sqlite"),
+                              "--workers", "1", "--scale", "4", "--max-samples", "20"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for _ in range(2)]
+    counts = []
+    for run in runs:
+        out, _ = run.communicate(timeout=600)
+        counts.append(int(out.strip().splitlines()[-1].split(": ")[1].split(" estimated")[0]))
+    once = sum(counts) == 4 and len(kanagen.read_results(folder / "b.sqlite")) == 4
+    print(f"two concurrent batches on a new database over 4 datasets: estimated {counts[0]} "
+          f"+ {counts[1]} = {sum(counts)}: {'PASS' if once else 'FAIL'}")
+    return recorded and once
+
+
+def _file_name_table(folder: Path) -> bool:
+    """A spec whose file name would close the module docstring and run a statement."""
+    payload = 'x"""\nimport pathlib; pathlib.Path("MARKER").touch()\n""".yaml'
+    spec = folder / payload
+    spec.write_text(BASE.replace("EQ", "y - a*x - b"), encoding="utf-8")
+    env = {**os.environ, "KANAGEN_CACHE": str(folder / "cache")}
+    done = subprocess.run([sys.executable, "-m", "kanagen", "build", str(spec), "-o",
+                           str(folder / "gen")], cwd=folder, env=env, capture_output=True,
+                          text=True, timeout=120)
+    ran = (folder / "MARKER").exists()
+    ok = done.returncode == 0 and not ran
+    print(f"spec file named {payload!r}: built, code run: {ran}: {'PASS' if ok else 'FAIL'}")
+    return ok
+
+
 def main() -> int:
     print(f"{'case':34s} {'wanted':7s} {'got':8s} {'s':>6s} {'MB':>6s}  message")
     ok = True
@@ -149,6 +231,11 @@ def main() -> int:
               f"{'' if good else 'FAIL '}{r['message'][:90]}")
     print(f"\nhostile specs: {'PASS' if ok else 'FAIL'} (each refused in under 2 s and 500 MB "
           "with its file and line; the polynomials accepted)")
+    with tempfile.TemporaryDirectory() as folder:
+        ok &= _file_name_table(Path(folder))
+    with tempfile.TemporaryDirectory() as folder:
+        ok &= _batch_table(Path(folder))
+    print(f"\nissue 15 floors: {'PASS' if ok else 'FAIL'}")
     return 0 if ok else 1
 
 

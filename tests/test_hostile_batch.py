@@ -4,12 +4,10 @@ once; a foreign SQLite file, a read-only folder and a result naming any path are
 
 from __future__ import annotations
 
-import json
 import os
 import sqlite3
 import subprocess
 import sys
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +16,7 @@ from click.testing import CliRunner
 from scenes import arc
 
 import kanagen
+from benchmarks.hostile import bad_data_files
 from kanagen.cli import main
 from kanagen.dataio import DataError, read_measures
 
@@ -39,31 +38,8 @@ def _good(folder: Path, count: int) -> list[str]:
     return paths
 
 
-def _bad_files(folder: Path) -> dict[str, str]:
-    """One unreadable dataset of each kind: file -> what its error must say."""
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "field.csv").write_text("x,y\n1," + "9" * 200_000 + "\n")
-    (folder / "corrupt.npz").write_bytes(b"PK\x03\x04" + os.urandom(300))
-    np.save(folder / "renamed.npy", np.ones((5, 2)))
-    (folder / "renamed.npy").rename(folder / "renamed.npz")
-    (folder / "nested.json").write_text("[" * 100_000 + "]" * 100_000)
-    (folder / "latin1.csv").write_bytes("x,y\n1,2\n\xe9,3\n".encode("latin-1"))
-    np.savez(folder / "complex.npz", point=np.ones((4, 2)) * (1 + 2j))
-    np.savez(folder / "bools.npz", point=np.ones((4, 2), dtype=bool))
-    (folder / "twice.csv").write_text("x,y,x\n1,2,3\n")
-    (folder / "text.json").write_text(json.dumps({"point": [["1", "2"], ["3", "4"]]}))
-    with zipfile.ZipFile(folder / "pickled.npz", "w") as z:
-        z.writestr("point.npy", b"\x93NUMPY\x01\x00v\x00{'descr': '|O', 'fortran_order': False"
-                                b", 'shape': (2,), }" + b" " * 60 + b"\n" + b"\x80\x04N.")
-    return {"field.csv": "not CSV", "corrupt.npz": "cannot read data",
-            "renamed.npz": "not an .npz archive", "nested.json": "nested too deeply",
-            "latin1.csv": "not UTF-8", "complex.npz": "complex",
-            "bools.npz": "booleans", "twice.csv": "named twice",
-            "text.json": "list of rows of numbers", "pickled.npz": "cannot read data"}
-
-
 def test_unreadable_files_are_one_clear_error(tmp_path):
-    for name, reason in _bad_files(tmp_path).items():
+    for name, reason in bad_data_files(tmp_path).items():
         with pytest.raises(DataError, match=reason) as err:
             read_measures(tmp_path / name, ("x", "y"), "point")
         assert str(err.value).startswith(str(tmp_path / name)), name
@@ -78,7 +54,7 @@ def test_a_bom_and_a_header_in_any_column_order_read(tmp_path):
 
 def test_a_batch_records_each_unreadable_file_and_estimates_the_others(tmp_path):
     good = _good(tmp_path / "data", 3)
-    reasons = _bad_files(tmp_path / "data")
+    reasons = bad_data_files(tmp_path / "data")
     db = tmp_path / "r.sqlite"
     summary = kanagen.batch(LATTICE, str(tmp_path / "data" / "*"), db=db, workers=1, **FAST)
     table = {Path(r["dataset"]).name: r for r in kanagen.read_results(db)}
