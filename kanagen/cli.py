@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import glob
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -190,6 +191,10 @@ def fit_options(command):
                      help="Set a constant of SPEC (repeatable)."),
         click.option("--max-iter", type=int, default=100, show_default=True,
                      help="Iterations of the local estimator (--local only)."),
+        click.option("--start", "starts", multiple=True, metavar="NAME=VALUE,...",
+                     help="Starting values of parameters, e.g. --start b0=1,b1=2 (repeatable; "
+                          "the others keep SPEC's). With --local, where the iteration starts; "
+                          "otherwise the null model's estimate before any sample."),
     ]
     for option in reversed(options):
         command = option(command)
@@ -204,14 +209,15 @@ backend_option = click.option(
 
 
 def _fit_options(scale, scorer, phi, seed, max_samples, model, local, sigma, consts,
-                 max_iter):
+                 max_iter, starts):
     """The validated FitOptions of :func:`fit_options`' values; bad input exits 2."""
     from .fitjob import FitOptions
 
     try:
         return FitOptions(scale=scale, scorer=scorer, phi=phi, seed=seed,
                           max_samples=max_samples, model=model, local=local, sigma=sigma,
-                          constants=_parse_constants(consts), max_iter=max_iter)
+                          constants=_parse_constants(consts), max_iter=max_iter,
+                          start=_parse_pairs(",".join(starts).split(","), "--start"))
     except ValueError as exc:
         _fail(str(exc))
 
@@ -398,16 +404,26 @@ def report(result, db, dataset, out, data, images):
 
 
 def _parse_constants(items) -> dict[str, float]:
-    constants = {}
+    return _parse_pairs(items, "--const")
+
+
+def _parse_pairs(items, option: str) -> dict[str, float]:
+    """``NAME=VALUE`` items (empty ones skipped) as a mapping; bad input exits 2."""
+    out = {}
     for item in items:
+        if not item.strip():
+            continue
         name, sep, value = item.partition("=")
         try:
-            if not sep:
+            if not sep or not name.strip():
                 raise ValueError
-            constants[name.strip()] = float(value)
+            number = float(value)
         except ValueError:
-            _fail(f"--const expects NAME=VALUE with a number, got {item!r}")
-    return constants
+            _fail(f"{option} expects NAME=VALUE with a number, got {item!r}")
+        if not math.isfinite(number):
+            _fail(f"{option} {name.strip()}: the value must be finite, got {value!r}")
+        out[name.strip()] = number
+    return out
 
 
 def _report_robust(est, fam, channel, X, json_out, to_err, opts, *, spec,

@@ -18,6 +18,7 @@ import numpy as np
 
 from .runtime.estimator import Estimator
 from .runtime.family import ModelFamily
+from .runtime.inputs import parameter_vector
 from .runtime.phi import phi as get_phi
 from .runtime.scoring import SCORERS
 
@@ -48,6 +49,9 @@ class FitOptions:
         Constants of the spec set at run time.
     max_iter : int
         Iterations of the local estimator (``local`` only).
+    start : mapping or pairs
+        Starting values of parameters by name (the others keep the spec's): where the local
+        fit starts, or the null model's estimate before the robust search's first sample.
 
     Examples
     --------
@@ -69,6 +73,7 @@ class FitOptions:
     sigma: float | None = None
     constants: tuple[tuple[str, float], ...] = field(default=())
     max_iter: int = 100
+    start: tuple[tuple[str, float], ...] = field(default=())
 
     def __post_init__(self):
         def put(name, value):
@@ -87,25 +92,25 @@ class FitOptions:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
             put(name, int(value))
         put("local", bool(self.local))
-        constants = self.constants.items() if isinstance(self.constants, Mapping) \
-            else self.constants
-        try:
-            pairs = tuple(sorted((str(k), float(v)) for k, v in constants))
-        except (TypeError, ValueError):
-            raise ValueError(f"constants must map names to numbers, got {self.constants!r}")\
-                from None
-        put("constants", pairs)
+        for name in ("constants", "start"):
+            put(name, _pairs(getattr(self, name), name))
 
     def check(self, fam: ModelFamily) -> None:
         """Raise ValueError when the options do not fit the family (model, constants)."""
         if self.model is not None:
             fam.model(self.model)
         fam.constant_vector(dict(self.constants))
+        parameter_vector(fam, dict(self.start), "--start")
+
+    def q0(self) -> dict[str, float] | None:
+        """The start as :func:`kanagen.fit` and :class:`Estimator` take it (``q0``)."""
+        return dict(self.start) or None
 
     def to_dict(self) -> dict:
-        """Plain JSON data (constants as a mapping)."""
+        """Plain JSON data (constants and start as mappings)."""
         out = asdict(self)
         out["constants"] = dict(self.constants)
+        out["start"] = dict(self.start)
         return out
 
     def key(self, channel: str) -> str:
@@ -113,6 +118,19 @@ class FitOptions:
         (what a batch run's resume matches on)."""
         return json.dumps({**self.to_dict(), "channel": channel}, sort_keys=True,
                           separators=(",", ":"))
+
+
+def _pairs(value, what: str) -> tuple[tuple[str, float], ...]:
+    """A mapping or pairs of names and finite numbers, sorted (one canonical form)."""
+    items = value.items() if isinstance(value, Mapping) else value
+    try:
+        pairs = tuple(sorted((str(k), float(v)) for k, v in items))
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} must map names to numbers, got {value!r}") from None
+    for name, number in pairs:
+        if not math.isfinite(number):
+            raise ValueError(f"{what} {name}: the value must be finite, got {number}")
+    return pairs
 
 
 def _positive(value, what: str) -> float:
@@ -159,7 +177,8 @@ def make_estimator(fam: ModelFamily, X: np.ndarray, channel: str,
                    opts: FitOptions) -> Estimator:
     """The robust lattice search of one dataset, measures in, not yet run."""
     est = Estimator(fam, scale=opts.scale, scorer=opts.scorer, phi=opts.phi, seed=opts.seed,
-                    channel=channel, constants=dict(opts.constants), model=opts.model)
+                    channel=channel, constants=dict(opts.constants), model=opts.model,
+                    q0=opts.q0())
     est.add_measures(channel, X, info=_info(opts))
     return est
 
@@ -193,6 +212,7 @@ def robust_record(est: Estimator, fam: ModelFamily, opts: FitOptions, *, channel
     record.update(_header(fam, channel, spec, data, X))
     record.update({"scale": opts.scale, "scorer": opts.scorer, "phi": opts.phi,
                    "seed": opts.seed, "max_samples": opts.max_samples, "measures": len(X),
+                   "start": dict(opts.start),
                    "total_samples": samples, "status": est.status, "stop_reason": status,
                    "found": found})
     return record
@@ -207,14 +227,15 @@ def local_record(fam: ModelFamily, X: np.ndarray, channel: str, opts: FitOptions
     info = {channel: _info(opts)}
     constants = dict(opts.constants)
     res = fit(fam, opts.model, data={channel: X}, info=info, constants=constants,
-              max_iter=opts.max_iter)
+              q0=opts.q0(), max_iter=opts.max_iter)
     record = result_to_json(res)
     errors = np.full(len(X), np.nan)
     if np.all(np.isfinite(res.q)):
         errors = coherence(fam, res.model, res.q, {channel: X}, info, constants)[channel]
     record.update(_header(fam, channel, spec, data, X))
     record.update({"local": True, "errors": errors, "found": bool(res.success),
-                   "stop_reason": res.message, "max_iter": opts.max_iter})
+                   "stop_reason": res.message, "max_iter": opts.max_iter,
+                   "start": dict(opts.start)})
     return res, record
 
 

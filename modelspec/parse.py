@@ -233,10 +233,19 @@ class _Builder:
 
         def declare(item, what, *path):
             item = check_identifier(item, what, self.src.source, self.src.line(*path))
-            if item in seen:
-                raise self.error(f"duplicate name {item!r} (already a {seen[item]})", *path)
+            # channels may share component names (each channel's equations see its own)
+            shared = what == "component" and seen.get(item) == "component" and \
+                item not in declare.channel
+            if item in seen and not shared:
+                where = " of this channel" if item in declare.channel else ""
+                raise self.error(f"duplicate name {item!r} (already a {seen[item]}{where})",
+                                 *path)
             seen[item] = what
+            if what == "component":
+                declare.channel.add(item)
             return item
+
+        declare.channel = set()  # the components of the channel being declared
 
         parameter = tuple(
             (declare(k, "parameter", "parameter", k), self.number(v, f"default of {k}",
@@ -306,6 +315,7 @@ class _Builder:
         spec = self.mapping(spec, f"channel {name!r}", *path, empty_ok=False)
         self.keys(spec, _CHANNEL_KEYS, f"channel {name!r}", *path)
         comps = self.sequence(spec.get("components"), "components", *path, "components")
+        declare.channel = set()
         if not comps:
             raise self.error(f"channel {name!r} needs at least one component", *path)
         components = tuple(

@@ -24,6 +24,7 @@ from .inputs import (
     ChannelData,
     channel_data,
     check_search_options,
+    exact_mask,
     parameter_vector,
     prior_information,
 )
@@ -177,17 +178,25 @@ class Estimator:
         self._restart()
 
     # -- measures and constants ---------------------------------------------------------------
-    def add_measures(self, channel: str, data, info=None) -> np.ndarray:
+    def add_measures(self, channel: str, data, info=None, exact=None) -> np.ndarray:
         """Add measures (any time); returns their stable integer ids.
 
-        An outlier of the current best model changes nothing; an inlier re-queues the model.
+        ``exact``: which measured components are known exactly, as for :func:`kanagen.fit`
+        (``{component: mask}`` or (M, components) booleans). An outlier of the current best
+        model changes nothing; an inlier re-queues the model.
         """
         with self._lock:
-            ch = channel_data(self.fam, {channel: data}, {channel: info})[0]
+            given = None if exact is None else {channel: exact}
+            ch = channel_data(self.fam, {channel: data}, {channel: info}, given)[0]
             Q = ch.Q if ch.Q.ndim == 3 else np.broadcast_to(ch.Q, (ch.size,) + ch.Q.shape)
+            fixed = np.zeros(ch.X.shape, dtype=bool)
+            if given is not None:
+                found = exact_mask(exact, self.fam.channel(channel), ch.size, "exact")
+                if found is not None:
+                    fixed[:, ch.index] = found
             ids = np.arange(self._next_id, self._next_id + ch.size)
             self._next_id += ch.size
-            self._rows[channel].extend(zip(ids.tolist(), ch.X, Q, strict=True))
+            self._rows[channel].extend(zip(ids.tolist(), ch.X, Q, fixed, strict=True))
             self._problem = None
             best = self._best_state()
             if best is None or best.status == "null":
@@ -380,9 +389,11 @@ class Estimator:
                 rows = self._rows[name]
                 X = np.array([r[1] for r in rows])
                 Q = np.array([r[2] for r in rows])
+                fixed = np.array([r[3] for r in rows])
                 if np.all(Q == Q[0]):
                     Q = Q[0]  # one information for all: validated and factored once
-                info = channel_data(self.fam, {name: X}, {name: Q})[0]
+                info = channel_data(self.fam, {name: X}, {name: Q},
+                                    {name: fixed} if fixed.any() else None)[0]
                 chans.append(info)
                 ids.append(np.array([r[0] for r in rows], dtype=int))
             self._problem = (names, chans, ids)
@@ -620,8 +631,9 @@ class Estimator:
         if parent is not None:
             p = self._states.get(parent)
             if p is not None and p.samples and np.isfinite(p.cost):
-                state = replace(state, accepted=lattice.beats(p, state, self._shape,
-                                                              self._replaces))
+                # only an honest success (a verified minimum) may replace its parent
+                state = replace(state, accepted=bool(est.fit.success) and lattice.beats(
+                    p, state, self._shape, self._replaces))
         return state
 
     def _replaces(self, specific: ModelState, general: ModelState) -> bool:

@@ -17,11 +17,12 @@ from .sqrt import EPS
 
 
 def make_problem(fam: ModelFamily, model: str, data: Mapping, info: Mapping | None = None,
-                 q0=None, Q0=None, constants=None, eps: float = EPS) -> Problem:
+                 q0=None, Q0=None, constants=None, eps: float = EPS,
+                 exact: Mapping | None = None) -> Problem:
     """Validate the inputs and bundle everything the projector needs."""
     fam.model(model)
-    return problem_of(fam, model, tuple(channel_data(fam, data, info)), q0, Q0, constants,
-                      eps)
+    return problem_of(fam, model, tuple(channel_data(fam, data, info, exact)), q0, Q0,
+                      constants, eps)
 
 
 def problem_of(fam: ModelFamily, model: str, channels: tuple, q0=None, Q0=None,
@@ -60,7 +61,8 @@ def _equation_count(fam: ModelFamily, model: str, channel: str, k: np.ndarray) -
 
 def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
         info: Mapping | None = None, q0=None, Q0=None, constants=None, *, q_start=None,
-        max_iter: int = 100, xtol: float = 1e-10, eps: float = EPS) -> FitResult:
+        exact: Mapping | None = None, max_iter: int = 100, xtol: float = 1e-10,
+        eps: float = EPS) -> FitResult:
     """Estimate the parameter of one model and correct the measures (report §2–3).
 
     Parameters
@@ -82,6 +84,11 @@ def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
         Run-time values of the spec's constants.
     q_start : array, optional
         Starting point of the iteration when it should differ from ``q0``.
+    exact : dict, optional
+        Measured values known exactly (ODRPACK's ``ifixx``): ``{channel: {component: mask}}``
+        with a mask of (M,) booleans or measure indices, or ``{channel: (M, components)
+        booleans}``. Their corrections stay zero; the other components of those measures are
+        corrected with the information of the free components.
     max_iter, xtol, eps
         Iteration cap, step tolerance, square-root pivot threshold.
 
@@ -98,7 +105,7 @@ def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
     """
     model = model or fam.null_model
     check_options(max_iter, xtol, eps)
-    problem = make_problem(fam, model, data or {}, info, q0, Q0, constants, eps)
+    problem = make_problem(fam, model, data or {}, info, q0, Q0, constants, eps, exact)
     if not any(ch.size for ch in problem.channels) and not np.any(problem.Q0):
         raise ValueError("nothing to estimate: no measures (data has no rows) and no prior "
                          "information (Q0)")

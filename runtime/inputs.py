@@ -118,14 +118,17 @@ def inverse_root(Q: np.ndarray) -> np.ndarray:
     return np.linalg.solve(L, eye)
 
 
-def channel_data(fam: ModelFamily, data: Mapping, info: Mapping | None) -> list[ChannelData]:
-    """Validate ``data`` and ``info`` (dicts keyed by channel name)."""
+def channel_data(fam: ModelFamily, data: Mapping, info: Mapping | None,
+                 exact: Mapping | None = None) -> list[ChannelData]:
+    """Validate ``data``, ``info`` and ``exact`` (dicts keyed by channel name)."""
     if not isinstance(data, Mapping):
         raise ValueError("data must be a dict {channel name: array}")
     info = info or {}
-    if not isinstance(info, Mapping):
-        raise ValueError("info must be a dict {channel name: information}")
-    for name in list(data) + list(info):
+    exact = exact or {}
+    for what, value in (("info", info), ("exact", exact)):
+        if not isinstance(value, Mapping):
+            raise ValueError(f"{what} must be a dict {{channel name: ...}}")
+    for name in list(data) + list(info) + list(exact):
         fam.channel(name)
     out = []
     for name, value in data.items():
@@ -140,8 +143,78 @@ def channel_data(fam: ModelFamily, data: Mapping, info: Mapping | None) -> list[
         _finite(X, f"data for channel {name!r}")
         idx = ch.corrected_index
         Q = information(info.get(name), len(idx), X.shape[0], f"info for channel {name!r}")
-        out.append(ChannelData(name, X, idx, X[:, idx].copy(), Q, inverse_root(Q)))
+        fixed = exact_mask(exact.get(name), ch, X.shape[0], f"exact for channel {name!r}")
+        G = inverse_root(Q)
+        if fixed is not None:
+            Q = np.broadcast_to(Q, (X.shape[0],) + Q.shape[-2:]).copy()
+            G = exact_root(Q, fixed)
+        out.append(ChannelData(name, X, idx, X[:, idx].copy(), Q, G))
     return out
+
+
+def exact_mask(value, channel, M: int, what: str) -> np.ndarray | None:
+    """Which measured components are exact (ODRPACK's ``ifixx``), as (M, k) booleans over
+    the channel's corrected components, or None when none is.
+
+    ``value`` is ``{component: mask}`` (a mask being (M,) booleans or a list of measure
+    indices) or (M, components) booleans over all the channel's components. A component the
+    spec declares exact already stays exact; a measure may not have every component exact
+    (its equation would then bind the parameter alone: write it as a constraint)."""
+    if value is None:
+        return None
+    comps = list(channel.components)
+    full = np.zeros((M, len(comps)), dtype=bool)
+    if isinstance(value, Mapping):
+        for comp, mask in value.items():
+            if comp not in comps:
+                raise ValueError(f"{what}: {comp!r} is not a component (the channel has "
+                                 f"{comps})")
+            full[:, comps.index(comp)] = _rows(mask, M, f"{what}[{comp!r}]")
+    else:
+        array = np.asarray(value)
+        if array.dtype.kind != "b" or array.shape != (M, len(comps)):
+            raise ValueError(f"{what} must be booleans of shape ({M}, {len(comps)}) or a "
+                             f"dict {{component: mask}}, got {array.dtype.name} "
+                             f"{array.shape}")
+        full[:] = array
+    fixed = full[:, channel.corrected_index]
+    if not fixed.any():
+        return None
+    every = np.flatnonzero(fixed.all(axis=1))
+    if every.size:
+        raise ValueError(f"{what}: measure {int(every[0])} has every measured component "
+                         "exact; its equation would bind the parameter alone (leave one "
+                         "component free or write the relation as a constraint)")
+    return fixed
+
+
+def _rows(mask, M: int, what: str) -> np.ndarray:
+    """(M,) booleans from booleans or measure indices."""
+    array = np.asarray(mask)
+    if array.dtype.kind == "b":
+        if array.shape != (M,):
+            raise ValueError(f"{what}: a boolean mask needs shape ({M},), got {array.shape}")
+        return array
+    if array.dtype.kind not in "iu" or array.ndim != 1:
+        raise ValueError(f"{what} must be (M,) booleans or a list of measure indices")
+    if array.size and (array.min() < -M or array.max() >= M):
+        raise ValueError(f"{what}: measure index out of range for {M} measures")
+    out = np.zeros(M, dtype=bool)
+    out[array] = True
+    return out
+
+
+def exact_root(Q: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+    """``G`` (M, k, k) of :func:`inverse_root` when some components are exact: ``GᵀG`` is
+    the inverse of the information of the free components (the exact ones' rows and columns
+    removed), zero on the exact ones — their corrections stay zero."""
+    G = np.zeros_like(Q)
+    for pattern in np.unique(fixed, axis=0):
+        rows = np.flatnonzero((fixed == pattern).all(axis=1))
+        free = np.flatnonzero(~pattern)
+        sub = inverse_root(Q[np.ix_(rows, free, free)])
+        G[np.ix_(rows, free, free)] = sub
+    return G
 
 
 def check_search_options(*, scale, seed=0, samples_per_model=None, confidence=0.99,

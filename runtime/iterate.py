@@ -67,7 +67,7 @@ from .projector import (
     restore_parameter,
     solve,
 )
-from .restoration import restore_measures
+from .restoration import nearer_points, restore_measures
 from .sqrt import closest_sqrt, reduced_solve, reduced_sqrt, triangular_solve
 from .verify import Verdict, cost_rounding, escape, feasible, stationary, verify
 
@@ -92,6 +92,7 @@ _ESCAPES = 6  # negative-curvature escapes in one fit, at most
 _COST_NOISE = 1e-13  # the relative rounding of a cost summed over many measures
 _MAX_REFUSALS = 40  # trial points refused in one iteration, at most
 _LINE_STEPS = 3  # halvings of the projector's step before damping
+_JOINT = 1e3  # the joint start's step, at most, in first trust radii
 
 
 @dataclass(frozen=True)
@@ -191,14 +192,20 @@ class _Run:
         self.q_start = q_start
         # the start moved onto its constraints (Newton's method in the information's metric,
         # report §3.6); where that fails, eq. 18's steps take it there
-        lin0, _ = _project(problem, raw)
+        lin0, proj0 = _project(problem, raw)
         root = None if lin0 is None else closest_sqrt(lin0.info, problem.eps)
         x, violation = restored(problem, q_start, raw.mt, root)
         if not (x.finite and _on_constraints(x, violation)):
             x, violation = restored(problem, q_start, raw.mt, retract=False)
+        self.radius = self.size0 = float(np.linalg.norm(q_start)) or 1.0
+        # ODRPACK's scaling (Boggs, Byrd & Schnabel): each component measured against its
+        # own magnitude at the start, floored at a tenth of the typical one
+        typical = float(np.sqrt(np.mean(q_start**2))) or 1.0
+        self.scale = self.size0 / np.maximum(np.abs(q_start), 0.1 * typical)
         if not x.finite:
             x, violation = raw, np.inf
-        self.radius = self.size0 = float(np.linalg.norm(q_start)) or 1.0
+        elif proj0 is not None:
+            x, violation = self.joint_start(x, violation, proj0, root)
         since_progress = 0
         lin = proj = None
         for it in range(1, self.max_iter + 1):
@@ -244,6 +251,26 @@ class _Run:
                 return self.outcome(x, self.max_iter, CONVERGED, "", lin, proj, verdict)
         return self.outcome(x, self.max_iter, MAX_ITER, "", lin, proj)
 
+    def joint_start(self, x: Point, violation: float, proj0: Projection, root):
+        """The restored start, or the projector's step from the raw start (the measures as
+        observed, not yet on their equations) when that step lowers the profile cost — or
+        reaches the equations where the start could not (a circle of negative radius).
+
+        That step is Gauss–Newton on the joint problem in ``(q, m̃)`` linearised at the
+        observations — ODRPACK's first step (its corrections start at zero): the weights of
+        the residuals are frozen at the start, so it crosses barriers of the profile ``F``
+        that a descent on ``F`` cannot (a line's slope through zero when the abscissas'
+        errors dominate some measures)."""
+        s = proj0.q - x.q
+        if not float(np.sqrt(s @ (self.weights(x.q) * s))) <= _JOINT * self.radius:
+            return x, violation  # a jump no trust region would take (a slack to 1e8)
+        trial = restored(self.problem, proj0.q, proj0.mt, root)
+        if trial[0].finite and _on_constraints(*trial) and (
+                trial[0].cost < x.cost or not _on_constraints(x, violation)) and (
+                self.problem.relations is None or self.problem.relations(trial[0].q)):
+            return trial
+        return x, violation
+
     def end(self, x: Point, lin, proj, it: int):
         """Verify ``x``; return the outcome, or None after an escape from a saddle (the
         iteration goes on from ``self.x``)."""
@@ -252,9 +279,19 @@ class _Run:
             lin, proj = _project(problem, x)
             if lin is None:
                 return self.outcome(x, it, FAILED, " in the projector")
-        _, violation = restored(problem, x.q, x.mt, closest_sqrt(lin.info, problem.eps))
+        root = closest_sqrt(lin.info, problem.eps)
+        _, violation = restored(problem, x.q, x.mt, root)
         if not feasible(violation, x.cost):
             return self.outcome(x, it, INFEASIBLE, "", lin, proj)
+        if self.escapes < _ESCAPES:  # a measure nearer on another branch: go on from there
+            nearer = nearer_points(problem, x)
+            if nearer is not None:
+                moved = restored(problem, x.q, nearer.mt, root, retract=False)
+                if moved[0].finite and _on_constraints(*moved) and moved[0].cost < x.cost - (
+                        _COST_NOISE * x.cost + cost_rounding(problem)):
+                    self.escapes += 1
+                    self.x, self.violation = moved
+                    return None
         model = lagrangian(problem, lin, proj)
         verdict = verify(problem, x, lin, proj, self.info_start, model=model,
                          at_rounding=_at_rounding(x.q, model[1].q))
@@ -354,7 +391,7 @@ class _Run:
         """The trust region's norm, ``‖Δq‖² = Σ w_j Δq_j²``: Euclidean, but for the slacks of
         strict relations (``c = 1/s²``), whose steps are measured relative to themselves —
         they diverge geometrically at the boundary of the open set."""
-        w = np.ones(q.size)
+        w = self.scale**2
         for index, _ in self.problem.strict_slacks:
             w[index] = (self.size0 / max(abs(q[index]), np.finfo(float).tiny)) ** 2
         return w

@@ -28,6 +28,7 @@ def reduced_problem(fam: ModelFamily, model: str, problem: Problem,
     else:
         r0 = problem.q0[red.free]
     relations = problem.relations
+    free = [int(i) for i in np.atleast_1d(red.free)]
     return replace(
         problem,
         c0=fam.c0_function(model, reduced=True),
@@ -36,5 +37,8 @@ def reduced_problem(fam: ModelFamily, model: str, problem: Problem,
         q0=r0,
         Q0=Q0,
         relations=None if relations is None else (lambda r: relations(red.full(r))),
+        # a strict relation's slack, where it is free: its index in r
+        strict_slacks=tuple((free.index(i), power) for i, power in problem.strict_slacks
+                            if i in free),
         compiled=None,  # the compiled library evaluates the full model
     )

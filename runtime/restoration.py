@@ -31,7 +31,7 @@ RESTORE_STEPS, RESTORE_TOL = 30, 1e-10
 _UNREACHED = 1e-16
 _NEWTON = 8  # normal (Newton) steps onto the manifold, at most
 _HALVINGS = 12  # halvings of a step along the manifold
-_DESCENT = 40  # steps along the manifold, at most
+_DESCENT = 12  # steps along the manifold, at most
 
 
 def restore_measures(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...],
@@ -49,8 +49,9 @@ def restore_measures(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...]
         sub = problem.subset(retry)
         starts = (tuple(m[r] for m, r in zip(mt, retry, strict=True)),
                   tuple(ch.m for ch in sub.channels))
+        tops = tuple(_top_variance(ch.G) for ch in problem.channels)
         for start in starts:
-            done = _manifold_descent(sub, q, start)
+            done = _manifold_descent(sub, q, start, tops)
             for i, rows in enumerate(retry):
                 m_new, v_new, e_new = done[0][i], done[1][i], done[2][i]
                 old = violations[i][rows]
@@ -71,75 +72,176 @@ def restore_measures(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...]
     return point(problem, q, tuple(mt), tuple(evals)), sum(float(v.sum()) for v in violations)
 
 
-def _manifold_descent(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...]):
+def _manifold_descent(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...],
+                      tops: tuple[np.ndarray, ...]):
     """Per channel: the measures moved onto ``c(q, ·) = 0`` and down the distance along it
-    (module docstring); returns (mt, violations, evals) per channel."""
+    (module docstring); returns (mt, violations, evals) per channel. Each step evaluates
+    only the measures still moving. ``tops``: each channel's largest variance of each
+    component (over all its measures)."""
     out_m, out_v, out_e = [], [], []
-    for fn, (whiten, correct), ch, m in zip(problem.measures, problem.kernels,
-                                            problem.channels, mt, strict=True):
-        def evaluate(values, ch=ch, fn=fn):
-            return fn(q, ch.with_corrected(values), problem.k)
+    for fn, kernel, ch, m, top in zip(problem.measures, problem.kernels, problem.channels,
+                                      mt, tops, strict=True):
+        whiten, correct = kernel
+        reach = _reaching(ch.G, top)
 
-        def normal(values, c, D, whiten=whiten, correct=correct, ch=ch):
-            """Newton steps onto the manifold along Q⁺Dᵀ, halved where |c| grows."""
-            for _ in range(_NEWTON):
-                Bbar, _, state = whiten(D, ch.G, c[..., None], problem.eps)
-                step = -correct(state, ch.G, Bbar[..., 0])
-                step[~np.all(np.isfinite(step), axis=1)] = 0.0
-                worst = np.max(np.abs(c), axis=1)
-                alpha = np.ones(len(values))
-                for _ in range(_HALVINGS):
-                    cand = values + alpha[:, None] * step
-                    c_new, _, D_new = evaluate(cand)
-                    grew = ~(np.max(np.abs(c_new), axis=1) < worst)
-                    if not grew.any():
-                        break
-                    alpha = np.where(grew, alpha / 2, alpha)
-                alpha = np.where(grew, 0.0, alpha)
-                if not alpha.any():
-                    break
-                values = values + alpha[:, None] * step
-                c, _, D = evaluate(values)
-            return values, c, D
+        def evaluate(rows, values, ch=ch, fn=fn):
+            return fn(q, values if ch.index.size == ch.X.shape[1] else
+                      _with(ch, rows, values), problem.k)
 
         values = m.copy()
-        c, C, D = evaluate(values)
-        values, c, D = normal(values, c, D)
+        everyone = np.arange(len(values))
+        c, _, D = evaluate(everyone, values)
+        values, c, D = _normal(problem, ch, reach, kernel, evaluate, everyone, values, c,
+                                D)
         distance = quadratic(values - ch.m, ch.Q)
-        active = np.ones(len(values), dtype=bool)
+        # only the measures on their manifold descend along it (the others cannot be
+        # brought onto it for this q: a circle of negative radius)
+        Bbar, _, _ = whiten(D, ch.G, c[..., None], problem.eps)
+        active = everyone[np.sum(Bbar[..., 0] ** 2, axis=1) <= _UNREACHED]
         for _ in range(_DESCENT):
-            if not active.any():
+            if not active.size:
                 break
+            sub = ch.subset(active)
             # the projector's point at m̃: the observed measure projected onto the tangent
-            r = (D @ (values - ch.m)[..., None])[..., 0] - c
-            Bbar, _, state = whiten(D, ch.G, r[..., None], problem.eps)
-            step = ch.m + correct(state, ch.G, Bbar[..., 0]) - values
-            step[~active | ~np.all(np.isfinite(step), axis=1)] = 0.0
-            alpha = np.ones(len(values))
-            accepted = np.zeros(len(values), dtype=bool)
-            best = values.copy()
-            best_c, best_D, best_d = c.copy(), D.copy(), distance.copy()
+            r = (D[active] @ (values[active] - sub.m)[..., None])[..., 0] - c[active]
+            Bbar, _, state = whiten(D[active], sub.G, r[..., None], problem.eps)
+            step = sub.m + correct(state, sub.G, Bbar[..., 0]) - values[active]
+            finite = np.all(np.isfinite(step), axis=1)
+            todo = np.flatnonzero(finite)
+            alpha = np.ones(active.size)
+            moved = np.zeros(active.size)
             for _ in range(_HALVINGS):
-                todo = active & ~accepted
-                if not todo.any():
+                if not todo.size:
                     break
-                cand = values + alpha[:, None] * step
-                c_cand, _, D_cand = evaluate(cand)
-                cand, c_cand, D_cand = normal(cand, c_cand, D_cand)
-                d_cand = quadratic(cand - ch.m, ch.Q)
-                ok = todo & (d_cand < distance) & (np.max(np.abs(c_cand), axis=1)
-                                                   <= np.max(np.abs(c), axis=1) + 1e-12 *
-                                                   (1 + np.max(np.abs(c), axis=1)))
-                best[ok], best_c[ok], best_D[ok], best_d[ok] = \
-                    cand[ok], c_cand[ok], D_cand[ok], d_cand[ok]
-                accepted |= ok
-                alpha = np.where(todo & ~ok, alpha / 2, alpha)
-            moved = quadratic(best - values, ch.Q)
-            active &= accepted & (moved > RESTORE_TOL**2)
-            values, c, D, distance = best, best_c, best_D, best_d
-        c, C, D = evaluate(values)
+                rows = active[todo]
+                cand = values[rows] + alpha[todo, None] * step[todo]
+                c_cand, _, D_cand = evaluate(rows, cand)
+                cand, c_cand, D_cand = _normal(problem, ch, reach, kernel, evaluate, rows,
+                                               cand, c_cand, D_cand)
+                d_cand = quadratic(cand - ch.m[rows], ch.Q[rows] if ch.Q.ndim == 3 else ch.Q)
+                worst = np.max(np.abs(c[rows]), axis=1)
+                ok = (d_cand < distance[rows]) & (np.max(np.abs(c_cand), axis=1)
+                                                  <= worst + 1e-12 * (1 + worst))
+                at = rows[ok]
+                moved[todo[ok]] = quadratic(cand[ok] - values[at],
+                                            ch.Q[at] if ch.Q.ndim == 3 else ch.Q)
+                values[at], c[at], D[at], distance[at] = cand[ok], c_cand[ok], D_cand[ok], \
+                    d_cand[ok]
+                todo = todo[~ok]
+                alpha[todo] /= 2
+            active = active[moved > RESTORE_TOL**2]
+        c, C, D = evaluate(everyone, values)
         Bbar, _, _ = whiten(D, ch.G, c[..., None], problem.eps)
         out_m.append(values)
         out_v.append(np.sum(Bbar[..., 0] ** 2, axis=1))
         out_e.append((c, C, D))
     return tuple(out_m), tuple(out_v), tuple(out_e)
+
+
+def _with(ch, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """The data rows ``rows`` with their corrected columns replaced by ``values``."""
+    X = ch.X[rows].copy()
+    X[:, ch.index] = values
+    return X
+
+
+def _normal(problem: Problem, ch, reach, kernel, evaluate, rows: np.ndarray,
+            values: np.ndarray, c: np.ndarray, D: np.ndarray):
+    """Newton steps of the measures ``rows`` onto the manifold along ``Q⁺Dᵀ`` (the normal in
+    the information metric), halved where ``|c|`` grows; a measure stops once on its
+    equations. A measure those steps leave off — a point under the minimum of an explicit
+    curve whose ordinate is far more precise than its abscissa: the normal moves it along
+    the abscissa, which cannot reach the curve — takes the same steps in the metric of its
+    channel's largest variance of each component (unit-invariant, every free component may
+    move). Returns (values, c, D) of those rows."""
+    values, c, D = values.copy(), c.copy(), D.copy()
+    left = np.arange(len(rows))
+    for metric in (ch.G, reach):
+        metric = metric[rows] if metric.ndim == 3 else metric
+        left = _newton(problem, kernel, evaluate, rows, values, c, D, metric, left)
+        if not left.size:
+            break
+    return values, c, D
+
+
+def _top_variance(G: np.ndarray) -> np.ndarray:
+    """The largest variance of each component over a channel's measures (``Q⁺ = GᵀG``)."""
+    var = np.sum(G**2, axis=-2)
+    return np.max(var.reshape(-1, var.shape[-1]), axis=0)
+
+
+def _reaching(G: np.ndarray, top: np.ndarray) -> np.ndarray:
+    """``G`` of the diagonal metric ``top`` (zero where a measure's component is exact)."""
+    var = np.sum(G**2, axis=-2)  # diag(GᵀG) = diag(Q⁺), per measure when G is
+    root = np.sqrt(top) * (var > 0)
+    return root[..., :, None] * np.eye(G.shape[-1]) if root.ndim == 2 else np.diag(root)
+
+
+def _newton(problem: Problem, kernel, evaluate, rows, values, c, D, G, left):
+    """Newton steps in the metric ``G`` of the rows ``left`` (indices into ``rows``),
+    updating ``values, c, D`` in place; returns the rows still off their equations."""
+    whiten, correct = kernel
+    stuck = []
+    for attempt in range(_NEWTON + 1):
+        if not left.size:
+            break
+        Gl = G[left] if G.ndim == 3 else G
+        Bbar, _, state = whiten(D[left], Gl, c[left][..., None], problem.eps)
+        far = np.sum(Bbar[..., 0] ** 2, axis=1) > _UNREACHED * 1e-4
+        far &= np.all(np.isfinite(Bbar[..., 0]), axis=1)
+        step = -correct(state, Gl, Bbar[..., 0])
+        left, step = left[far], step[far]
+        if attempt == _NEWTON:  # steps spent: still off
+            break
+        step[~np.all(np.isfinite(step), axis=1)] = 0.0
+        worst = np.max(np.abs(c[left]), axis=1)
+        alpha = np.ones(left.size)
+        todo = np.arange(left.size)
+        moved = np.zeros(left.size, dtype=bool)
+        for _ in range(_HALVINGS):
+            if not todo.size:
+                break
+            at = left[todo]
+            cand = values[at] + alpha[todo, None] * step[todo]
+            c_new, _, D_new = evaluate(rows[at], cand)
+            ok = np.max(np.abs(c_new), axis=1) < worst[todo]
+            values[at[ok]], c[at[ok]], D[at[ok]] = cand[ok], c_new[ok], D_new[ok]
+            moved[todo[ok]] = True
+            todo = todo[~ok]
+            alpha[todo] /= 2
+        stuck.append(left[~moved])
+        left = left[moved]
+    return np.concatenate([left, *stuck]).astype(int)
+
+
+def nearer_points(problem: Problem, x: Point) -> Point | None:
+    """``x`` with each measure moved to the nearer of its current nearest point and the one
+    restored from its observed value — None when no measure has a nearer one.
+
+    With an anisotropic information a curve can hold two nearest points of a measure (the
+    near and the far side of a circle): the iteration follows the branch it started on, and
+    its profile cost is smooth along it, so a stationary point there is a local minimum of
+    the joint problem in ``(q, m̃)`` only — not of the cost of ``q``. Checked where the
+    iteration ends."""
+    observed = tuple(ch.m.copy() for ch in problem.channels)
+    other, _ = restore_measures(problem, x.q, observed)
+    if not other.finite:
+        return None
+    mt, evals, changed = [], [], False
+    for fn_kernel, ch, m_x, m_o, e_x, e_o in zip(problem.kernels, problem.channels, x.mt,
+                                                 other.mt, x.evals, other.evals, strict=True):
+        whiten, _ = fn_kernel
+        c, _, D = e_o
+        Bbar, _, _ = whiten(D, ch.G, c[..., None], problem.eps)
+        on = np.sum(Bbar[..., 0] ** 2, axis=1) <= _UNREACHED
+        d_x, d_o = quadratic(m_x - ch.m, ch.Q), quadratic(m_o - ch.m, ch.Q)
+        better = on & (d_o < d_x - 1e-9 * (1.0 + d_x))
+        if better.any():
+            changed = True
+            m_x = m_x.copy()
+            m_x[better] = m_o[better]
+            e_x = tuple(np.where(better.reshape((-1,) + (1,) * (a.ndim - 1)), b, a)
+                        for a, b in zip(e_x, e_o, strict=True))
+        mt.append(m_x)
+        evals.append(e_x)
+    return point(problem, x.q, tuple(mt), tuple(evals)) if changed else None

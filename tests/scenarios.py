@@ -33,9 +33,8 @@ def _line_start(xy: np.ndarray, f0: float = 100.0) -> np.ndarray:
     """The conic vector of the total-least-squares line through ``xy`` (A = B = C = 0)."""
     centre = xy.mean(axis=0)
     normal = np.linalg.svd(xy - centre)[2][-1]
-    q = np.array([0, 0, 0, normal[0], normal[1], -2 * normal @ centre / f0, 1.0])
-    q[:6] /= np.linalg.norm(q[:6])
-    return q
+    q = np.array([0, 0, 0, normal[0], normal[1], -2 * normal @ centre / f0])
+    return q / np.linalg.norm(q)  # the slack components follow from it
 
 
 def conic_cases():
@@ -50,7 +49,7 @@ def conic_lattice_cases():
     for kind, model in (("line", "line"), ("circle", "circle"), ("ellipse", "ellipse"),
                         ("ellipse", "conic")):
         xy, _ = arc(kind, 3, n=40, outliers=0.0)
-        start = _line_start(xy) if model == "line" else np.r_[kasa_circle(xy), 1.0]
+        start = _line_start(xy) if model == "line" else kasa_circle(xy)
         info = np.random.default_rng(1).uniform(0.5, 2.0, len(xy)) if model != "line" else 1.0
         cases.append((model, {"point": xy}, {"point": info}, start, None))
     return cases

@@ -87,8 +87,8 @@ def test_batch_records_every_dataset_with_its_error_and_resumes(tmp_path, schedu
         assert row["status"] == "ok" and row["model"] == rec["model"] in ("line", "circle")
         assert row["spec_sha256"] == kanagen.load(LATTICE).sha256
         assert json.loads(row["options"])["max_samples"] == 20
-        assert list(row["estimate"]) == ["A", "B", "C", "D", "E", "F", "s_ellipse"]
-        assert np.array(row["info"]).shape == (7, 7)
+        assert list(row["estimate"]) == ["A", "B", "C", "D", "E", "F", "s_ellipse", "s_proper"]
+        assert np.array(row["info"]).shape == (8, 8)
         assert row["inliers"] == rec["inliers"] and row["n_inliers"] == len(rec["inliers"])
         assert row["measures"] == len(rec["errors"]) == 21  # 15 points and 6 outliers
         assert row["cost"] == rec["cost"] > 0 and row["dof"] == rec["dof"]

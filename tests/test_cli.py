@@ -86,9 +86,9 @@ def test_robust_fit_chooses_the_circle_and_writes_json(run, circle_csv, tmp_path
         assert {"dof", "cost", "relevance", "inliers", "samples", "accepted"} <= set(row)
     assert list(res["params"]) == ["A", "B", "C", "D", "E", "F"]
     assert set(res["std"]) == set(res["params"])
-    assert res["slacks"] == {"s_ellipse": pytest.approx(res["slacks"]["s_ellipse"])}
-    assert res["components"] == ["A", "B", "C", "D", "E", "F", "s_ellipse"]
-    assert np.array(res["covariance"]).shape == (7, 7) == np.array(res["info"]).shape
+    assert set(res["slacks"]) == {"s_ellipse", "s_proper"}
+    assert res["components"] == ["A", "B", "C", "D", "E", "F", "s_ellipse", "s_proper"]
+    assert np.array(res["covariance"]).shape == (8, 8) == np.array(res["info"]).shape
     q = np.array(list(res["params"].values()))
     assert np.linalg.norm(q) == pytest.approx(1.0)
     assert res["params"]["A"] == pytest.approx(res["params"]["C"])  # a circle

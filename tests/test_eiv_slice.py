@@ -1,0 +1,212 @@
+"""Errors in variables: the local estimator reaches the minimum and never reports a success it
+has not verified (issue 16). The issue's cases, a slice of ``benchmarks/eiv.py`` against
+ODRPACK from the same starts, and the invariance to units."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import kanagen
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import eiv  # noqa: E402
+
+LINE = """name: line
+parameter: {b0: 1.0, b1: 1.0}
+channels:
+  pt:
+    components: [x, y]
+    equations: ["y - (b0 + b1*x)"]
+models:
+  m: {}
+"""
+
+
+def _line_data():
+    """Falling data, x errors growing and y errors shrinking along the line (the issue's)."""
+    rng = np.random.default_rng(7)
+    M = 20
+    x = np.linspace(0, 10, M)
+    sx = np.geomspace(0.03, 1.0, M)
+    sy = np.geomspace(1.0, 0.04, M)
+    X = np.c_[x + sx * rng.standard_normal(M), 2.0 - 0.5 * x + sy * rng.standard_normal(M)]
+    info = np.einsum("km,kl->mkl", np.vstack([sx**-2, sy**-2]), np.eye(2))
+    return X, sx, sy, info
+
+
+def _line_profile_minimum(X, sx, sy) -> float:
+    """The global minimum of the line's profile cost, ½ Σ r²/(σy² + b1² σx²), by a dense
+    scan of the slope and a bounded polish (b0 in closed form for each slope)."""
+    from scipy.optimize import minimize_scalar
+
+    def cost(b1):
+        w = 1 / (sy**2 + b1**2 * sx**2)
+        b0 = np.sum(w * (X[:, 1] - b1 * X[:, 0])) / np.sum(w)
+        return 0.5 * float(np.sum(w * (X[:, 1] - b0 - b1 * X[:, 0]) ** 2))
+
+    grid = np.linspace(-20, 20, 40001)
+    values = np.array([cost(b) for b in grid])
+    i = int(np.argmin(values))
+    return minimize_scalar(cost, bounds=(grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]),
+                           method="bounded", options={"xatol": 1e-12}).fun
+
+
+def test_line_from_the_issues_start_reaches_the_minimum():
+    fam = kanagen.load_text(LINE, source="line.yaml")
+    X, sx, sy, info = _line_data()
+    best = _line_profile_minimum(X, sx, sy)
+    res = kanagen.fit(fam, "m", data={"pt": X}, info={"pt": info}, q0=[1.0, 1.0])
+    assert res.success, res.message
+    assert res.cost == pytest.approx(best, rel=1e-8)
+    assert res.params["b1"] == pytest.approx(-0.5, abs=0.1)
+
+
+def test_a_stationary_point_that_is_not_a_minimum_is_not_a_success():
+    """Started exactly at the profile's saddle along the slope (a maximum of F in b1 between
+    two basins), the fit leaves it along the negative curvature: a minimum, or a failure that
+    says why — never a success at the saddle."""
+    from scipy.optimize import minimize_scalar
+
+    fam = kanagen.load_text(LINE, source="line.yaml")
+    X, sx, sy, info = _line_data()
+
+    def profile(b1):
+        w = 1 / (sy**2 + b1**2 * sx**2)
+        b0 = np.sum(w * (X[:, 1] - b1 * X[:, 0])) / np.sum(w)
+        return b0, 0.5 * float(np.sum(w * (X[:, 1] - b0 - b1 * X[:, 0]) ** 2))
+
+    grid = np.linspace(-20, 20, 4001)
+    values = np.array([profile(b)[1] for b in grid])
+    peaks = [i for i in range(1, grid.size - 1) if values[i] > values[i - 1]
+             and values[i] > values[i + 1]]
+    if not peaks:
+        pytest.skip("no interior maximum of the profile on these data")
+    i = peaks[0]
+    top = minimize_scalar(lambda b: -profile(b)[1], bounds=(grid[i - 1], grid[i + 1]),
+                          method="bounded", options={"xatol": 1e-12}).x
+    res = kanagen.fit(fam, "m", data={"pt": X}, info={"pt": info},
+                      q0=[profile(top)[0], top])
+    assert res.iterations > 0
+    if res.success:  # then at a minimum of the profile (one of its local minima)
+        lows = [i for i in range(1, grid.size - 1) if values[i] < values[i - 1]
+                and values[i] < values[i + 1]]
+        minima = [minimize_scalar(lambda b: profile(b)[1], bounds=(grid[j - 1], grid[j + 1]),
+                                  method="bounded", options={"xatol": 1e-12}).fun
+                  for j in lows]
+        assert any(abs(res.cost - m) <= 1e-6 * m for m in minima), (res.cost, minima)
+    else:
+        assert res.message
+
+
+EXP_SQUARED = """name: exp_squared
+parameter: {b0: 1.0, b1: 1.0, b2: 1.0}
+channels:
+  pt:
+    components: [x, y]
+    equations: ["y - (b0 + b1*(exp(b2*x) - 1)**2)"]
+models:
+  m: {}
+"""
+
+
+def test_exp_squared_does_not_call_a_plateau_a_success():
+    """Decreasing data, a few abscissas exact (the issue's case): b2 must not run off to
+    where the exponential has vanished and be called a success with an absurd covariance."""
+    fam = kanagen.load_text(EXP_SQUARED, source="exp_squared.yaml")
+    rng = np.random.default_rng(11)
+    M = 30
+    x = np.sort(rng.uniform(0, 3, M))
+    y = 6.0 + 2.0 * (np.exp(-0.7 * x) - 1) ** 2
+    sx = 10 ** rng.uniform(-3, -1, M)
+    sy = 10 ** rng.uniform(-2, -1, M)
+    X = np.c_[x + sx * rng.standard_normal(M), y + sy * rng.standard_normal(M)]
+    info = np.einsum("km,kl->mkl", np.vstack([sx**-2, sy**-2]), np.eye(2))
+    res = kanagen.fit(fam, "m", data={"pt": X}, info={"pt": info},
+                      exact={"pt": {"x": [0, 1, 2]}})
+    if res.success:
+        assert np.all(np.isfinite(res.std)) and np.max(res.std) < 1e3, res.std
+        assert res.params["b2"] > -5
+    else:
+        assert res.status != 0 and res.message
+
+
+SPHERE = """name: sphere
+parameter: {a: 0.0, b: 0.0, c: 0.0, r: 1.0}
+channels:
+  pt:
+    components: [X, Y, Z]
+    equations: ["sqrt((X-a)**2 + (Y-b)**2 + (Z-c)**2) - r"]
+models:
+  m: {}
+"""
+
+
+def test_geometric_sphere_converges_quickly():
+    """38 clean points, started one unit from the truth: the issue saw 300 iterations move
+    it 0.015; scipy's least_squares takes 11 evaluations."""
+    fam = kanagen.load_text(SPHERE, source="sphere.yaml")
+    rng = np.random.default_rng(2)
+    u = rng.normal(size=(38, 3))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    truth = np.array([1.0, -2.0, 0.5, 4.0])
+    P = truth[:3] + truth[3] * u
+    res = kanagen.fit(fam, "m", data={"pt": P}, q0=truth + np.array([0.6, -0.5, 0.4, 0.5]))
+    assert res.success, res.message
+    assert np.allclose(res.q, truth, atol=1e-8)
+    assert res.iterations <= 15
+
+
+@pytest.mark.parametrize("family", ["line", "gauss", "hill", "exp_offset", "circle_algebraic",
+                                    "conic"])
+def test_eiv_slice_against_odrpack(family):
+    """Two problems of the benchmark, four starts each: kanagen reaches the best minimum known
+    at least as often as ODRPACK from the same starts, and never claims a false success."""
+    pytest.importorskip("odrpack")
+    tally = eiv.evaluate(eiv.families()[family], problems=2, starts=4, extra=2,
+                         seed=sum(map(ord, family)))
+    assert tally.false_successes == 0, tally.examples
+    assert tally.kg_reached >= tally.odr_reached, (tally.kg_reached, tally.odr_reached,
+                                                   tally.kg_failures)
+
+
+UNITS = """name: line_units
+constants: {u: 1.0, v: 1.0}
+parameter: {b0: 1.0, b1: 1.0, b2: 0.5}
+channels:
+  pt:
+    components: [x, y]
+    equations: ["y/v - (b0 + b1*exp(-b2*x/u))"]
+models:
+  m: {}
+"""
+
+
+@settings(max_examples=12, deadline=None)
+@given(ex=st.integers(-6, 6), ey=st.integers(-6, 6), seed=st.integers(0, 2**16))
+def test_units_do_not_change_the_estimate(ex, ey, seed):
+    """x in units 10^ex smaller (x' = 10^ex x, its information 10^-2ex), y likewise: the same
+    estimate, cost and standard deviations (report: the estimate depends on the information
+    metric only)."""
+    fam = kanagen.load_text(UNITS, source="units.yaml")
+    rng = np.random.default_rng(seed)
+    M = 25
+    x = np.sort(rng.uniform(0, 5, M))
+    sx, sy = 10 ** rng.uniform(-3, -1, M), 10 ** rng.uniform(-2, -1, M)
+    X = np.c_[x + sx * rng.standard_normal(M),
+              1.0 + 4.0 * np.exp(-0.8 * x) + sy * rng.standard_normal(M)]
+    info = np.einsum("km,kl->mkl", np.vstack([sx**-2, sy**-2]), np.eye(2))
+    base = kanagen.fit(fam, "m", data={"pt": X}, info={"pt": info}, q0=[1.5, 3.0, 0.5])
+    u, v = 10.0**ex, 10.0**ey
+    scaled = kanagen.fit(fam, "m", data={"pt": X * [u, v]},
+                         info={"pt": info / np.outer([u, v], [u, v])},
+                         constants={"u": u, "v": v}, q0=[1.5, 3.0, 0.5])
+    assert base.success == scaled.success
+    assert np.allclose(base.q, scaled.q, rtol=1e-7, atol=1e-10)
+    assert scaled.cost == pytest.approx(base.cost, rel=1e-7)
+    assert np.allclose(base.std, scaled.std, rtol=1e-5)
