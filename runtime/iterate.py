@@ -203,9 +203,28 @@ class _Run:
         typical = float(np.sqrt(np.mean(q_start**2))) or 1.0
         self.scale = self.size0 / np.maximum(np.abs(q_start), 0.1 * typical)
         if not x.finite:
-            x, violation = raw, np.inf
-        elif proj0 is not None:
-            x, violation = self.joint_start(x, violation, proj0, root)
+            return self.descend(raw, np.inf)
+        if proj0 is None:
+            return self.descend(x, violation)
+        joint = self.joint_start(x, violation, proj0, root)
+        if joint[0] is x:
+            return self.descend(x, violation)
+        # two starts: the joint step's point (lower, or on the equations), then — when the
+        # iteration from there fails — the restored start (a sign flip of a rate that
+        # lowered the cost at once but led into a valley)
+        first = self.descend(*joint)
+        if first.status == CONVERGED or not _on_constraints(x, violation):
+            return first
+        self.radius, self.escapes, self.info_start = self.size0, 0, None
+        second = self.descend(x, violation)
+        better = second if (second.status == CONVERGED or
+                            second.point.cost < first.point.cost) else first
+        return replace(better, iterations=first.iterations + second.iterations)
+
+    def descend(self, x: Point, violation: float) -> Outcome:
+        """The iteration from the point ``x`` (restored, or off its equations)."""
+        problem = self.problem
+        q_start = self.q_start
         since_progress = 0
         lin = proj = None
         for it in range(1, self.max_iter + 1):
