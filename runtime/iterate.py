@@ -93,6 +93,7 @@ _COST_NOISE = 1e-13  # the relative rounding of a cost summed over many measures
 _MAX_REFUSALS = 40  # trial points refused in one iteration, at most
 _LINE_STEPS = 3  # halvings of the projector's step before damping
 _JOINT = 1e3  # the joint start's step, at most, in first trust radii
+_JOINT_STEPS = 4  # joint steps (linearised at the unrestored measures) of the start, at most
 
 
 @dataclass(frozen=True)
@@ -280,15 +281,22 @@ class _Run:
         the residuals are frozen at the start, so it crosses barriers of the profile ``F``
         that a descent on ``F`` cannot (a line's slope through zero when the abscissas'
         errors dominate some measures)."""
-        s = proj0.q - x.q
-        if not float(np.sqrt(s @ (self.weights(x.q) * s))) <= _JOINT * self.radius:
-            return x, violation  # a jump no trust region would take (a slack to 1e8)
-        trial = restored(self.problem, proj0.q, proj0.mt, root)
-        if trial[0].finite and _on_constraints(*trial) and (
-                trial[0].cost < x.cost or not _on_constraints(x, violation)) and (
-                self.problem.relations is None or self.problem.relations(trial[0].q)):
-            return trial
-        return x, violation
+        best = (x, violation)
+        proj = proj0
+        for _ in range(_JOINT_STEPS):  # the joint iteration, on while its points improve
+            s = proj.q - x.q
+            if not float(np.sqrt(s @ (self.weights(x.q) * s))) <= _JOINT * self.radius:
+                break  # a jump no trust region would take (a slack to 1e8)
+            trial = restored(self.problem, proj.q, proj.mt, root)
+            if not (trial[0].finite and _on_constraints(*trial) and (
+                    trial[0].cost < best[0].cost or not _on_constraints(*best)) and (
+                    self.problem.relations is None or self.problem.relations(trial[0].q))):
+                break
+            best = trial
+            _, proj = _project(self.problem, evaluate(self.problem, proj.q, proj.mt))
+            if proj is None:
+                break
+        return best
 
     def end(self, x: Point, lin, proj, it: int):
         """Verify ``x``; return the outcome, or None after an escape from a saddle (the
