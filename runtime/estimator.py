@@ -24,7 +24,6 @@ from .inputs import (
     ChannelData,
     channel_data,
     check_search_options,
-    exact_mask,
     parameter_vector,
     prior_information,
 )
@@ -190,10 +189,8 @@ class Estimator:
             ch = channel_data(self.fam, {channel: data}, {channel: info}, given)[0]
             Q = ch.Q if ch.Q.ndim == 3 else np.broadcast_to(ch.Q, (ch.size,) + ch.Q.shape)
             fixed = np.zeros(ch.X.shape, dtype=bool)
-            if given is not None:
-                found = exact_mask(exact, self.fam.channel(channel), ch.size, "exact")
-                if found is not None:
-                    fixed[:, ch.index] = found
+            if ch.fixed is not None:
+                fixed[:, ch.index] = ch.fixed
             ids = np.arange(self._next_id, self._next_id + ch.size)
             self._next_id += ch.size
             self._rows[channel].extend(zip(ids.tolist(), ch.X, Q, fixed, strict=True))

@@ -81,7 +81,7 @@ FINGERPRINTS: dict[str, str] = {
     'coherence._SLOW': '148df96ae1c0',
     'inputs.inverse_root': '051a001e58d2',
     'inputs.ChannelData.scale': 'eb3f459fe079',
-    'inputs.ChannelData.with_corrected': 'f34815e6e497',
+    'inputs.ChannelData.with_corrected': 'cc3fdd26454a',
     'initializers.two_view_fundamental': '27e179692ec5',
     'initializers.two_view_homography': '8d4b488b7110',
     'initializers._rays': '415fcf057322',

@@ -25,6 +25,7 @@ class ChannelData:
     m: np.ndarray  # (M, k) observed corrected components
     Q: np.ndarray  # information, (k, k) shared or (M, k, k)
     G: np.ndarray  # inverse of the closest square root of Q, same shape
+    fixed: np.ndarray | None = None  # (M, k) exact corrected components (``exact=``), or None
 
     @property
     def size(self) -> int:
@@ -43,13 +44,15 @@ class ChannelData:
         per_measure = self.Q.ndim == 3
         return ChannelData(self.name, self.X[rows], self.index, self.m[rows],
                            self.Q[rows] if per_measure else self.Q,
-                           self.G[rows] if per_measure else self.G)
+                           self.G[rows] if per_measure else self.G,
+                           None if self.fixed is None else self.fixed[rows])
 
-    def with_corrected(self, mt: np.ndarray) -> np.ndarray:
-        """The data array with the corrected columns replaced by ``mt``."""
+    def with_corrected(self, mt: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """The data array (its rows ``rows``, default all) with the corrected columns
+        replaced by ``mt``."""
         if self.index.size == self.X.shape[1]:
             return mt  # no exact component: the corrected measures are the whole data
-        X = self.X.copy()
+        X = self.X.copy() if rows is None else self.X[rows]
         X[:, self.index] = mt
         return X
 
@@ -148,7 +151,7 @@ def channel_data(fam: ModelFamily, data: Mapping, info: Mapping | None,
         if fixed is not None:
             Q = np.broadcast_to(Q, (X.shape[0],) + Q.shape[-2:]).copy()
             G = exact_root(Q, fixed)
-        out.append(ChannelData(name, X, idx, X[:, idx].copy(), Q, G))
+        out.append(ChannelData(name, X, idx, X[:, idx].copy(), Q, G, fixed))
     return out
 
 

@@ -85,8 +85,7 @@ def _manifold_descent(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...
         reach = _reaching(ch.G, top)
 
         def evaluate(rows, values, ch=ch, fn=fn):
-            return fn(q, values if ch.index.size == ch.X.shape[1] else
-                      _with(ch, rows, values), problem.k)
+            return fn(q, ch.with_corrected(values, rows), problem.k)
 
         values = m.copy()
         everyone = np.arange(len(values))
@@ -96,8 +95,7 @@ def _manifold_descent(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...
         distance = quadratic(values - ch.m, ch.Q)
         # only the measures on their manifold descend along it (the others cannot be
         # brought onto it for this q: a circle of negative radius)
-        Bbar, _, _ = whiten(D, ch.G, c[..., None], problem.eps)
-        active = everyone[np.sum(Bbar[..., 0] ** 2, axis=1) <= _UNREACHED]
+        active = everyone[_violations(problem, whiten, ch.G, c, D) <= _UNREACHED]
         for _ in range(_DESCENT):
             if not active.size:
                 break
@@ -131,18 +129,10 @@ def _manifold_descent(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...
                 alpha[todo] /= 2
             active = active[moved > RESTORE_TOL**2]
         c, C, D = evaluate(everyone, values)
-        Bbar, _, _ = whiten(D, ch.G, c[..., None], problem.eps)
         out_m.append(values)
-        out_v.append(np.sum(Bbar[..., 0] ** 2, axis=1))
+        out_v.append(_violations(problem, whiten, ch.G, c, D))
         out_e.append((c, C, D))
     return tuple(out_m), tuple(out_v), tuple(out_e)
-
-
-def _with(ch, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """The data rows ``rows`` with their corrected columns replaced by ``values``."""
-    X = ch.X[rows].copy()
-    X[:, ch.index] = values
-    return X
 
 
 def _normal(problem: Problem, ch, reach, kernel, evaluate, rows: np.ndarray,
@@ -162,6 +152,13 @@ def _normal(problem: Problem, ch, reach, kernel, evaluate, rows: np.ndarray,
         if not left.size:
             break
     return values, c, D
+
+
+def _violations(problem: Problem, whiten, G: np.ndarray, c: np.ndarray,
+                D: np.ndarray) -> np.ndarray:
+    """Each measure's whitened violation ``‖c‖²_{(D Q⁺ Dᵀ)⁻}`` (cost units)."""
+    Bbar, _, _ = whiten(D, G, c[..., None], problem.eps)
+    return np.sum(Bbar[..., 0] ** 2, axis=1)
 
 
 def _top_variance(G: np.ndarray) -> np.ndarray:
@@ -230,10 +227,8 @@ def nearer_points(problem: Problem, x: Point) -> Point | None:
     mt, evals, changed = [], [], False
     for fn_kernel, ch, m_x, m_o, e_x, e_o in zip(problem.kernels, problem.channels, x.mt,
                                                  other.mt, x.evals, other.evals, strict=True):
-        whiten, _ = fn_kernel
         c, _, D = e_o
-        Bbar, _, _ = whiten(D, ch.G, c[..., None], problem.eps)
-        on = np.sum(Bbar[..., 0] ** 2, axis=1) <= _UNREACHED
+        on = _violations(problem, fn_kernel[0], ch.G, c, D) <= _UNREACHED
         d_x, d_o = quadratic(m_x - ch.m, ch.Q), quadratic(m_o - ch.m, ch.Q)
         better = on & (d_o < d_x - 1e-9 * (1.0 + d_x))
         if better.any():
