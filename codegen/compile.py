@@ -40,7 +40,6 @@ _FAST_C = Path(__file__).with_name("c") / "kanagen_fast.c"
 _GEOMETRY_C = Path(__file__).with_name("c") / "kanagen_geometry.c"
 #: one random sample of a robust search in one call (after both: it calls them)
 _SAMPLE_C = Path(__file__).with_name("c") / "kanagen_sample.c"
-_SLACK_KINDS = {">=": 0, ">": 1, "!=": 2}
 _TIMEOUT = 300  # seconds
 
 
@@ -102,36 +101,15 @@ def _tables(module: ModuleType, family: dict) -> dict:
     for _, ch in channels:
         index_off.append(len(index))
         index += [ch["components"].index(c) for c in ch["corrected"]]
-    models, measures, clause_len, clause_start, clause = [], [], [], [], []
-    for mi, (name, entry) in enumerate(module.MODELS.items()):
-        clauses = family["slack_clauses"].get(name, [])
-        models.append({"c0": entry["c0"].name(), "p0": entry["c0"].size1_out(0),
-                       "clauses": len(clauses), "clause_off": len(clause_len)})
-        for cl in clauses:
-            clause_len.append(len(cl))
-            clause_start.append(len(clause))
-            clause += list(cl)
+    models, measures = [], []
+    for mi, entry in enumerate(module.MODELS.values()):
+        models.append({"c0": entry["c0"].name(), "p0": entry["c0"].size1_out(0)})
         for ci, (ch, _) in enumerate(channels):
             f = entry["channels"][ch]
             measures.append({"case": mi * len(channels) + ci, "name": f.name(),
                              "p": f.size1_out(0), "k": f.size2_out(2)})
             p.append(f.size1_out(0))
     n = len(family["parameter"])
-    names = list(family["derived"])
-    reports = [int(d in family["models"][m].get("derived", names)) for m in module.MODELS
-               for d in names]
-    derived, offset, jac_at = [], 0, 0
-    if module.DERIVED is not None:
-        f = module.DERIVED
-        for j in range(f.n_out() // 2):
-            rows, cols = f.size_out(2 * j)
-            jrows, jcols = f.size_out(2 * j + 1)
-            size = rows * cols
-            derived.append({"size": size, "offset": offset, "jac_at": jac_at, "rows": rows,
-                            "cols": cols, "transpose": rows > 1 and cols > 1,
-                            "jac_rows": jrows, "jac_cols": jcols})
-            offset += size + size * n + size * size
-            jac_at += jrows * jcols
     functions = list(module.FUNCTIONS)
     largest = max((math.prod(f.size_out(i)) for f in functions for i in range(f.n_out())),
                   default=1)
@@ -146,16 +124,12 @@ def _tables(module: ModuleType, family: dict) -> dict:
         "n": n, "nk": len(family["constants"]),
         "channels": [{"width": len(ch["components"]), "ncorr": len(ch["corrected"])}
                      for _, ch in channels],
-        "index": index, "index_off": index_off, "p": p, "models": models, "reports": reports,
-        "measures": measures, "derived": derived,
-        "derived_function": module.DERIVED.name() if module.DERIVED is not None else None,
-        "slack_function": module.SLACK_MEASURES.name()
-        if module.SLACK_MEASURES is not None else None,
-        "slack_kinds": [_SLACK_KINDS[k] for k in family["slack_kinds"]],
-        "clause_len": clause_len, "clause_start": clause_start, "clause": clause,
+        "index": index, "index_off": index_off, "p": p, "models": models,
+        "measures": measures, "nderived": len(family["derived"]),
+        "nslack": len(family["slack_kinds"]),
         "sz": {"arg": max(f.sz_arg() for f in functions), "res": max(f.sz_res() for f in functions),
                "iw": max(f.sz_iw() for f in functions), "w": max(f.sz_w() for f in functions),
-               "buf": max(largest, jac_at)},
+               "buf": largest},
     }
 
 

@@ -41,7 +41,7 @@ PORTED: dict[str, tuple[str, ...]] = {
     # kg_minimal: eq. 21
     "coherence": ("coherence_errors", "solve_minimal", "_solved", "_FREE_STEPS", "_WATCHDOG",
                   "_SLOW"),
-    "inputs": ("inverse_root", "ChannelData.scale", "ChannelData.with_corrected"),
+    "inputs": ("inverse_root", "ChannelData.with_corrected"),
     # codegen/c/kanagen_geometry.c: the closed-form initialisers (FastPath.initializer)
     "initializers": ("two_view_fundamental", "two_view_homography", "_rays", "_pose_params",
                      "_FOCAL_RANGE", "_TWO_VIEW_Q", "two_view_rotation", "two_view_translation",
@@ -80,7 +80,6 @@ FINGERPRINTS: dict[str, str] = {
     'coherence._WATCHDOG': '533d3f19a9e0',
     'coherence._SLOW': '148df96ae1c0',
     'inputs.inverse_root': '051a001e58d2',
-    'inputs.ChannelData.scale': 'eb3f459fe079',
     'inputs.ChannelData.with_corrected': 'cc3fdd26454a',
     'initializers.two_view_fundamental': '27e179692ec5',
     'initializers.two_view_homography': '8d4b488b7110',
@@ -180,7 +179,13 @@ def changed() -> list[str]:
 
 
 class FastPath:
-    """``kg_fit`` of a compiled family library, behind the interface of ``fit_problem``.
+    """The robust search's compiled calls of a family library: ``kg_coherence``
+    (:meth:`coherence`, for ``coherence_errors``), ``kg_minimal`` (:meth:`minimal`, for
+    ``solve_minimal``), the closed-form initialisers ``kg_two_view_*`` (:meth:`initializer`),
+    ``kg_closest_root`` (:meth:`closest_sqrt`, for the tests) and the sampling calls
+    ``kg_sample``, ``kg_search`` and ``kg_choice_draw`` that runtime/fastsample.py drives.
+    (The compiled local fit, ``kg_fit``, was removed on 2026-11-25, issue 17: the local fit
+    runs runtime/iterate.py on every backend.)
 
     Parameters
     ----------
@@ -288,15 +293,13 @@ class FastPath:
         and where each input went (:meth:`_layout`)."""
         channels = [(ch.name, ch.X, ch.Q, ch.G) for ch in problem.channels]
         q = np.asarray(q, dtype=float)
-        size_in, head, where = self._layout(model, channels, problem.k, eps, iterations, tol,
-                                            (), False)
+        size_in, head, where = self._layout(model, channels, problem.k, eps, iterations, tol)
         if own:
             inp, out = np.empty(size_in), np.empty(size_out)
             ws = [inp, out, ctypes.c_void_p(inp.ctypes.data),
-                  ctypes.c_void_p(out.ctypes.data), None]
+                  ctypes.c_void_p(out.ctypes.data)]
         else:
             ws = self._buffers(size_in, size_out)
-            ws[4] = None  # no plan's template any more
         inp = ws[0]
         self._pack(inp, head, where, channels, problem.k)
         n = self.n
@@ -370,29 +373,26 @@ class FastPath:
 
     # -- packing --------------------------------------------------------------------------
     def _buffers(self, size_in: int, size_out: int):
-        """This thread's argument buffers (grown when too small), their addresses, and what
-        the input buffer holds (:meth:`_run`)."""
+        """This thread's argument buffers (grown when too small) and their addresses."""
         ws = getattr(self._local, "ws", None)
         if ws is None or ws[0].size < size_in or ws[1].size < size_out:
             inp = np.empty(max(size_in, 2 * (ws[0].size if ws else 0), 256))
             out = np.empty(max(size_out, 2 * (ws[1].size if ws else 0), 512))
             ws = self._local.ws = [inp, out, ctypes.c_void_p(inp.ctypes.data),
-                                   ctypes.c_void_p(out.ctypes.data), None]
+                                   ctypes.c_void_p(out.ctypes.data)]
         return ws
 
-    def _layout(self, model, channels, k, eps, max_iter, xtol, strict, prior):
+    def _layout(self, model, channels, k, eps, max_iter, xtol):
         """Where each input goes in the C's input array: (size_in, head, the offsets of
         start, q0, Q0, k, and per channel of X, Q, G)."""
         n = self.n
         head = [self.model_ids[model], len(channels), max_iter, 1 if self.slack else 0, eps,
-                xtol, len(strict), prior]
+                xtol, 0, 0]  # no strict slacks, no prior: kg_read's layout
         for name, X, Q, _ in channels:
             head += (self.channels[name][0], X.shape[0], Q.ndim == 3)
-        for pair in strict:
-            head += pair
         at = len(head)
-        where = [at, at + n, at + 2 * n]  # start, q0, Q0
-        at += 2 * n + (n * n if prior else 0)
+        where = [at, at + n, at + 2 * n]  # start, q0, (Q0: none)
+        at += 2 * n
         where.append(at)  # k
         at += k.size
         for _, X, Q, G in channels:
