@@ -126,8 +126,10 @@ def check_options(max_iter, xtol, eps) -> None:
 
 
 def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0=None,
-                Q0=None, max_iter: int = 100, xtol: float = 1e-10) -> FitResult:
-    """:func:`fit` on a validated problem (optionally with another prior ``q0``, ``Q0``)."""
+                Q0=None, max_iter: int = 100, xtol: float = 1e-10,
+                verify: bool = True) -> FitResult:
+    """:func:`fit` on a validated problem (optionally with another prior ``q0``, ``Q0``);
+    ``verify=False``: its end is not checked (:func:`~.iterate.iterate`; never a success)."""
     if (q0 is not None and q0 is not problem.q0) or (Q0 is not None and Q0 is not problem.Q0):
         problem = replace(problem, q0=problem.q0 if q0 is None else q0,
                           Q0=problem.Q0 if Q0 is None else Q0)
@@ -136,11 +138,11 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
     start = _inside(problem, start)
     red = fam.reduction(model)
     if red is None:
-        out = iterate(problem, start, max_iter=max_iter, xtol=xtol)
+        out = iterate(problem, start, max_iter=max_iter, xtol=xtol, verify=verify)
         x, lin, proj = out.point, out.lin, out.proj
     else:  # iterate in the free components (report §6); outputs from the full model
         out = iterate(reduced_problem(fam, model, problem, red), start[red.free],
-                      max_iter=max_iter, xtol=xtol)
+                      max_iter=max_iter, xtol=xtol, verify=verify)
         with np.errstate(all="ignore"):
             x = evaluate(problem, red.full(out.point.q), out.point.mt)
         lin = proj = None

@@ -45,7 +45,9 @@ Status codes (``FitResult.status``):
 5 saddle — negative curvature that no step along it could use;
 6 plateau — the equations no longer depend on some parameter (a flat direction: the
   minimum is not attained, or the model is not identifiable from these measures);
-7 infeasible — the measures or the constraints could not be brought onto their equations.
+7 infeasible — the measures or the constraints could not be brought onto their equations;
+8 stationary, not verified — the end of an intermediate refinement run without the checks
+  (``verify=False``: a robust search's local optimisation, which keeps only its estimate).
 """
 
 from __future__ import annotations
@@ -71,7 +73,8 @@ from .restoration import nearer_points, restore_measures
 from .sqrt import closest_sqrt, reduced_solve, reduced_sqrt, triangular_solve
 from .verify import Verdict, cost_rounding, escape, feasible, stationary, verify
 
-CONVERGED, MAX_ITER, STALLED, FAILED, BOUNDARY, SADDLE, PLATEAU, INFEASIBLE = range(8)
+CONVERGED, MAX_ITER, STALLED, FAILED, BOUNDARY, SADDLE, PLATEAU, INFEASIBLE, UNVERIFIED = \
+    range(9)
 MESSAGES = {
     CONVERGED: "converged: a local minimum (stationary, no negative curvature)",
     MAX_ITER: "stopped: iteration cap reached",
@@ -82,6 +85,7 @@ MESSAGES = {
     SADDLE: "saddle point: the cost falls along a direction no step could follow",
     PLATEAU: "plateau",
     INFEASIBLE: "infeasible: the equations could not be satisfied near this point",
+    UNVERIFIED: "stationary, not verified (an intermediate refinement)",
 }
 _RETRACTION = 64  # Gauss–Newton steps onto c0 = 0, at most (a double root: linear)
 _ACCEPT = 1e-4  # ρ above which a step within the radius is taken
@@ -109,13 +113,14 @@ class Outcome:
 
 
 def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
-            xtol: float = 1e-10, verify_end: bool = True) -> Outcome:
+            xtol: float = 1e-10, verify: bool = True) -> Outcome:
     """Run the iteration from ``(q_start, m)``; never raises on numerical trouble.
 
-    ``verify_end=False`` skips the verification of a point where ``max_iter`` stops the
-    iteration (a refinement taken on in laps verifies its last lap only)."""
+    ``verify=False``: a stationary end is not checked (no curvature, no escapes; status
+    :data:`UNVERIFIED`), nor one where ``max_iter`` stops the iteration — for an
+    intermediate refinement whose estimate alone is used."""
     with np.errstate(all="ignore"):
-        return _Run(problem, max_iter, xtol, verify_end).run(q_start)
+        return _Run(problem, max_iter, xtol, verify).run(q_start)
 
 
 def negligible(problem: Problem, q_old, q_new, mt_old, mt_new, xtol: float) -> bool:
@@ -176,11 +181,11 @@ def _c0_violation(x: Point, root: np.ndarray | None) -> float:
 class _Run:
     """One run of the iteration (its state between iterations)."""
 
-    def __init__(self, problem: Problem, max_iter: int, xtol: float, verify_end: bool):
+    def __init__(self, problem: Problem, max_iter: int, xtol: float, verify: bool):
         self.problem = problem
         self.max_iter = max_iter
         self.xtol = xtol
-        self.verify_end = verify_end
+        self.verify = verify
         self.escapes = 0
         self.info_start = None  # diagonal of the information at the start (plateaus)
 
@@ -264,7 +269,7 @@ class _Run:
                 x, violation = self.x, self.violation
                 since_progress = 0
         lin, proj = _project(problem, x)
-        if self.verify_end and lin is not None and feasible(violation, x.cost):
+        if self.verify and lin is not None and feasible(violation, x.cost):
             verdict = verify(problem, x, lin, proj, self.info_start,
                              model=lagrangian(problem, lin, proj))
             if verdict.minimum:
@@ -306,6 +311,8 @@ class _Run:
             lin, proj = _project(problem, x)
             if lin is None:
                 return self.outcome(x, it, FAILED, " in the projector")
+        if not self.verify:
+            return self.outcome(x, it, UNVERIFIED, "", lin, proj)
         root = closest_sqrt(lin.info, problem.eps)
         _, violation = restored(problem, x.q, x.mt, root)
         if not feasible(violation, x.cost):

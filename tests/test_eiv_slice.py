@@ -210,3 +210,53 @@ def test_units_do_not_change_the_estimate(ex, ey, seed):
     assert np.allclose(base.q, scaled.q, rtol=1e-7, atol=1e-10)
     assert scaled.cost == pytest.approx(base.cost, rel=1e-7)
     assert np.allclose(base.std, scaled.std, rtol=1e-5)
+
+
+def test_the_curvature_check_at_a_clear_minimum_takes_one_gradient_per_direction():
+    """At a well-curved minimum the forward-difference screen settles the check: one exact
+    gradient per tangent direction and one at the point (central differences, twice as many,
+    only where the screen is not conclusive) — and the verdict is the same as theirs."""
+    from kanagen.runtime import verify as verify_module
+    from kanagen.runtime.fit import make_problem
+    from kanagen.runtime.iterate import CONVERGED, iterate
+
+    fam = kanagen.load_text(LINE, source="line.yaml")
+    X, sx, sy, info = _line_data()
+    problem = make_problem(fam, "m", {"pt": X}, {"pt": info}, [1.0, 1.0])
+    out = iterate(problem, np.array([1.0, 1.0]))
+    assert out.status == CONVERGED
+    exact = verify_module._profile_gradient(problem, out.point)
+    calls = []
+
+    def counted(q):
+        calls.append(q)
+        return exact(q)
+
+    with np.errstate(all="ignore"):
+        verdict = verify_module.verify(problem, out.point, out.lin, out.proj,
+                                       gradient_at=counted)
+        W = verify_module._tangent_basis(out.point, out.lin)
+        lam0 = verify_module._multipliers(out.point, out.lin)
+        central = verify_module._least_curvature(problem, out.point, W, lam0, exact,
+                                                 verify_module._STEP)
+    assert verdict.minimum
+    assert len(calls) == W.shape[1] + 1
+    assert central[0] >= verify_module._SCREEN
+    assert verdict.curvature == pytest.approx(central[0], rel=1e-2)
+
+
+def test_an_unverified_refinement_is_never_a_success():
+    """``verify=False`` (a robust search's intermediate refinement) ends at a stationary
+    point without the checks: the same estimate as the verified fit from a good start, but
+    status 8 and no success."""
+    from kanagen.runtime.fit import fit_problem, make_problem
+    from kanagen.runtime.iterate import UNVERIFIED
+
+    fam = kanagen.load_text(LINE, source="line.yaml")
+    X, sx, sy, info = _line_data()
+    problem = make_problem(fam, "m", {"pt": X}, {"pt": info}, [2.0, -0.5])
+    checked = fit_problem(fam, "m", problem)
+    quick = fit_problem(fam, "m", problem, verify=False)
+    assert checked.success and not quick.success
+    assert quick.status == UNVERIFIED and "not verified" in quick.message
+    np.testing.assert_allclose(quick.q, checked.q, rtol=1e-8, atol=1e-10)
