@@ -1,5 +1,12 @@
 """Code generation: a description of WHAT to generate (derivatives, CSE, reductions), and
-backends (NumPy, CasADi) that render it through jinja2 templates."""
+backends (NumPy, CasADi) that render it through jinja2 templates.
+
+Importing this package imports SymPy and jinja2: the runtime never does (it imports
+:mod:`kanagen.codegen.compile` only for the "compiled" backend).
+"""
+
+import importlib
+import importlib.util
 
 from .backend import Backend
 from .build import BACKENDS, build, check, committed_backends, generator_fingerprint, render_spec
@@ -23,3 +30,10 @@ __all__ = [
     "generator_fingerprint",
     "render_spec",
 ]
+
+
+def __getattr__(name: str):
+    """A submodule not imported yet (``kanagen.codegen.compile``), on first access (PEP 562)."""
+    if not name.startswith("_") and importlib.util.find_spec(f"{__name__}.{name}") is not None:
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

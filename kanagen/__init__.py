@@ -13,7 +13,9 @@ Examples
 True
 """
 
+import importlib as _importlib
 from pathlib import Path as _Path
+from typing import TYPE_CHECKING as _TYPE_CHECKING
 
 # In a source checkout the subpackages sit beside this folder (modelspec/, codegen/, runtime/,
 # generated/); an installed kanagen has them inside it. Make the checkout importable as is.
@@ -21,20 +23,52 @@ _here = _Path(__file__).resolve().parent
 if not (_here / "runtime").is_dir() and (_here.parent / "runtime" / "__init__.py").is_file():
     __path__.append(str(_here.parent))  # noqa: F821 - the package's own __path__
 
-from .batching import BatchSummary, batch  # noqa: E402
-from .fitjob import FitOptions  # noqa: E402
-from .loader import load, load_text  # noqa: E402
-from .modelspec import SpecError, family_from_data  # noqa: E402
-from .resultsdb import read_results  # noqa: E402
-from .runtime.coherence import coherence, minimal_sample_size, minimal_solve  # noqa: E402
-from .runtime.estimator import Estimator, ModelState  # noqa: E402
-from .runtime.family import ModelFamily  # noqa: E402
-from .runtime.fit import fit  # noqa: E402
-from .runtime.results import DerivedValue, FitResult  # noqa: E402
-from .runtime.robust import RobustEstimate, robust_fit  # noqa: E402
-from .runtime.structures import find_structures  # noqa: E402
-
 __version__ = "0.1.0"
+
+# The public names are imported on first use (PEP 562): ``import kanagen`` costs little more
+# than the interpreter, and a fit of a shipped family imports neither the spec reader (SymPy,
+# PyYAML) nor the generator (jinja2) (tests/test_imports.py, benchmarks/import_time.py).
+if _TYPE_CHECKING:  # the same names, for type checkers and editors
+    from .batching import BatchSummary, batch
+    from .fitjob import FitOptions
+    from .loader import load, load_text
+    from .modelspec import SpecError, family_from_data
+    from .resultsdb import read_results
+    from .runtime.coherence import coherence, minimal_sample_size, minimal_solve
+    from .runtime.estimator import Estimator, ModelState
+    from .runtime.family import ModelFamily
+    from .runtime.fit import fit
+    from .runtime.results import DerivedValue, FitResult
+    from .runtime.robust import RobustEstimate, robust_fit
+    from .runtime.structures import find_structures
+
+#: public name -> the module defining it
+_LAZY = {
+    "BatchSummary": ".batching",
+    "batch": ".batching",
+    "FitOptions": ".fitjob",
+    "load": ".loader",
+    "load_text": ".loader",
+    "SpecError": ".modelspec.errors",
+    "family_from_data": ".modelspec.parse",
+    "read_results": ".resultsdb",
+    "coherence": ".runtime.coherence",
+    "minimal_sample_size": ".runtime.coherence",
+    "minimal_solve": ".runtime.coherence",
+    "Estimator": ".runtime.estimator",
+    "ModelState": ".runtime.estimator",
+    "ModelFamily": ".runtime.family",
+    "fit": ".runtime.fit",
+    "DerivedValue": ".runtime.results",
+    "FitResult": ".runtime.results",
+    "RobustEstimate": ".runtime.robust",
+    "robust_fit": ".runtime.robust",
+    "find_structures": ".runtime.structures",
+}
+
+#: the submodules that ``import kanagen`` made attributes before its names became lazy
+_SUBMODULES = frozenset({"batching", "codegen", "dataio", "fitjob", "loader", "modelspec",
+                         "resultsdb", "runtime"})
 
 __all__ = [
     "BatchSummary",
@@ -59,3 +93,18 @@ __all__ = [
     "robust_fit",
     "RobustEstimate",
 ]
+
+
+def __getattr__(name: str):
+    """A public name (or one of :data:`_SUBMODULES`), imported on first use (PEP 562)."""
+    if name in _LAZY:
+        value = getattr(_importlib.import_module(_LAZY[name], __name__), name)
+        globals()[name] = value
+        return value
+    if name in _SUBMODULES:
+        return _importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY) | _SUBMODULES)

@@ -1,4 +1,10 @@
-"""``kanagen.load``: from a spec to a :class:`ModelFamily`, through generated code."""
+"""``kanagen.load``: from a spec to a :class:`ModelFamily`, through generated code.
+
+A shipped family loaded by name is its committed module under ``kanagen.generated``: no spec
+is read and nothing is generated, so SymPy, PyYAML and jinja2 (the spec reader's and the
+generator's) are imported only when a spec is (:func:`_module_for`), and CasADi only for the
+"casadi" and "compiled" backends.
+"""
 
 from __future__ import annotations
 
@@ -7,14 +13,14 @@ import os
 import tempfile
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from .codegen import BACKENDS, FORMAT, generator_fingerprint, render_spec
-from .codegen.compile import CompileError, CompileWarning, compile_family, load_compiled
-from .modelspec import Family, Limits, load_spec, parse_spec
-from .modelspec.limits import DEFAULT
+from .modelspec.limits import DEFAULT, Limits
 from .runtime.backends import CasadiFunctions, CompiledFunctions
 from .runtime.family import ModelFamily, cache_dir, cache_key, import_file, shipped_module
-from .runtime.fastpath import FastPath
+
+if TYPE_CHECKING:
+    from .modelspec.ir import Family
 
 #: The backends :func:`load` accepts.
 LOAD_BACKENDS = ("numpy", "casadi", "compiled")
@@ -63,11 +69,13 @@ def load(spec: str | Path | Family, *, backend: str = "numpy",
     """
     if backend not in LOAD_BACKENDS:
         raise ValueError(f"unknown backend {backend!r} (choose from {', '.join(LOAD_BACKENDS)})")
-    if isinstance(spec, Family):
+    if _is_family(spec):
         family = spec
     else:
         path = Path(spec)
         if path.suffix in (".yaml", ".yml") or path.exists():
+            from .modelspec.parse import load_spec
+
             family = load_spec(path, limits)
         else:
             family = None
@@ -80,6 +88,9 @@ def load(spec: str | Path | Family, *, backend: str = "numpy",
             _shipped_by_name(f"{module.FAMILY['name']}_casadi")
         functions = None
         if backend == "compiled":
+            from .codegen.compile import CompileError, CompileWarning, compile_family, load_compiled
+            from .runtime.fastpath import FastPath
+
             try:
                 library = compile_family(casadi_module, module.FAMILY, cache_dir())
                 functions = CompiledFunctions(casadi_module, module.FAMILY["derived"],
@@ -98,7 +109,19 @@ def load_text(text: str, source: str = "<spec>", *, limits: Limits = DEFAULT,
               **options) -> ModelFamily:
     """Load a family from YAML text; ``source`` names it in errors and in the header.
     ``limits`` and ``options`` are those of :func:`load`."""
+    from .modelspec.parse import parse_spec
+
     return load(parse_spec(text, source, limits), **options)
+
+
+def _is_family(spec) -> bool:
+    """Whether ``spec`` is a validated :class:`~kanagen.modelspec.Family` (a path or a name
+    is not: the spec reader is imported only for what may be one)."""
+    if isinstance(spec, (str, os.PathLike)):
+        return False
+    from .modelspec.ir import Family
+
+    return isinstance(spec, Family)
 
 
 def _shipped_by_name(name: str):
@@ -112,6 +135,8 @@ def _shipped_by_name(name: str):
 def _module_for(family: Family, backend: str):
     """The generated module of ``family`` for ``backend``: the shipped one when current,
     else built into the cache."""
+    from .codegen import BACKENDS, FORMAT, generator_fingerprint, render_spec
+
     target = BACKENDS[backend].templates["module.py.jinja"].format(name=family.name)
     stem = target.removesuffix(".py")
     module = shipped_module(stem, family.sha256, FORMAT)

@@ -17,7 +17,6 @@ Quantifiers do not exist in the language; booleans inside arithmetic are refused
 from __future__ import annotations
 
 import ast
-import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
@@ -29,6 +28,7 @@ from .expressions import parse_expression
 from .guards import scan
 from .ir import symbol
 from .limits import DEFAULT, Limits
+from .slack import slack_value
 
 _COMPARE = {ast.Eq: sp.Eq, ast.NotEq: sp.Ne, ast.Gt: sp.Gt, ast.GtE: sp.Ge, ast.Lt: sp.Lt,
             ast.LtE: sp.Le}
@@ -284,20 +284,6 @@ def qualitative_labels(equations, parameter: Iterable[str]) -> dict[str, tuple[f
             if len(values) >= 2:
                 labels[x.name] = tuple(sorted(set(values)))
     return labels
-
-
-def slack_value(kind: str, c: float) -> float:
-    """The slack solving its relation's equation at ``c``: ``√c`` for ``c >= 0``, ``1/√c`` for
-    ``c > 0``, ``1/c`` for ``c != 0`` where the relation holds; otherwise a non-zero value of
-    the right magnitude (the equation's gradient in ``s`` must not vanish), and the iteration
-    moves the parameter until the relation holds. Plain floats: the runtime uses it too."""
-    if not math.isfinite(c) or c == 0.0:
-        c = 1.0
-    if kind == ">=":
-        return math.sqrt(abs(c))
-    if kind == ">":
-        return 1.0 / math.sqrt(abs(c))
-    return 1.0 / c
 
 
 def slack_start(slack: Slack, values: Mapping[sp.Symbol, float]) -> float:

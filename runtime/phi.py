@@ -16,8 +16,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
-from scipy import stats
-
 Phi = Callable[[int, int], float]
 DEFAULT_CONFIDENCE = 0.95
 
@@ -49,6 +47,8 @@ def ftest(confidence: float = DEFAULT_CONFIDENCE) -> Phi:
         extra = d_general - d
         if extra <= 0 or d <= 0:
             return 1.0
+        from scipy import stats  # on first use: importing scipy.stats costs half a second
+
         quantile = stats.f.ppf(confidence, d, extra)  # fratio[d, d'−d], the report's Maple
         return float((d / d_general) / (1.0 + quantile * extra / d))
 
