@@ -20,9 +20,9 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 import kanagen  # noqa: E402
-from kanagen.runtime.coherence import solve_minimal  # noqa: E402
 from kanagen.runtime.fit import make_problem  # noqa: E402
 from kanagen.runtime.initializers import model_initializers, start_from  # noqa: E402
+from kanagen.runtime.minimal import minimal_solve_problem  # noqa: E402
 from kanagen.scenes import two_view_scene  # noqa: E402
 
 
@@ -47,7 +47,7 @@ def measure(fam, model: str, init, pool_kind: str, scenes: int, samples: int,
             found = False
             for q in starts:
                 t0 = time.perf_counter()
-                sol = solve_minimal(problem, q)
+                sol = minimal_solve_problem(problem, q)
                 t_solve.append(time.perf_counter() - t0)
                 iterations.append(sol.iterations)
                 ok = sol.success and sol.rank >= fam.n

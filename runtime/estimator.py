@@ -16,9 +16,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import lattice
-from .coherence import manifold_ranks
 from .family import ModelFamily
-from .fit import fit_problem
+from .fit import fit_problem, make_problem
 from .initializers import model_initializers
 from .inputs import (
     ChannelData,
@@ -27,6 +26,7 @@ from .inputs import (
     parameter_vector,
     prior_information,
 )
+from .minimal import coherence_errors, manifold_ranks
 from .phi import phi as get_phi
 from .projector import Problem
 from .results import DerivedValue
@@ -397,13 +397,12 @@ class Estimator:
         return self._problem
 
     def _problem_for(self, model: str) -> tuple[Problem, list[np.ndarray], int]:
-        from .fit import problem_of
-
         names, chans, ids = self._channels()
         problem = self._problems.get(model)
         if problem is None:  # one per model until the measures or constants change
-            problem = self._problems[model] = problem_of(self.fam, model, tuple(chans), self.q0,
-                                                         self.Q0, self._constants, checked=True)
+            problem = self._problems[model] = make_problem(
+                self.fam, model, q0=self.q0, Q0=self.Q0, constants=self._constants,
+                channels=tuple(chans), checked=True)
         channel = self.channel or (names[0] if len(names) == 1 else None)
         if channel is None:
             raise ValueError(f"channel= is required: measures in {names}")
@@ -418,7 +417,7 @@ class Estimator:
         eq. 25 is taken at that inlier ratio when it is higher — enough samples to find any
         estimate that could win.
         """
-        if search.free_dof() == 0:
+        if self.fam.free_dof(search.model, self._constants) == 0:
             return 1  # nothing to sample: the model's parameter is fixed
         if self.samples_per_model is not None:
             return self.samples_per_model
@@ -492,8 +491,8 @@ class Estimator:
                 ranks = manifold_ranks(problem, self.fam.with_slacks(start, problem.k, model))
                 across = self._across(parent, ranks[channel])
                 parent_free = lattice.fixed_by(
-                    self.fam, parent_state, self._free(parent), model, name,
-                    self._corrected.get(parent, {}).get(name), self._constants, across)
+                    self.fam, parent_state, self.fam.free_dof(parent, self._constants), model,
+                    name, self._corrected.get(parent, {}).get(name), self._constants, across)
             search = ModelSearch(self.fam, model, problem, channel, start, self._rng,
                                  self.scale, self.scorer, pool=pool, parent_free=parent_free,
                                  base=base, initializer=self.initializers.get(model),
@@ -512,10 +511,6 @@ class Estimator:
             return True
         return False
 
-    def _free(self, model: str) -> int:
-        """The model's free degrees of freedom (:meth:`ModelFamily.free_dof`)."""
-        return self.fam.free_dof(model, self._constants)
-
     def _conclude(self, model: str, parent: str | None, search: ModelSearch) -> None:
         self._from_parent(parent, search)
         estimate = search.finish(self.q0, self.Q0, self.window,
@@ -526,7 +521,7 @@ class Estimator:
             self._queue_alternatives(model)
             return
         self._shape[model] = (max(search.ranks[search.channel], 1),
-                              self._free(model))
+                              self.fam.free_dof(model, self._constants))
         self._corrected[model] = estimate.fit.measures
         _, _, ids = self._channels()
         state = self._state(model, parent, estimate, ids)
@@ -671,8 +666,6 @@ class Estimator:
         return self._select(estimated)
 
     def _coherent_with(self, state: ModelState, channel: str, ch: ChannelData) -> bool:
-        from .coherence import coherence_errors
-        from .fit import make_problem
 
         problem = make_problem(self.fam, state.model, {channel: ch.X}, {channel: ch.Q},
                                constants=self._constants)

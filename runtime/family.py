@@ -17,6 +17,7 @@ import numpy as np
 from ..modelspec.slack import slack_value
 from . import kernels as generic_kernels
 from .backends import NumpyFunctions
+from .minimal import generic_free_dof
 
 
 @dataclass(frozen=True)
@@ -252,16 +253,14 @@ class ModelFamily:
 
     def free_dof(self, model: str, constants=None) -> int:
         """``n − p``: the degrees of freedom ``model``'s constraints leave free, ``p`` their
-        generic rank (:func:`~kanagen.runtime.coherence.free_dof` at the spec's q0 and two
-        perturbations of it: the same anywhere but at special points), once per model and
+        generic rank (:func:`~kanagen.runtime.minimal.generic_free_dof` at the spec's q0 and
+        two perturbations of it: the same anywhere but at special points), once per model and
         constants."""
-        from .coherence import free_dof
-
         k = self._k(constants)
         key = (model, k.tobytes())
         free = self._free.get(key)
         if free is None:
-            free = self._free[key] = free_dof(lambda x: self.c0(model, x, k)[1],
+            free = self._free[key] = generic_free_dof(lambda x: self.c0(model, x, k)[1],
                                               self.with_slacks(self.q0, k, model))
         return free
 

@@ -39,8 +39,8 @@ PORTED: dict[str, tuple[str, ...]] = {
              "REDUNDANT"),
     "kernels": ("whiten", "correct"),
     # kg_minimal: eq. 21
-    "coherence": ("coherence_errors", "solve_minimal", "_solved", "_FREE_STEPS", "_WATCHDOG",
-                  "_SLOW"),
+    "minimal": ("coherence_errors", "minimal_solve_problem", "_solved", "_FREE_STEPS",
+                "_WATCHDOG", "_SLOW"),
     "inputs": ("inverse_root", "ChannelData.with_corrected"),
     # codegen/c/kanagen_geometry.c: the closed-form initialisers (FastPath.initializer)
     "initializers": ("two_view_fundamental", "two_view_homography", "_rays", "_pose_params",
@@ -73,12 +73,12 @@ FINGERPRINTS: dict[str, str] = {
     'sqrt.REDUNDANT': 'a11958cb4ea6',
     'kernels.whiten': 'ffc3e108b3d4',
     'kernels.correct': '0e183f7e3c8f',
-    'coherence.coherence_errors': 'b6d9e82e820b',
-    'coherence.solve_minimal': 'e3604813df72',
-    'coherence._solved': 'ac88707f4a75',
-    'coherence._FREE_STEPS': '3e5ab2fb8dd8',
-    'coherence._WATCHDOG': '533d3f19a9e0',
-    'coherence._SLOW': '148df96ae1c0',
+    'minimal.coherence_errors': 'b6d9e82e820b',
+    'minimal.minimal_solve_problem': '4b123dbff38e',
+    'minimal._solved': 'ac88707f4a75',
+    'minimal._FREE_STEPS': '3e5ab2fb8dd8',
+    'minimal._WATCHDOG': '533d3f19a9e0',
+    'minimal._SLOW': '148df96ae1c0',
     'inputs.inverse_root': '051a001e58d2',
     'inputs.ChannelData.with_corrected': 'cc3fdd26454a',
     'initializers.two_view_fundamental': '27e179692ec5',
@@ -181,7 +181,8 @@ def changed() -> list[str]:
 class FastPath:
     """The robust search's compiled calls of a family library: ``kg_coherence``
     (:meth:`coherence`, for ``coherence_errors``), ``kg_minimal`` (:meth:`minimal`, for
-    ``solve_minimal``), the closed-form initialisers ``kg_two_view_*`` (:meth:`initializer`),
+    ``minimal_solve_problem``), the closed-form initialisers ``kg_two_view_*``
+    (:meth:`initializer`),
     ``kg_closest_root`` (:meth:`closest_sqrt`, for the tests) and the sampling calls
     ``kg_sample``, ``kg_search`` and ``kg_choice_draw`` that runtime/fastsample.py drives.
     (The compiled local fit, ``kg_fit``, was removed on 2026-11-25, issue 17: the local fit
@@ -311,7 +312,7 @@ class FastPath:
 
     def minimal(self, model: str, problem, target: np.ndarray, max_iter: int, xtol: float,
                 eps: float):
-        """``kg_minimal``: :func:`~kanagen.runtime.coherence.solve_minimal` of the validated
+        """``kg_minimal``: :func:`~kanagen.runtime.minimal.minimal_solve_problem` of the validated
         ``problem`` (its measures the sample) from ``target``: ``(q, success, rank,
         iterations, violation)``, or None when kg_minimal refuses the input."""
         ws = self._packed_at(model, problem, target, eps, max_iter, xtol, self.n + 4)[0]

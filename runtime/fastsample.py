@@ -1,8 +1,8 @@
 """One random sample of a robust search in one compiled call (codegen/c/kanagen_sample.c).
 
 :class:`~kanagen.runtime.robust.ModelSearch` solves each sample from each start
-(:func:`~kanagen.runtime.coherence.solve_minimal`) and scores every solution by the errors
-of all measures (:func:`~kanagen.runtime.coherence.coherence_errors`); on the compiled
+(:func:`~kanagen.runtime.minimal.minimal_solve_problem`) and scores every solution by the errors
+of all measures (:func:`~kanagen.runtime.minimal.coherence_errors`); on the compiled
 backend each of these is a C call with its input packed anew. :class:`Sampler` makes the
 whole sample — the closed form's candidates put into the start, their minimal solves and
 the errors at each solution that passes — one call of ``kg_sample`` on the problem packed
@@ -20,12 +20,12 @@ import weakref
 
 import numpy as np
 
-from .coherence import coherence_errors, solve_minimal
 from .fastpath import TWINS
 from .initializers import _TWO_VIEW_Q
+from .minimal import coherence_errors, minimal_solve_problem
 from .scoring import relevance
 
-_MINIMAL = {name: inspect.signature(solve_minimal).parameters[name].default
+_MINIMAL = {name: inspect.signature(minimal_solve_problem).parameters[name].default
             for name in ("max_iter", "xtol", "eps")}  # the search's solves use the defaults
 #: the tolerance of a sample's coherence errors (coherence_errors' default)
 _TOL = inspect.signature(coherence_errors).parameters["tol"].default

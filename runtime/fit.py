@@ -10,26 +10,25 @@ import numpy as np
 from .family import ModelFamily
 from .inputs import channel_data, parameter_vector, prior_information
 from .iterate import CONVERGED, iterate
+from .minimal import minimal_solve_problem
 from .projector import Problem, evaluate, project
 from .reduce import reduced_problem
 from .results import DerivedValue, FitResult, constrained_covariance, propagate
 from .sqrt import EPS
 
 
-def make_problem(fam: ModelFamily, model: str, data: Mapping, info: Mapping | None = None,
-                 q0=None, Q0=None, constants=None, eps: float = EPS,
-                 exact: Mapping | None = None) -> Problem:
-    """Validate the inputs and bundle everything the projector needs."""
+def make_problem(fam: ModelFamily, model: str, data: Mapping | None = None,
+                 info: Mapping | None = None, q0=None, Q0=None, constants=None,
+                 eps: float = EPS, exact: Mapping | None = None, *,
+                 channels: tuple | None = None, checked: bool = False) -> Problem:
+    """Validate the inputs and bundle everything the projector needs.
+
+    ``channels``: the measures validated already (:func:`channel_data`'s), instead of
+    ``data``, ``info`` and ``exact``; ``checked``: ``q0`` and ``Q0`` are validated arrays
+    already (the estimator's, one problem per model)."""
     fam.model(model)
-    return problem_of(fam, model, tuple(channel_data(fam, data, info, exact)), q0, Q0,
-                      constants, eps)
-
-
-def problem_of(fam: ModelFamily, model: str, channels: tuple, q0=None, Q0=None,
-               constants=None, eps: float = EPS, checked: bool = False) -> Problem:
-    """:func:`make_problem` on channels validated already (:func:`channel_data`'s);
-    ``checked``: ``q0`` and ``Q0`` are validated arrays already (the estimator's, one
-    problem per model)."""
+    if channels is None:
+        channels = tuple(channel_data(fam, data or {}, info, exact))
     k = fam.constant_vector(constants)
     measures, kernels = [], []
     for ch in channels:
@@ -193,9 +192,7 @@ def _inside(problem: Problem, start: np.ndarray) -> np.ndarray:
     the free slack to absorb the violation, and it oscillates about zero instead."""
     if problem.relations is None or problem.relations(start):
         return start
-    from .coherence import solve_minimal  # coherence builds on this module
-
-    sol = solve_minimal(problem.subset(tuple(np.zeros(0, dtype=int)
+    sol = minimal_solve_problem(problem.subset(tuple(np.zeros(0, dtype=int)
                                              for _ in problem.channels)), start)
     return sol.q if sol.success and problem.relations(sol.q) else start
 

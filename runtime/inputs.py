@@ -8,11 +8,14 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .family import ModelFamily
 from .sqrt import closest_sqrt
+
+if TYPE_CHECKING:  # annotations only: the family builds on this module's data types
+    from .family import ModelFamily
 
 
 @dataclass(frozen=True)

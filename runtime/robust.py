@@ -18,13 +18,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .coherence import coherence_errors, manifold_ranks, solve_minimal
 from .family import ModelFamily
 from .fastsample import draws_as_numpy, sampler_for
 from .fit import fit_problem, make_problem
 from .initializers import InitializerFn, equivalent, model_initializers, start_from
 from .inputs import check_search_options
 from .iterate import MAX_ITER
+from .minimal import coherence_errors, manifold_ranks, minimal_solve_problem
 from .projector import Problem
 from .results import FitResult
 from .scoring import relevance, samples_for_confidence
@@ -177,7 +177,7 @@ class ModelSearch:
         A ceiling on the outlier threshold (error units, at least ``scale``).
     ranks : tuple of int, optional
         Equations per measure of each channel at ``start``
-        (:func:`~kanagen.runtime.coherence.manifold_ranks`, computed when not given).
+        (:func:`~kanagen.runtime.minimal.manifold_ranks`, computed when not given).
 
     A sample whose independent equations outnumber the free degrees of freedom (a zoom from
     one match: two equations, one unknown; the null model: none) cannot be passed through
@@ -216,8 +216,9 @@ class ModelSearch:
         self.base_size = self._minimal(None) - self.sample_size if base is not None else 0
         # a sample must fix this many equations (constraints + sampled), else it is degenerate
         equations = (self.sample_size + self.base_size) * self._equations_per_measure()
-        self.full_rank = min(fam.n, fam.n - self.free_dof() + equations)
-        self.overdetermined = equations > self.free_dof()
+        free = fam.free_dof(model, self.problem.k)
+        self.full_rank = min(fam.n, fam.n - free + equations)
+        self.overdetermined = equations > free
         self.local = float(local)
         self._sampler = sampler_for(self)  # the compiled sample, or None
         # several samples per compiled call (kg_search): eq. 29's relevance scored in C,
@@ -238,17 +239,12 @@ class ModelSearch:
         self._needed: tuple = (None, None, None)  # samples_needed of the best estimate
         self.history: list[tuple[int, float]] = []
 
-    def free_dof(self) -> int:
-        """``n − p``: the parameter's degrees of freedom left free by the model's constraints
-        (:meth:`~kanagen.runtime.family.ModelFamily.free_dof`, once per model)."""
-        return self.fam.free_dof(self.model, self.problem.k)
-
     def _equations_per_measure(self) -> int:
         """Independent equations of one measure (on its equations' zero set)."""
         return max(self.ranks[self.channel], 1)
 
     def _minimal(self, parent_free: int | None) -> int:
-        free = self.free_dof()
+        free = self.fam.free_dof(self.model, self.problem.k)
         extra = free if parent_free is None else max(free - parent_free, 1)
         return max(1, math.ceil(extra / self._equations_per_measure()))
 
@@ -421,7 +417,7 @@ class ModelSearch:
                 if fit.success and np.all(np.isfinite(fit.q)):
                     out.append(fit.q)
                 continue
-            sol = solve_minimal(sample, start)
+            sol = minimal_solve_problem(sample, start)
             if sol.success and sol.rank >= self.full_rank:
                 out.append(sol.q)
                 if self.equivalent:

@@ -8,11 +8,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from .coherence import coherence_errors
 from .estimator import Estimator, ModelState
 from .family import ModelFamily
 from .fit import fit_problem, make_problem
 from .inputs import check_search_options
+from .minimal import coherence_errors
 from .robust import outlier_threshold
 from .scoring import scorer as get_scorer
 
@@ -233,4 +233,4 @@ def _rows_of(info, rows: np.ndarray, size: int):
 
 
 def _minimal(est: Estimator, state: ModelState) -> int:
-    return max(1, est._free(state.model))
+    return max(1, est.fam.free_dof(state.model, est._constants))

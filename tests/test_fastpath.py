@@ -92,11 +92,11 @@ def _data(seed: int, M1: int, M2: int, noise: float = 0.05):
 
 @pytest.mark.parametrize("iterations", [1, 3, None])
 def test_coherence_errors_as_on_the_numpy_runtime(families, iterations):
-    """The robust search's scoring (eq. 24, coherence.coherence_errors) through kg_coherence:
+    """The robust search's scoring (eq. 24, minimal.coherence_errors) through kg_coherence:
     per-measure information, far outliers (the halving), a two-view scene with 30 %
     outliers; the same errors to 1e-10 (outliers' beyond 100 σ²: 1e-7)."""
-    from kanagen.runtime.coherence import coherence_errors
     from kanagen.runtime.fit import make_problem
+    from kanagen.runtime.minimal import coherence_errors
     from kanagen.scenes import two_view_scene
 
     ref, fast = families
@@ -130,12 +130,12 @@ def test_coherence_errors_as_on_the_numpy_runtime(families, iterations):
 
 
 def test_minimal_solves_as_on_the_numpy_runtime():
-    """The robust search's minimal solves (eq. 21, coherence.solve_minimal) through
+    """The robust search's minimal solves (eq. 21, minimal.minimal_solve_problem) through
     kg_minimal: random minimal samples of two-view scenes (30 % outliers) for every model,
     from each closed-form start; the same success, rank and iterations, q to 1e-10."""
-    from kanagen.runtime.coherence import solve_minimal
     from kanagen.runtime.fit import make_problem
     from kanagen.runtime.initializers import model_initializers
+    from kanagen.runtime.minimal import minimal_solve_problem
     from kanagen.runtime.robust import start_from
     from kanagen.scenes import two_view_scene
 
@@ -157,7 +157,7 @@ def test_minimal_solves_as_on_the_numpy_runtime():
                               for c in starts_of[model](X, scene.constants)]
                     starts = [ref.with_slacks(q, pa.k, model) for q in starts if q is not None]
                 for start in starts:
-                    want, got = solve_minimal(pa, start), solve_minimal(pb, start)
+                    want, got = minimal_solve_problem(pa, start), minimal_solve_problem(pb, start)
                     assert (got.success, got.rank, got.iterations) == \
                         (want.success, want.rank, want.iterations)
                     # at a solution the violation is rounding (1e-16 of scaled equations)
@@ -217,8 +217,8 @@ def test_threads_share_a_compiled_family(families):
     (kg_minimal) give the sequential answers."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from kanagen.runtime.coherence import coherence_errors, solve_minimal
     from kanagen.runtime.fit import make_problem
+    from kanagen.runtime.minimal import coherence_errors, minimal_solve_problem
 
     _, fast = families
     cases = [(make_problem(fast, model, _data(seed, 10 + seed, 6 + seed)), seed)
@@ -228,8 +228,8 @@ def test_threads_share_a_compiled_family(families):
         problem, seed = case
         q = np.array([0.8, 0.4, 0.9, 1.0])[:fast.n] + 0.1 * seed
         errors = coherence_errors(problem, q, None)
-        minimal = solve_minimal(problem.subset(tuple(np.arange(2) for _ in problem.channels)),
-                                q)
+        minimal = minimal_solve_problem(
+            problem.subset(tuple(np.arange(2) for _ in problem.channels)), q)
         return np.concatenate([*errors, minimal.q])
 
     expected = [work(case) for case in cases]

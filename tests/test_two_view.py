@@ -8,8 +8,8 @@ import pytest
 
 import kanagen
 from kanagen.runtime import geometry as g
-from kanagen.runtime.coherence import coherence_errors, manifold_ranks
 from kanagen.runtime.fit import make_problem
+from kanagen.runtime.minimal import coherence_errors, manifold_ranks
 from kanagen.scenes import MOTIONS, sampson_rms, transfer_rms, two_view_scene
 
 F_TYPE = ("translation", "general")
