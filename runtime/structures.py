@@ -13,7 +13,7 @@ from .family import ModelFamily
 from .fit import fit_problem, make_problem
 from .inputs import check_search_options
 from .minimal import coherence_errors
-from .robust import outlier_threshold
+from .refine import outlier_threshold
 from .scoring import scorer as get_scorer
 
 _RESTART_SEEDS = 1000  # seeds of restart r: seed + 1000 r, then one per search

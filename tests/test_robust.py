@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import kanagen
-from kanagen.runtime.robust import outlier_threshold
+from kanagen.runtime.refine import outlier_threshold
 from kanagen.runtime.scoring import relevance, samples_for_confidence, scorer
 
 
@@ -117,7 +117,7 @@ def test_scorers_and_threshold():
 def test_threshold_histogram_counts_as_numpy(errors, scale):
     """outlier_threshold's own binning gives np.histogram's counts (values on the edges
     included: the bins' edges in units of L*/20)."""
-    from kanagen.runtime.robust import _counts, _histogram_layout
+    from kanagen.runtime.refine import _counts, _histogram_layout
 
     top = 20.0 * scale
     e = np.clip(np.r_[errors, np.arange(0, 401) * scale / 20.0], 0.0, top)

@@ -93,7 +93,7 @@ def test_options_are_validated(line):
 def test_threshold_ceiling():
     """Two error populations with no gap between them (neighbouring structures): the
     histogram's threshold runs past both; a ceiling holds it, never below L*."""
-    from kanagen.runtime.robust import outlier_threshold
+    from kanagen.runtime.refine import outlier_threshold
 
     rng = np.random.default_rng(3)
     errors = np.r_[rng.chisquare(1, 300), rng.uniform(0, 30, 300), rng.uniform(80, 200, 100)]

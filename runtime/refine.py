@@ -1,0 +1,226 @@
+"""The full estimator on the measures a search's estimate explains (report §4): the outlier
+threshold from the error histogram, LO-RANSAC's refinement of each new best sample, and the
+final threshold-and-refine rounds of :meth:`~kanagen.runtime.robust.ModelSearch.finish`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from .family import ModelFamily
+from .fit import fit_problem
+from .iterate import MAX_ITER
+from .minimal import coherence_errors
+from .projector import Problem
+from .results import FitResult
+
+_REFINE_ROUNDS = 6  # threshold-and-refine rounds at most (they stop when the inliers do)
+_ROUND_ITER = 20  # iterations of a refinement round whose inliers may still change
+#: a refinement that only its inliers' number can make matter (ModelSearch.finish's
+#: short_of) runs in laps of this many iterations, and stops after a lap that lowered its
+#: cost by less than _PROGRESS of itself
+_LAP, _PROGRESS = 5, 1e-4
+
+
+def outlier_threshold(errors: np.ndarray, scale: float, window: float = 0.35,
+                      ceiling: float | None = None) -> float:
+    """Threshold between inliers and outliers from the histogram of the errors (report §4).
+
+    The histogram (bins of ``L*/20`` up to ``20 L*``) is smoothed over a window of
+    ``window·L*`` (25–50 % of ``L*``); the threshold is its first local minimum or saddle
+    after the mode. Without one in range (no outlier population there), it is the range end.
+    ``ceiling`` caps it (several structures close to one another make no minimum between
+    them: their errors form one slope).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> e = np.r_[rng.chisquare(1, 200), rng.uniform(30, 80, 50)]  # inliers, outliers
+    >>> 4.0 < outlier_threshold(e, 4.0) < 30.0                       # L* = 4
+    True
+    """
+    if not 0.25 <= window <= 0.5:
+        raise ValueError("the smoothing window is 25–50 % of L*")
+    e = np.asarray(errors, dtype=float)
+    e = e[np.isfinite(e)]
+    top = 20.0 * scale
+    edges, half, kernel = _histogram_layout(float(scale), float(window))
+    counts = _counts(np.clip(e, 0.0, top), edges)
+    counts[-1] = 0  # the clipped tail is not a population of the histogram
+    padded = np.r_[counts[half - 1::-1], counts]  # errors are >= 0: reflect at 0
+    smooth = np.convolve(padded, kernel, mode="same")[half:]
+    # A minimum is real when the histogram rises after it by more than its Poisson noise
+    # (the kernel averages about `half` bins); a plateau at zero is a saddle.
+    i = int(np.argmax(smooth))
+    smooth = smooth.tolist()  # the walk below reads single bins: Python floats are faster
+    while i + 1 < len(smooth):
+        if smooth[i + 1] < smooth[i]:
+            i += 1
+            continue
+        if smooth[i] * half < 0.5:
+            break  # flat and empty: saddle
+        ahead = smooth[i + 1:i + 1 + 2 * half]
+        noise = 3.0 * math.sqrt((smooth[i] + 1.0 / half) / half)
+        if ahead and max(ahead) - smooth[i] > noise:
+            break  # a genuine local minimum
+        i += 1
+    threshold = max(float(edges[i + 1]), float(scale))
+    return threshold if ceiling is None else min(threshold, max(float(ceiling), float(scale)))
+
+
+@functools.lru_cache(maxsize=64)
+def _histogram_layout(scale: float, window: float) -> tuple[np.ndarray, int, np.ndarray]:
+    """:func:`outlier_threshold`'s bins (``L*/20`` wide, up to ``20 L*``: their edges), the
+    half width of its smoothing window in bins and the window's triangular kernel."""
+    top, width = 20.0 * scale, scale / 20.0
+    edges = np.linspace(0.0, top + 1e-12 * top, int(round(top / width)) + 1)
+    edges.flags.writeable = False
+    half = max(1, int(round(window * scale / width / 2)))
+    kernel = np.r_[np.arange(1, half + 1), np.arange(half + 1, 0, -1)].astype(float)
+    kernel /= kernel.sum()  # triangular, of full width window·L*
+    kernel.flags.writeable = False
+    return edges, half, kernel
+
+
+def _counts(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """``np.histogram(values, edges)``'s counts for equal bins and values inside them, by its
+    own arithmetic (the bin from the scaled value, then corrected by one against the edges,
+    the last bin closed), without its generic checks: it is called on every refinement."""
+    bins = edges.size - 1
+    index = (values / edges[-1] * bins).astype(np.intp)
+    index[index == bins] -= 1
+    index[values < edges[index]] -= 1
+    index[(values >= edges[index + 1]) & (index != bins - 1)] += 1
+    return np.bincount(index, minlength=bins)
+
+
+class Refinement:
+    """Fits of one model on the measures an estimate explains (its errors below the outlier
+    threshold of their histogram).
+
+    Parameters
+    ----------
+    fam, model, problem : the family, the model and the validated measures (all channels).
+    scale : float
+        ``L*``, the error scale of the threshold.
+    score_fn : callable
+        The search's scorer, ``f(errors, scale)``.
+    ranks : tuple of int
+        Equations per measure of each channel (eq. 24's ``p•``).
+    min_rows : int
+        A refinement needs more measures than this (a sample's size).
+    max_threshold : float, optional
+        A ceiling on the outlier threshold.
+    """
+
+    def __init__(self, fam: ModelFamily, model: str, problem: Problem, scale: float,
+                 score_fn: Callable, ranks: tuple[int, ...], min_rows: int,
+                 max_threshold: float | None = None):
+        self.fam = fam
+        self.model = model
+        self.problem = problem
+        self.scale = scale
+        self.score_fn = score_fn
+        self.ranks = ranks
+        self.min_rows = min_rows
+        self.max_threshold = max_threshold
+
+    def split(self, errors: tuple[np.ndarray, ...], window: float = 0.35):
+        """The outlier threshold of ``errors`` (per channel; :func:`outlier_threshold` with
+        the search's ceiling, and its default window) and, per channel, the measures below
+        it."""
+        threshold = outlier_threshold(np.concatenate(errors), self.scale, window,
+                                      self.max_threshold)
+        return threshold, tuple(np.flatnonzero(e < threshold) for e in errors)
+
+    def refined(self, q: np.ndarray, errors, max_iter: int = 10):
+        """``q`` refined on the measures it explains (their errors ``errors``):
+        ``(q, score, errors)``, or None when too few to refine or the fit failed."""
+        rows = self.split(errors)[1]
+        if sum(r.size for r in rows) <= self.min_rows:
+            return None
+        fit = fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=q,
+                          max_iter=max_iter, verify=False)  # its estimate alone is used
+        if not np.all(np.isfinite(fit.q)):
+            return None
+        refined = coherence_errors(self.problem, fit.q, iterations=1, ranks=self.ranks)
+        return fit.q, self.score_fn(np.concatenate(refined), self.scale), refined
+
+    def rounds(self, q: np.ndarray, errors, q0: np.ndarray, Q0: np.ndarray,
+               first: Callable | None = None, window: float = 0.35, max_iter: int = 100,
+               short_of: float | None = None):
+        """Threshold, refine on the inliers, threshold again, ... (report §4) from the
+        estimate ``q`` with ``errors``, until the inliers stop changing (at most
+        :data:`_REFINE_ROUNDS` refinements): ``(fit, inliers, errors, threshold)``, the fit
+        on the reported inliers. ``first(rows)``: more starts of the first refinement (a
+        closed form on the inliers), which keeps the fit of least cost. ``short_of``: see
+        :meth:`~kanagen.runtime.robust.ModelSearch.finish`."""
+        threshold, rows = self.split(errors, window)
+        result = None
+
+        def short(rows) -> bool:
+            return short_of is not None and sum(r.size for r in rows) < short_of
+
+        # the first refinement (which picks among the starts) takes max_iter iterations;
+        # a later one, whose inliers may still change, a few, and the fit on the stable
+        # inliers goes on to max_iter in all (a model that does not fit its data crawls: it
+        # would crawl max_iter iterations every round)
+        per_round = max_iter
+        for round_ in range(_REFINE_ROUNDS):
+            starts = [q] + (first(rows) if round_ == 0 and first is not None else [])
+            result = self._race(starts, rows, q0, Q0, per_round, short(rows))
+            if not np.all(np.isfinite(result.q)):
+                break
+            q = result.q
+            errors = coherence_errors(self.problem, q)
+            threshold, new = self.split(errors, window)
+            if all(np.array_equal(a, b) for a, b in zip(new, rows, strict=True)):
+                result = self._go_on(result, self.problem.subset(rows), q0, Q0, per_round,
+                                     max_iter, short(rows))
+                if result.q is not q and np.all(np.isfinite(result.q)):
+                    errors = coherence_errors(self.problem, result.q)  # at the reported q
+                    threshold = self.split(errors, window)[0]
+                break  # stable: the fit is on the reported inliers
+            rows = new
+            per_round = min(max_iter, _ROUND_ITER)
+        else:
+            result = fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=q,
+                                 q0=q0, Q0=Q0, max_iter=max_iter)
+        return result, rows, errors, threshold
+
+    def _race(self, starts, rows, q0, Q0, max_iter: int, laps: bool = False) -> FitResult:
+        """The fit of least cost on ``rows`` from several starts: each runs
+        :data:`_ROUND_ITER` iterations, and the cheapest goes on to ``max_iter`` in all — a
+        start in a degenerate valley (focal lengths running off to the affine limit) crawls
+        on without the others waiting for it. ``laps``: see :meth:`_go_on`."""
+        sample = self.problem.subset(rows)
+        lap = min(max_iter, _ROUND_ITER) if len(starts) > 1 else max_iter
+        if laps:
+            lap = min(lap, _LAP)
+        fits = [fit_problem(self.fam, self.model, sample, q_start=start, q0=q0, Q0=Q0,
+                            max_iter=lap) for start in starts]
+        best = min(fits, key=lambda f: f.cost if np.isfinite(f.cost) else np.inf)
+        return self._go_on(best, sample, q0, Q0, lap, max_iter, laps)
+
+    def _go_on(self, fit: FitResult, sample: Problem, q0, Q0, done: int,
+               max_iter: int, laps: bool = False) -> FitResult:
+        """``fit``, stopped at its cap of ``done`` iterations, taken on from where it stopped
+        to ``max_iter`` in all (as it is when it stopped otherwise). With ``laps``, in laps of
+        :data:`_LAP` iterations, stopping after one that lowered the cost by less than
+        :data:`_PROGRESS` of itself: a fit crawling along a degenerate valley (a fundamental
+        matrix on matches of no motion: its cost falls by 1e-6 of itself per iteration)
+        stops there, one still descending (out of a plane's basin, its inliers growing)
+        goes on."""
+        while fit.status == MAX_ITER and done < max_iter and np.all(np.isfinite(fit.q)):
+            lap = min(_LAP, max_iter - done) if laps else max_iter - done
+            more = fit_problem(self.fam, self.model, sample, q_start=fit.q, q0=q0, Q0=Q0,
+                               max_iter=lap)
+            done += lap
+            if laps and not fit.cost - more.cost >= _PROGRESS * abs(fit.cost):
+                return more if more.cost <= fit.cost else fit
+            fit = more
+        return fit
