@@ -35,10 +35,10 @@ if _TYPE_CHECKING:  # the same names, for type checkers and editors
     from .modelspec import SpecError, family_from_data
     from .resultsdb import read_results
     from .runtime.coherence import coherence, minimal_sample_size, minimal_solve
-    from .runtime.estimator import Estimator, ModelState
+    from .runtime.estimator import Estimator
     from .runtime.family import ModelFamily
     from .runtime.fit import fit
-    from .runtime.results import DerivedValue, FitResult
+    from .runtime.results import DerivedValue, FitResult, ModelState
     from .runtime.robust import RobustEstimate, robust_fit
     from .runtime.structures import find_structures
 
@@ -56,7 +56,7 @@ _LAZY = {
     "minimal_sample_size": ".runtime.coherence",
     "minimal_solve": ".runtime.coherence",
     "Estimator": ".runtime.estimator",
-    "ModelState": ".runtime.estimator",
+    "ModelState": ".runtime.results",
     "ModelFamily": ".runtime.family",
     "fit": ".runtime.fit",
     "DerivedValue": ".runtime.results",

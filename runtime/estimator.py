@@ -11,7 +11,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 
@@ -29,7 +29,7 @@ from .inputs import (
 from .minimal import coherence_errors, manifold_ranks
 from .phi import phi as get_phi
 from .projector import Problem
-from .results import DerivedValue
+from .results import ModelState
 from .robust import ModelSearch, RobustEstimate
 from .scoring import samples_for_confidence
 from .scoring import scorer as get_scorer
@@ -39,37 +39,6 @@ _BRIEF = 10  # iterations of the final refinement of a model that cannot win (_h
 #: samples per step of run() at most (a batch in one compiled call: ModelSearch.step), when
 #: no stopping rule reads the history sample by sample
 _BATCH = 128
-
-
-@dataclass(frozen=True)
-class ModelState:
-    """One model as estimated so far (report §5, "a model state")."""
-
-    model: str
-    parent: str | None
-    params: dict[str, float]
-    q: np.ndarray
-    info: np.ndarray
-    covariance: np.ndarray
-    inliers: np.ndarray  # measure ids
-    outliers: np.ndarray  # measure ids
-    cost: float  # L̃²/d, the normalised cost compared between models
-    dof: int
-    relevance: float
-    samples: int
-    threshold: float
-    accepted: bool  # it beat its parent by the cost factor Φ (the null model: always)
-    derived: dict[str, DerivedValue] = field(default_factory=dict)
-    status: str = "estimated"
-    slacks: dict[str, float] = field(default_factory=dict)  # appendix F's added components
-    # every measure's error at the estimate (eq. 24), aligned with the ascending measure ids
-    measure_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
-    errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
-
-    @property
-    def estimated(self) -> bool:
-        """False for the placeholder of the first moment (the null model at ``q0``)."""
-        return self.samples > 0
 
 
 class Estimator:

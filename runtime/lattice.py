@@ -17,9 +17,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from .estimator import ModelState
     from .family import ModelFamily
-    from .results import FitResult
+    from .results import FitResult, ModelState
 
 MORE_SUPPORT = 1.2  # a general model wins outright when it explains this much more
 SUPPORT = 0.95  # ... and must keep this fraction of its parent's relevance

@@ -158,3 +158,34 @@ def estimate_lines(params: dict, slacks: dict, std, derived: dict) -> list[str]:
 
 def _indent(text: str, prefix: str = "    ") -> str:
     return "\n".join(prefix + line for line in text.splitlines())
+
+
+@dataclass(frozen=True)
+class ModelState:
+    """One model as estimated so far (report §5, "a model state")."""
+
+    model: str
+    parent: str | None
+    params: dict[str, float]
+    q: np.ndarray
+    info: np.ndarray
+    covariance: np.ndarray
+    inliers: np.ndarray  # measure ids
+    outliers: np.ndarray  # measure ids
+    cost: float  # L̃²/d, the normalised cost compared between models
+    dof: int
+    relevance: float
+    samples: int
+    threshold: float
+    accepted: bool  # it beat its parent by the cost factor Φ (the null model: always)
+    derived: dict[str, DerivedValue] = field(default_factory=dict)
+    status: str = "estimated"
+    slacks: dict[str, float] = field(default_factory=dict)  # appendix F's added components
+    # every measure's error at the estimate (eq. 24), aligned with the ascending measure ids
+    measure_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def estimated(self) -> bool:
+        """False for the placeholder of the first moment (the null model at ``q0``)."""
+        return self.samples > 0

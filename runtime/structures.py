@@ -8,12 +8,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from .estimator import Estimator, ModelState
+from .estimator import Estimator
 from .family import ModelFamily
 from .fit import fit_problem, make_problem
 from .inputs import check_search_options
 from .minimal import coherence_errors
 from .refine import outlier_threshold
+from .results import ModelState
 from .scoring import scorer as get_scorer
 
 _RESTART_SEEDS = 1000  # seeds of restart r: seed + 1000 r, then one per search
