@@ -21,11 +21,11 @@ from .fit import fit_problem, make_problem
 from .initializers import model_initializers
 from .inputs import (
     ChannelData,
-    channel_data,
     check_search_options,
     parameter_vector,
     prior_information,
 )
+from .measures import MeasureStore
 from .minimal import coherence_errors, manifold_ranks
 from .phi import phi as get_phi
 from .projector import Problem
@@ -130,8 +130,7 @@ class Estimator:
         self.Q0 = prior_information(Q0, fam.n)
         self._constants = dict(constants or {})
         fam.constant_vector(self._constants)  # validate now
-        self._rows: dict[str, list] = {name: [] for name in fam.channels}  # (id, X row, Q)
-        self._next_id = 0
+        self._measures = MeasureStore(fam)
         self._lock = threading.RLock()
         self._running = threading.Event()
         self._running.set()
@@ -154,16 +153,7 @@ class Estimator:
         model changes nothing; an inlier re-queues the model.
         """
         with self._lock:
-            given = None if exact is None else {channel: exact}
-            ch = channel_data(self.fam, {channel: data}, {channel: info}, given)[0]
-            Q = ch.Q if ch.Q.ndim == 3 else np.broadcast_to(ch.Q, (ch.size,) + ch.Q.shape)
-            fixed = np.zeros(ch.X.shape, dtype=bool)
-            if ch.fixed is not None:
-                fixed[:, ch.index] = ch.fixed
-            ids = np.arange(self._next_id, self._next_id + ch.size)
-            self._next_id += ch.size
-            self._rows[channel].extend(zip(ids.tolist(), ch.X, Q, fixed, strict=True))
-            self._problem = None
+            ids, ch = self._measures.add(channel, data, info, exact)
             best = self._best_state()
             if best is None or best.status == "null":
                 self._restart_if_idle()
@@ -176,9 +166,7 @@ class Estimator:
         re-queues it and its parent."""
         with self._lock:
             gone = set(np.asarray(ids, dtype=int).tolist())
-            for name in self._rows:
-                self._rows[name] = [r for r in self._rows[name] if r[0] not in gone]
-            self._problem = None
+            self._measures.remove(gone)
             touched = [s for s in self._states.values()
                        if s.accepted and gone & set(s.inliers.tolist())]
             # the states forget the removed measures at once (best() must not list them)
@@ -202,7 +190,7 @@ class Estimator:
             merged = {**self._constants, **constants}
             self.fam.constant_vector(merged)
             self._constants = merged
-            self._problem = None
+            self._measures.invalidate()
             self._restart()
 
     # -- control --------------------------------------------------------------------------------
@@ -324,7 +312,7 @@ class Estimator:
         self._search: tuple[str, str | None, ModelSearch, int] | None = None
         self._samples = 0
         self._done = False
-        self._problem = None
+        self._measures.invalidate()
         self.history = []
         self._states[self._root] = self._null_state()
         self._done_relevance: float | None = None  # _best_relevance of the states so far
@@ -346,32 +334,10 @@ class Estimator:
                           np.zeros(0, int), np.zeros(0, int), np.inf, 0, 0.0, 0, np.inf, True,
                           status="null")
 
-    def _channels(self) -> tuple[list[str], Problem, list[np.ndarray]]:
-        if self._problem is None:
-            self._problems: dict[str, Problem] = {}  # _problem_for's
-            names = [n for n, rows in self._rows.items() if rows]
-            chans, ids = [], []
-            for name in names:
-                rows = self._rows[name]
-                X = np.array([r[1] for r in rows])
-                Q = np.array([r[2] for r in rows])
-                fixed = np.array([r[3] for r in rows])
-                if np.all(Q == Q[0]):
-                    Q = Q[0]  # one information for all: validated and factored once
-                info = channel_data(self.fam, {name: X}, {name: Q},
-                                    {name: fixed} if fixed.any() else None)[0]
-                chans.append(info)
-                ids.append(np.array([r[0] for r in rows], dtype=int))
-            self._problem = (names, chans, ids)
-        return self._problem
-
     def _problem_for(self, model: str) -> tuple[Problem, list[np.ndarray], int]:
-        names, chans, ids = self._channels()
-        problem = self._problems.get(model)
-        if problem is None:  # one per model until the measures or constants change
-            problem = self._problems[model] = make_problem(
-                self.fam, model, q0=self.q0, Q0=self.Q0, constants=self._constants,
-                channels=tuple(chans), checked=True)
+        """The model's problem, the measure ids per channel, the sampled channel's index."""
+        names, _, ids = self._measures.channels()
+        problem = self._measures.problem(model, self.q0, self.Q0, self._constants)
         channel = self.channel or (names[0] if len(names) == 1 else None)
         if channel is None:
             raise ValueError(f"channel= is required: measures in {names}")
@@ -441,7 +407,7 @@ class Estimator:
     def _start_next(self) -> bool:
         while self._queue:
             model, parent, resume = self._queue.pop(0)
-            if not sum(len(r) for r in self._rows.values()):
+            if not len(self._measures):
                 self.status = "no measures"
                 return False
             problem, ids, channel = self._problem_for(model)
@@ -492,7 +458,7 @@ class Estimator:
         self._shape[model] = (max(search.ranks[search.channel], 1),
                               self.fam.free_dof(model, self._constants))
         self._corrected[model] = estimate.fit.measures
-        _, _, ids = self._channels()
+        _, _, ids = self._measures.channels()
         state = self._state(model, parent, estimate, ids)
         self._states[model] = state
         self._done_relevance = None
@@ -577,7 +543,7 @@ class Estimator:
 
     def _state(self, model, parent, est: RobustEstimate, ids) -> ModelState:
         names = list(est.inliers)
-        channel_ids = dict(zip(self._channels()[0], ids, strict=True))
+        channel_ids = dict(zip(self._measures.channels()[0], ids, strict=True))
         inliers = np.concatenate([channel_ids[n][est.inliers[n]] for n in names])
         outliers = np.concatenate([channel_ids[n][est.outliers[n]] for n in names])
         scored = np.concatenate([channel_ids[n] for n in names])
@@ -600,7 +566,7 @@ class Estimator:
     def _replaces(self, specific: ModelState, general: ModelState) -> bool:
         """Both refitted on the measures both take as inliers, ``L̃'²/d' < Φ(d, d') L̃²/d``
         (:func:`~kanagen.runtime.lattice.general_wins`)."""
-        _, _, ids = self._channels()
+        _, _, ids = self._measures.channels()
         common = np.intersect1d(specific.inliers, general.inliers)
         rows = tuple(np.flatnonzero(np.isin(ch_ids, common)) for ch_ids in ids)
         fits = [fit_problem(self.fam, s.model, self._problem_for(s.model)[0].subset(rows),
