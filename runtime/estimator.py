@@ -16,6 +16,7 @@ from dataclasses import replace
 import numpy as np
 
 from . import lattice
+from .budget import SampleBudget
 from .family import ModelFamily
 from .fit import fit_problem, make_problem
 from .initializers import model_initializers
@@ -31,7 +32,6 @@ from .phi import phi as get_phi
 from .projector import Problem
 from .results import ModelState
 from .robust import ModelSearch, RobustEstimate
-from .scoring import samples_for_confidence
 from .scoring import scorer as get_scorer
 
 _RESUME_FRACTION = 10  # a re-queued model draws a tenth of a fresh search's samples
@@ -109,11 +109,9 @@ class Estimator:
         self.phi = phi
         self.seed = seed
         self.channel = channel
-        self.samples_per_model = samples_per_model
-        self.confidence = confidence
-        self.inlier_ratio = inlier_ratio
-        self.adaptive = adaptive
-        self.min_samples = min_samples
+        #: how many samples each model's search draws (eq. 25)
+        self.budget = SampleBudget(samples_per_model, confidence, inlier_ratio, adaptive,
+                                   min_samples)
         self.window = window
         if not 0.0 <= local <= 1.0:
             raise ValueError(f"local must be a fraction in [0, 1], got {local}")
@@ -344,55 +342,32 @@ class Estimator:
         return problem, ids, names.index(channel)
 
     def _budget(self, search: ModelSearch, parent: ModelState | None) -> int:
-        """Samples for the search: eq. 25 (``inlier_ratio``, or ``samples_per_model``).
-
-        A child with fewer equations per measure than its parent wins only by explaining a
-        fifth more measures (:func:`~kanagen.runtime.lattice.explains_more`): its extra
-        measures must then be at least that share of the parent's outliers it samples, and
-        eq. 25 is taken at that inlier ratio when it is higher — enough samples to find any
-        estimate that could win.
-        """
+        """Samples for the search (:meth:`SampleBudget.initial`): one when the model's
+        parameter is fixed; a child across a change of equations per measure samples for the
+        share of its parent's outliers it must explain."""
         if self.fam.free_dof(search.model, self._constants) == 0:
             return 1  # nothing to sample: the model's parameter is fixed
-        if self.samples_per_model is not None:
-            return self.samples_per_model
-        if parent is not None and search.base is not None and \
-                self._across(parent.model, search.ranks[search.channel]):
-            needed = (lattice.MORE_SUPPORT - 1) * parent.inliers.size / max(search.pool.size, 1)
-            return samples_for_confidence(self.confidence,
-                                          min(1.0, max(needed, self.inlier_ratio)),
-                                          search.sample_size)
-        return samples_for_confidence(self.confidence, self.inlier_ratio,
-                                      search.sample_size + search.base_size)
+        across = parent is not None and search.base is not None and \
+            self._across(parent.model, search.ranks[search.channel])
+        return self.budget.initial(search, parent.inliers.size if across else None)
 
     def _step(self, batch: int = 1) -> bool:
         if self._search is None and not self._start_next():
             self._finish()
             return False
         model, parent, search, budget = self._search
-        # the samples left: eq. 25's adaptive bound changes only with a better estimate,
-        # which ends a batch
-        limit = min(batch, self._budget_now(search, budget) - search.samples)
-        if self.adaptive and search.samples < self.min_samples:
-            limit = min(limit, self.min_samples - search.samples)
+        limit = self.budget.limit(search, budget, batch)
         before, previous = search.samples, self.history[-1][1] if self.history else -np.inf
         level = max(previous, self._best_relevance(search))
-        search.step(max(limit, 1))
+        search.step(limit)
         done = max(search.samples - before, 1)
         self.history.extend((self._samples + i, level) for i in range(1, done))
         self._samples += done
         self.history.append((self._samples, max(previous, self._best_relevance(search))))
-        if search.samples >= self._budget_now(search, budget) or search.exhausted:
+        if search.samples >= self.budget.now(search, budget) or search.exhausted:
             self._search = None
             self._conclude(model, parent, search)
         return True
-
-    def _budget_now(self, search: ModelSearch, budget: int) -> int:
-        """The search's budget, lowered by eq. 25 at its best estimate so far (adaptive)."""
-        if self.adaptive and search.samples >= self.min_samples:
-            needed = search.samples_needed(self.confidence)
-            return min(budget, needed) if needed is not None else budget
-        return budget
 
     def _best_relevance(self, search: ModelSearch) -> float:
         """The best relevance of the accepted models so far and of the current search."""
