@@ -3,7 +3,8 @@
 Each function takes plain data (what a JSON record carries) and returns an ``<svg>``
 element: the error histogram with its threshold (report Fig. 5), the best-relevance curve
 (Fig. 9), the lattice of models (Fig. 13–14), the residuals, the measures of a planar
-channel, and two-view matches drawn on their images.
+channel (with the fitted conic when the result has one), and two-view matches drawn on their
+images.
 """
 
 from __future__ import annotations
@@ -181,13 +182,44 @@ def residuals(errors: np.ndarray, inliers: np.ndarray, threshold: float | None) 
     return _svg(fig, "residuals")
 
 
-def planar_measures(X: np.ndarray, inliers: np.ndarray, names=("x", "y")) -> str:
-    """The measures of a two-component channel, inliers and outliers coloured."""
+def conic_curve(M: np.ndarray, xlim, ylim, n: int = 400) -> np.ndarray:
+    """Points of the conic ``[x y 1] M [x y 1]ᵀ = 0`` (``M`` 3×3, pixels) inside the box
+    ``xlim × ylim``: the zero contour of the implicit equation on an ``n × n`` grid, its
+    pieces one after the other separated by a row of NaN; shape (k, 2), k = 0 when the conic
+    does not cross the box (or M is not finite)."""
+    import contourpy
+
+    M = np.asarray(M, dtype=float)
+    if M.shape != (3, 3) or not np.all(np.isfinite(M)) or not np.any(M):
+        return np.empty((0, 2))
+    M = (M + M.T) / (2.0 * np.max(np.abs(M)))
+    x, y = np.linspace(*xlim, n), np.linspace(*ylim, n)
+    gx, gy = np.meshgrid(x, y)
+    p = np.stack([gx, gy, np.ones_like(gx)])
+    z = np.einsum("i...,ij,j...->...", p, M, p)
+    lines = contourpy.contour_generator(x, y, z, line_type="Separate").lines(0.0)
+    pieces = [np.vstack([line, [np.nan, np.nan]]) for line in lines if len(line) > 1]
+    return np.vstack(pieces)[:-1] if pieces else np.empty((0, 2))
+
+
+def planar_measures(X: np.ndarray, inliers: np.ndarray, names=("x", "y"),
+                    conic: np.ndarray | None = None) -> str:
+    """The measures of a two-component channel, inliers and outliers coloured; with
+    ``conic`` (a 3×3 matrix ``M``), the fitted curve ``[x y 1] M [x y 1]ᵀ = 0`` over them
+    (an SVG group of id ``measures-fitted-curve``)."""
     X = np.asarray(X, dtype=float)
     inside = np.zeros(len(X), bool)
     inside[np.asarray(inliers, dtype=int)] = True
     fig = _figure((6.0, 4.5))
     ax = fig.subplots()
+    if conic is not None and np.any(np.isfinite(X)):
+        finite = X[np.all(np.isfinite(X), axis=1)]
+        low, high = finite.min(axis=0), finite.max(axis=0)
+        margin = 0.05 * np.maximum(high - low, 1.0)
+        curve = conic_curve(conic, (low[0] - margin[0], high[0] + margin[0]),
+                            (low[1] - margin[1], high[1] + margin[1]))
+        if curve.size:
+            ax.plot(*curve.T, color=CHOSEN, lw=1.5, label="fitted curve", gid="fitted-curve")
     ax.scatter(*X[~inside].T, s=10, color=OUTLIER, marker="x", label="outliers")
     ax.scatter(*X[inside].T, s=10, color=INLIER, label="inliers")
     ax.set_xlabel(names[0])

@@ -124,8 +124,11 @@ def render_report(record: dict, *, measures: np.ndarray | None = None,
             "Each measure's error under the chosen model, by row of the data.")
     components = record.get("channel_components") or []
     if measures is not None and len(components) == 2 and record.get("model"):
-        add("measures", "Measures", figures.planar_measures(measures, inliers, components),
-            "The measures, inliers of the chosen model in blue, outliers in red.")
+        conic = _conic_matrix(record)
+        add("measures", "Measures", figures.planar_measures(measures, inliers, components,
+                                                            conic),
+            "The measures, inliers of the chosen model in blue, outliers in red"
+            + ("; the fitted curve in green." if conic is not None else "."))
     if images is not None:
         _check_two_view(record)
         if measures is None:
@@ -189,6 +192,21 @@ def _image(path) -> np.ndarray:
         return matplotlib.image.imread(path)
     except (OSError, ValueError, SyntaxError) as exc:
         raise ValueError(f"{path}: cannot read the image: {exc}") from None
+
+
+def _conic_matrix(record: dict) -> np.ndarray | None:
+    """The fitted conic of a planar result: its derived ``matrix`` when that is a finite
+    symmetric 3×3 ``M`` of ``[x y 1] M [x y 1]ᵀ = 0`` (the conic specs'), else None."""
+    d = (record.get("derived") or {}).get("matrix")
+    if not isinstance(d, dict):
+        return None
+    try:
+        M = np.asarray(d.get("value"), dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if M.shape != (3, 3) or not np.all(np.isfinite(M)) or not np.allclose(M, M.T):
+        return None
+    return M
 
 
 def _count(record: dict) -> int | None:

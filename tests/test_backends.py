@@ -144,8 +144,8 @@ def test_casadi_functions_have_named_inputs_and_outputs():
     assert f.name_in() == ["q", "m", "k"] and f.name_out() == ["c", "C", "D"]
     assert (f.size_in(0), f.size_in(1), f.size_out(1)) == ((6, 1), (2, 1), (1, 6))
     assert mod.MODELS["circle"]["reduced"]["c0"].name_in() == ["r", "k"]
-    assert mod.DERIVED.name_out() == ["v_matrix", "j_matrix", "v_discriminant",
-                                      "j_discriminant"]
+    assert mod.DERIVED.name_out() == [f"{kind}_{name}" for name in (
+        "matrix", "discriminant", "centre", "semi_axes", "angle", "radius") for kind in "vj"]
 
 
 def test_printer_tables_are_one_to_one_and_cover_the_language():

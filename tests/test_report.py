@@ -242,3 +242,58 @@ def test_lattice_rows_are_longest_paths_from_the_null_model():
     assert figures.lattice_levels(edges, ["none", "zoom"], "none") == {
         "none": 0, "zoom": 1, "rotation": 1, "translation": 1, "planar": 2, "general": 3}
     assert figures.lattice_levels([], ["circle"], "line") == {"line": 0, "circle": 1}
+
+
+def _curve_of(html: str) -> str:
+    """The SVG group of the fitted curve in the measures figure ('' if none)."""
+    match = re.search(r'<g id="measures-fitted-curve">(.*?)</g>', html, flags=re.S)
+    return match.group(1) if match else ""
+
+
+def test_measures_of_a_conic_fit_show_the_fitted_curve(conic_result, tmp_path):
+    """A conic result's measures figure draws its zero set ``[x y 1] M [x y 1]ᵀ = 0`` (the
+    derived ``matrix``); a record without a conic matrix draws the measures alone."""
+    from kanagen.report import render_report
+
+    result, data = conic_result
+    page = tmp_path / "report.html"
+    assert run("report", result, "-o", page).exit_code == 0
+    curve = _curve_of(page.read_text())
+    assert "<path" in curve and CHOSEN in curve and len(curve) > 2000  # a curve, not a dot
+    assert "the fitted curve in green" in page.read_text()
+
+    rec = json.loads(result.read_text())
+    xy = np.loadtxt(data, delimiter=",", skiprows=1)
+    assert _curve_of(render_report(rec, measures=xy))
+    derived = {k: v for k, v in rec["derived"].items() if k != "matrix"}
+    for broken in ({}, {"matrix": {"value": [[1.0, 2.0], [3.0, 4.0]], "std": np.eye(2)}},
+                   {"matrix": {"value": np.eye(3, k=1), "std": np.eye(3)}},
+                   {"matrix": {"value": [[None] * 3] * 3, "std": np.eye(3)}}):
+        html = render_report({**rec, "derived": {**derived, **broken}}, measures=xy)
+        assert "measures" in figures_of(html) and not _curve_of(html)
+
+
+def test_conic_curve_lies_on_the_conic():
+    from kanagen.figures import conic_curve
+
+    # the ellipse of benchmarks/conic_odr.py: centre (330, 250), semi-axes 220/130, 25°
+    c, s = np.cos(np.radians(25.0)), np.sin(np.radians(25.0))
+    R = np.array([[c, -s], [s, c]])
+    Q = R @ np.diag([220.0**-2, 130.0**-2]) @ R.T
+    z = np.array([330.0, 250.0])
+    M = np.block([[Q, -(Q @ z)[:, None]], [-(Q @ z)[None, :], np.array([[z @ Q @ z - 1.0]])]])
+    pts = conic_curve(-3.0 * M, (0.0, 640.0), (0.0, 480.0))  # scale and sign do not matter
+    assert np.count_nonzero(np.isnan(pts[:, 0])) == 0  # one closed piece
+    d = pts - z
+    assert np.allclose(np.einsum("ki,ij,kj->k", d, Q, d), 1.0, atol=1e-3)
+    angles = np.arctan2(*(d @ R)[:, ::-1].T)
+    assert np.ptp(angles) > 6.0  # all the way round
+    # the part of it inside a smaller box: pieces separated by NaN rows
+    pts = conic_curve(M, (200.0, 400.0), (0.0, 480.0))
+    assert np.count_nonzero(np.isnan(pts[:, 0])) == 1
+    ok = pts[np.isfinite(pts[:, 0])]
+    assert ok[:, 0].min() >= 200.0 and ok[:, 0].max() <= 400.0
+    # a line (A = B = C = 0): y = 100; a conic away from the box: nothing
+    line = conic_curve([[0, 0, 0], [0, 0, 0.5], [0, 0.5, -100]], (0.0, 50.0), (0.0, 200.0))
+    assert np.allclose(line[:, 1], 100.0) and np.ptp(line[:, 0]) > 49.0
+    assert conic_curve(M, (2000.0, 3000.0), (0.0, 480.0)).shape == (0, 2)
