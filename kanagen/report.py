@@ -96,7 +96,7 @@ def render_report(record: dict, *, measures: np.ndarray | None = None,
     errors = record.get("errors")
     e = None if errors is None else np.array([np.nan if v is None else v for v in errors],
                                              dtype=float)
-    figs, notes = [], []
+    figs, notes = [], []  # notes: ("warn" — something missing — or "hint", text)
 
     def add(fid, fig_title, svg, caption):
         figs.append({"id": fid, "title": fig_title, "svg": svg, "caption": caption})
@@ -132,17 +132,18 @@ def render_report(record: dict, *, measures: np.ndarray | None = None,
     if images is not None:
         _check_two_view(record)
         if measures is None:
-            notes.append("Matches not drawn: the data file was not found (give it with "
-                         "--data).")
+            notes.append(("warn", "Matches not drawn: the data file was not found (give it "
+                                  "with --data)."))
         else:
             add("matches", "Matches", figures.two_view_matches(measures, inliers, *images),
                 f"Matches from the first image ({components[0]}, {components[1]}) to the "
                 f"second ({components[2]}, {components[3]}); inliers in blue, outliers red.")
     elif len(components) == 4 and record.get("model"):
-        notes.append("Two-view matches: give the two images (--images FIRST SECOND) to see "
-                     "them drawn, inliers and outliers coloured.")
+        notes.append(("hint", "Two-view matches: give the two images (--images FIRST SECOND) "
+                              "to see them drawn, inliers and outliers coloured."))
     elif measures is None and len(components) == 2 and record.get("model"):
-        notes.append("Measures not drawn: the data file was not found (give it with --data).")
+        notes.append(("warn", "Measures not drawn: the data file was not found (give it with "
+                              "--data)."))
     env = jinja2.Environment(loader=jinja2.PackageLoader("kanagen", "templates"),
                              autoescape=True, undefined=jinja2.ChainableUndefined,
                              trim_blocks=True, lstrip_blocks=True)

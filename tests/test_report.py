@@ -158,7 +158,10 @@ def test_two_view_report_draws_the_matches(two_view_result, tmp_path):
     assert figures_of(html) == ["histogram", "relevance", "lattice", "residuals", "matches"]
     assert "data:image/png;base64," in html  # the images inside the page
     assert run("report", result, "-o", page).exit_code == 0
-    assert "give the two images (--images" in page.read_text()
+    # without images: a neutral hint, nothing styled as an error
+    assert '<p class="hint">Two-view matches: give the two images (--images' in \
+        page.read_text()
+    assert 'class="warn"' not in page.read_text()
     # without the data file: said on the page, no traceback
     moved = data.rename(tmp_path / "elsewhere.csv")
     done = run("report", result, "--images", *images, "-o", page)
@@ -228,6 +231,20 @@ def test_report_renders_in_headless_chromium(kind, request, tmp_path):
 
     # the figures are drawn: inliers, outliers and the threshold, the chosen model's box
     assert count(INLIER) > 500 and count(OUTLIER) > 200 and count(CHOSEN) > 100
+    if kind == "two_view":  # without the images: no text styled as an error on the page
+        assert run("report", result, "-o", page).exit_code == 0
+        probe.write_text(page.read_text().replace("</body>", RED_TEXT + "</body>"))
+        dom = chromium("--virtual-time-budget=2000", "--dump-dom", probe.as_uri(),
+                       profile=tmp_path / "profile3")
+        found = re.search(r'data-red-text="([^"]*)"', dom.stdout)
+        assert found and found.group(1) == "0", (found and found.group(1), dom.stderr[-500:])
+
+
+# Counts the page's text paragraphs and spans drawn in red (an error's style).
+RED_TEXT = """<script>
+document.body.dataset.redText = [...document.querySelectorAll("p, span, li, td")].filter(
+  e => e.textContent.trim() && getComputedStyle(e).color === "rgb(214, 39, 40)").length;
+</script>"""
 
 
 def test_lattice_rows_are_longest_paths_from_the_null_model():
