@@ -18,7 +18,47 @@ class DerivedValue:
     @property
     def std(self) -> np.ndarray:
         """Standard deviation of each entry, shaped like ``value``."""
-        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None)).reshape(self.value.shape)
+        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None)).reshape(
+            np.shape(self.value))
+
+    # It behaves as its value: ``np.asarray(dv)``, ``float(dv)`` (one entry), ``2 * dv``.
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        out = np.asarray(self.value, dtype=dtype)
+        return out.copy() if copy else out
+
+    def __float__(self) -> float:
+        value = np.asarray(self.value, dtype=float)
+        if value.size != 1:
+            raise TypeError(f"only a derived value of one entry converts to float, this one "
+                            f"has shape {value.shape}")
+        return float(value.reshape(()))
+
+    def __getitem__(self, index):
+        return np.asarray(self.value)[index]
+
+    def __neg__(self):
+        return -np.asarray(self.value)
+
+    def __pos__(self):
+        return +np.asarray(self.value)
+
+    def __abs__(self):
+        return np.abs(np.asarray(self.value))
+
+
+def _arithmetic(name: str):
+    def method(self, other):
+        other = np.asarray(other.value) if isinstance(other, DerivedValue) else other
+        return getattr(np.asarray(self.value), name)(other)
+
+    method.__name__ = name
+    return method
+
+
+for _name in ("__add__", "__radd__", "__sub__", "__rsub__", "__mul__", "__rmul__",
+              "__truediv__", "__rtruediv__", "__pow__", "__rpow__", "__matmul__",
+              "__rmatmul__", "__lt__", "__le__", "__gt__", "__ge__"):
+    setattr(DerivedValue, _name, _arithmetic(_name))
 
 
 def constrained_covariance(info: np.ndarray, C0: np.ndarray) -> np.ndarray:

@@ -144,3 +144,21 @@ def test_docstring_examples_run(module):
     failures, _ = doctest.testmod(importlib.import_module(module),
                                   optionflags=doctest.ELLIPSIS)
     assert failures == 0
+
+
+def test_a_derived_value_behaves_as_its_number():
+    """``np.asarray``, ``float`` (one entry), arithmetic and comparisons act on the value;
+    ``.std`` is shaped like it (issue 20)."""
+    import numpy as np
+
+    from kanagen.runtime.results import DerivedValue
+
+    scalar = DerivedValue(np.float64(3.0), np.array([[0.04]]), np.zeros((1, 2)))
+    assert float(scalar) == 3.0 and 2 * scalar == 6.0 and scalar / 2 == 1.5
+    assert 1 - scalar == -2.0 and -scalar == -3.0 and scalar ** 2 == 9.0 and scalar > 2
+    assert np.asarray(scalar).dtype == float and scalar.std == pytest.approx(0.2)
+    matrix = DerivedValue(np.arange(4.0).reshape(2, 2), np.eye(4), np.zeros((4, 2)))
+    assert np.asarray(matrix).shape == (2, 2) and (2 * matrix)[1, 1] == 6.0 and bool(scalar)
+    assert (matrix @ np.ones(2)).tolist() == [1.0, 5.0] and matrix.std.shape == (2, 2)
+    with pytest.raises(TypeError, match="one entry"):
+        float(matrix)
