@@ -5,9 +5,7 @@ Importing this package imports SymPy and jinja2: the runtime never does (it impo
 :mod:`kanagen.codegen.compile` only for the "compiled" backend).
 """
 
-import importlib
-import importlib.util
-
+from ..modelspec.lazy import lazy as _lazy
 from .backend import Backend
 from .build import BACKENDS, build, check, committed_backends, generator_fingerprint, render_spec
 from .describe import FORMAT, Description, describe
@@ -32,8 +30,5 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str):
-    """A submodule not imported yet (``kanagen.codegen.compile``), on first access (PEP 562)."""
-    if not name.startswith("_") and importlib.util.find_spec(f"{__name__}.{name}") is not None:
-        return importlib.import_module(f".{name}", __name__)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+# a submodule not imported yet (``kanagen.codegen.compile``), on first access (PEP 562)
+__getattr__ = _lazy(__name__)[0]

@@ -13,7 +13,6 @@ Examples
 True
 """
 
-import importlib as _importlib
 from pathlib import Path as _Path
 from typing import TYPE_CHECKING as _TYPE_CHECKING
 
@@ -22,6 +21,8 @@ from typing import TYPE_CHECKING as _TYPE_CHECKING
 _here = _Path(__file__).resolve().parent
 if not (_here / "runtime").is_dir() and (_here.parent / "runtime" / "__init__.py").is_file():
     __path__.append(str(_here.parent))  # noqa: F821 - the package's own __path__
+
+from .modelspec.lazy import lazy as _lazy  # noqa: E402 - after the path is set
 
 __version__ = "0.1.0"
 
@@ -95,16 +96,5 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str):
-    """A public name (or one of :data:`_SUBMODULES`), imported on first use (PEP 562)."""
-    if name in _LAZY:
-        value = getattr(_importlib.import_module(_LAZY[name], __name__), name)
-        globals()[name] = value
-        return value
-    if name in _SUBMODULES:
-        return _importlib.import_module(f".{name}", __name__)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY) | _SUBMODULES)
+# a public name (or one of _SUBMODULES), imported on first use (PEP 562)
+__getattr__, __dir__ = _lazy(__name__, _LAZY, _SUBMODULES)

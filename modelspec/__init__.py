@@ -7,9 +7,9 @@ and :mod:`~kanagen.modelspec.slack`, which import neither.
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
 from typing import TYPE_CHECKING
+
+from .lazy import lazy as _lazy
 
 if TYPE_CHECKING:  # the same names, for type checkers and editors
     from .errors import SpecError
@@ -20,19 +20,19 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
 
 #: public name -> the submodule defining it
 _LAZY = {
-    "SpecError": "errors",
-    "FUNCTIONS": "expressions",
-    "parse_expression": "expressions",
-    "Alternative": "ir",
-    "Channel": "ir",
-    "Derived": "ir",
-    "Family": "ir",
-    "Model": "ir",
-    "symbol": "ir",
-    "Limits": "limits",
-    "family_from_data": "parse",
-    "load_spec": "parse",
-    "parse_spec": "parse",
+    "SpecError": ".errors",
+    "FUNCTIONS": ".expressions",
+    "parse_expression": ".expressions",
+    "Alternative": ".ir",
+    "Channel": ".ir",
+    "Derived": ".ir",
+    "Family": ".ir",
+    "Model": ".ir",
+    "symbol": ".ir",
+    "Limits": ".limits",
+    "family_from_data": ".parse",
+    "load_spec": ".parse",
+    "parse_spec": ".parse",
 }
 
 __all__ = [
@@ -52,16 +52,5 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str):
-    """A public name, imported on first use; a submodule (``kanagen.modelspec.parse``)."""
-    if name in _LAZY:
-        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
-        globals()[name] = value
-        return value
-    if not name.startswith("_") and importlib.util.find_spec(f"{__name__}.{name}") is not None:
-        return importlib.import_module(f".{name}", __name__)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
+# a public name, imported on first use; a submodule (``kanagen.modelspec.parse``)
+__getattr__, __dir__ = _lazy(__name__, _LAZY)
