@@ -3,8 +3,9 @@
 The CasADi functions of a family (its generated CasADi module's ``FUNCTIONS``) go through
 ``casadi.CodeGenerator`` into C, followed by the family's tables
 (``templates/c/family.c.jinja``) and the compiled fast path of the estimator
-(``c/kanagen_fast.c``, docs/fastpath.md) with the closed-form initialisers
-(``c/kanagen_geometry.c``) and a robust search's sample (``c/kanagen_sample.c``), all in one
+(``c/kanagen_fast.c``, docs/fastpath.md), the closed-form initialisers
+(``c/kanagen_geometry.c``: only when a model of the family names one of them,
+:func:`uses_twins`) and a robust search's sample (``c/kanagen_sample.c``), all in one
 translation unit compiled into a shared
 library in a cache folder keyed by the spec hash, the kanagen version, the generator and the
 CasADi version. The CasADi functions are loaded back with ``casadi.external`` (same names,
@@ -36,8 +37,13 @@ CFLAGS = ("-O3", "-ffp-contract=off", "-shared", "-fPIC")
 #: estimator never reads errno).
 TUNING = ("-fno-semantic-interposition", "-fno-math-errno")
 _FAST_C = Path(__file__).with_name("c") / "kanagen_fast.c"
-#: the closed-form initialisers of the two-view family (after _FAST_C: it uses its SVD)
+#: the closed-form initialisers of the two-view family (after _FAST_C: it uses its SVD),
+#: compiled in when a model names one of them (uses_twins)
 _GEOMETRY_C = Path(__file__).with_name("c") / "kanagen_geometry.c"
+#: the initializers whose compiled twins _GEOMETRY_C holds (``kg_<name>``), in the order
+#: of kanagen_sample.c's table (runtime/fastpath.py: TWINS, which the tests compare)
+TWIN_INITIALIZERS = ("two_view_fundamental", "two_view_homography", "two_view_rotation",
+                     "two_view_translation")
 #: one random sample of a robust search in one call (after both: it calls them)
 _SAMPLE_C = Path(__file__).with_name("c") / "kanagen_sample.c"
 _TIMEOUT = 300  # seconds
@@ -76,9 +82,16 @@ def cache_key(sha256: str) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 
+def uses_twins(family: dict) -> bool:
+    """Does a model of ``family`` (a NumPy module's ``FAMILY``) name an initializer with a
+    compiled twin? Only then is ``c/kanagen_geometry.c`` compiled into its library."""
+    return any(m.get("initializer") in TWIN_INITIALIZERS for m in family["models"].values())
+
+
 def c_source(module: ModuleType, family: dict) -> str:
     """One C unit: every CasADi function of the generated module ``module``, the tables of
-    ``family`` (the NumPy module's ``FAMILY``) and the estimator's fast path."""
+    ``family`` (the NumPy module's ``FAMILY``) and the estimator's fast path (with the
+    two-view closed forms when the family names one: :func:`uses_twins`)."""
     import casadi
 
     generator = casadi.CodeGenerator(f"{family['name']}.c", {"with_header": False})
@@ -87,9 +100,9 @@ def c_source(module: ModuleType, family: dict) -> str:
     from .backend import environment
 
     tables = environment("c").get_template("family.c.jinja").render(**_tables(module, family))
-    return "\n".join([generator.dump(), tables] + [path.read_text(encoding="utf-8")
-                                                    for path in (_FAST_C, _GEOMETRY_C,
-                                                                 _SAMPLE_C)])
+    parts = (_FAST_C, _GEOMETRY_C, _SAMPLE_C) if uses_twins(family) else (_FAST_C, _SAMPLE_C)
+    return "\n".join([generator.dump(), tables]
+                     + [path.read_text(encoding="utf-8") for path in parts])
 
 
 def _tables(module: ModuleType, family: dict) -> dict:
@@ -126,7 +139,7 @@ def _tables(module: ModuleType, family: dict) -> dict:
                      for _, ch in channels],
         "index": index, "index_off": index_off, "p": p, "models": models,
         "measures": measures, "nderived": len(family["derived"]),
-        "nslack": len(family["slack_kinds"]),
+        "nslack": len(family["slack_kinds"]), "twins": int(uses_twins(family)),
         "sz": {"arg": max(f.sz_arg() for f in functions), "res": max(f.sz_res() for f in functions),
                "iw": max(f.sz_iw() for f in functions), "w": max(f.sz_w() for f in functions),
                "buf": largest},

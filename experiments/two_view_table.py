@@ -40,7 +40,8 @@ from collections.abc import Mapping, Sequence  # noqa: E402
 import numpy as np  # noqa: E402
 
 import kanagen  # noqa: E402
-from kanagen.runtime.initializers import start_from, two_view_fundamental  # noqa: E402
+from kanagen.runtime.initializers import start_from  # noqa: E402
+from kanagen.runtime.two_view_starts import two_view_fundamental  # noqa: E402
 from kanagen.scenes import MOTIONS, two_view_scene  # noqa: E402
 
 #: The report's Fig. 16, for comparison: (effective, estimated, specific px, general px).

@@ -42,17 +42,23 @@ PORTED: dict[str, tuple[str, ...]] = {
     "minimal": ("coherence_errors", "minimal_solve_problem", "_solved", "_FREE_STEPS",
                 "_WATCHDOG", "_SLOW"),
     "inputs": ("inverse_root", "ChannelData.with_corrected"),
-    # codegen/c/kanagen_geometry.c: the closed-form initialisers (FastPath.initializer)
-    "initializers": ("two_view_fundamental", "two_view_homography", "_rays", "_pose_params",
-                     "_FOCAL_RANGE", "_TWO_VIEW_Q", "two_view_rotation", "two_view_translation",
-                     "_rotation_from_pairs", "_kabsch", "_in_focal_range",
-                     "_rotation_candidate", "_DEGENERATE"),
+    # codegen/c/kanagen_geometry.c: the closed-form initialisers (FastPath.initializer),
+    # in the library of a family that names one of them only (TWIN_MODULES)
+    "two_view_starts": ("two_view_fundamental", "two_view_homography", "_rays",
+                        "_pose_params", "_FOCAL_RANGE", "_TWO_VIEW_Q", "two_view_rotation",
+                        "two_view_translation", "_rotation_from_pairs", "_kabsch",
+                        "_in_focal_range", "_rotation_candidate", "_DEGENERATE"),
     "geometry": ("homogeneous", "cross", "normalising_transform", "_unit", "_normalised",
                  "_epipolar_rows", "fundamental_8point", "fundamental_7point", "_ALPHAS",
                  "_CUBIC_FROM_VALUES", "homography_dlt", "epipoles", "focal_lengths",
                  "essential_poses", "depths", "best_pose", "nearest_essential",
                  "homography_poses", "quaternion_from_rotation"),
 }
+
+#: The modules of :data:`PORTED` that only codegen/c/kanagen_geometry.c ports: a library
+#: without the twins (its family names no two-view initializer) neither checks nor imports
+#: them (:func:`changed`).
+TWIN_MODULES = frozenset({"two_view_starts", "geometry"})
 
 #: Fingerprints of :data:`PORTED` when the C port was last brought in line with them.
 FINGERPRINTS: dict[str, str] = {
@@ -81,19 +87,19 @@ FINGERPRINTS: dict[str, str] = {
     'minimal._SLOW': '148df96ae1c0',
     'inputs.inverse_root': '051a001e58d2',
     'inputs.ChannelData.with_corrected': 'cc3fdd26454a',
-    'initializers.two_view_fundamental': '27e179692ec5',
-    'initializers.two_view_homography': '8d4b488b7110',
-    'initializers._rays': '415fcf057322',
-    'initializers._pose_params': 'b4aae0a3cb9e',
-    'initializers._FOCAL_RANGE': 'f87b8f36bcc4',
-    'initializers._TWO_VIEW_Q': '6a4d9d3c3a06',
-    'initializers.two_view_rotation': '4201463169cd',
-    'initializers.two_view_translation': '2226bf4bcbf0',
-    'initializers._rotation_from_pairs': '7d452c668bfc',
-    'initializers._kabsch': 'bdab072395a2',
-    'initializers._in_focal_range': 'ad3b05c687d5',
-    'initializers._rotation_candidate': '0929c0d2b305',
-    'initializers._DEGENERATE': '2f88dcb41fb8',
+    'two_view_starts.two_view_fundamental': '27e179692ec5',
+    'two_view_starts.two_view_homography': '8d4b488b7110',
+    'two_view_starts._rays': '415fcf057322',
+    'two_view_starts._pose_params': 'b4aae0a3cb9e',
+    'two_view_starts._FOCAL_RANGE': 'f87b8f36bcc4',
+    'two_view_starts._TWO_VIEW_Q': '6a4d9d3c3a06',
+    'two_view_starts.two_view_rotation': '4201463169cd',
+    'two_view_starts.two_view_translation': '2226bf4bcbf0',
+    'two_view_starts._rotation_from_pairs': '7d452c668bfc',
+    'two_view_starts._kabsch': 'bdab072395a2',
+    'two_view_starts._in_focal_range': 'ad3b05c687d5',
+    'two_view_starts._rotation_candidate': '0929c0d2b305',
+    'two_view_starts._DEGENERATE': '2f88dcb41fb8',
     'geometry.homogeneous': 'e78e47b5ab90',
     'geometry.cross': 'b585c32c4b02',
     'geometry.normalising_transform': '85230fff495e',
@@ -126,6 +132,10 @@ TWINS: dict[str, tuple[tuple[int, str], ...]] = {
     "two_view_rotation": tuple(enumerate(("f1", "f2", "qw", "qx", "qy", "qz"))),
     "two_view_translation": ((6, "tx"), (7, "ty"), (8, "tz")),
 }
+#: The values a twin writes per candidate: ``len(two_view_starts._TWO_VIEW_Q)``,
+#: ``KG_TWIN_WIDTH`` of codegen/c/kanagen_sample.c (a constant here: the sampler of a family
+#: without twins imports no two-view code).
+TWIN_WIDTH = 12
 
 
 class FastPathWarning(UserWarning):
@@ -156,33 +166,46 @@ def _node(module: ModuleType, name: str) -> ast.AST:
 
 
 @cache
-def fingerprints() -> dict[str, str]:
-    """The current fingerprints of :data:`PORTED`: ``{"module.name": hash}``."""
+def _module_fingerprints(short: str) -> dict[str, str]:
+    """The current fingerprints of the names of :data:`PORTED` in module ``short``."""
     out = {}
-    for short, names in PORTED.items():
-        module = importlib.import_module(f"kanagen.runtime.{short}")
-        for name in names:
-            dump = ast.dump(_node(module, name), include_attributes=False)
-            out[f"{short}.{name}"] = hashlib.sha256(dump.encode()).hexdigest()[:12]
+    module = importlib.import_module(f"kanagen.runtime.{short}")
+    for name in PORTED[short]:
+        dump = ast.dump(_node(module, name), include_attributes=False)
+        out[f"{short}.{name}"] = hashlib.sha256(dump.encode()).hexdigest()[:12]
     return out
 
 
-def changed() -> list[str]:
+def fingerprints(twins: bool = True) -> dict[str, str]:
+    """The current fingerprints of :data:`PORTED`: ``{"module.name": hash}`` (without
+    ``twins``: not those of :data:`TWIN_MODULES`, which are then not imported)."""
+    out = {}
+    for short in PORTED:
+        if twins or short not in TWIN_MODULES:
+            out.update(_module_fingerprints(short))
+    return out
+
+
+def changed(twins: bool = True) -> list[str]:
     """The ported Python functions that differ from what the C port mirrors (all of them
-    when their source cannot be read, e.g. an installation without .py files)."""
+    when their source cannot be read, e.g. an installation without .py files); without
+    ``twins`` (a library without kanagen_geometry.c) those of :data:`TWIN_MODULES` are not
+    checked."""
     try:
-        now = fingerprints()
+        now = fingerprints(twins)
     except (OSError, TypeError, AttributeError, StopIteration):
         return ["<the runtime's source is not available>"]
-    return sorted(k for k in now.keys() | FINGERPRINTS.keys()
-                  if now.get(k) != FINGERPRINTS.get(k))
+    recorded = {k: v for k, v in FINGERPRINTS.items()
+                if twins or k.partition(".")[0] not in TWIN_MODULES}
+    return sorted(k for k in now.keys() | recorded.keys() if now.get(k) != recorded.get(k))
 
 
 class FastPath:
     """The robust search's compiled calls of a family library: ``kg_coherence``
     (:meth:`coherence`, for ``coherence_errors``), ``kg_minimal`` (:meth:`minimal`, for
     ``minimal_solve_problem``), the closed-form initialisers ``kg_two_view_*``
-    (:meth:`initializer`),
+    (:meth:`initializer`; only in the library of a family one of whose models names one:
+    :attr:`has_twins`),
     ``kg_closest_root`` (:meth:`closest_sqrt`, for the tests) and the sampling calls
     ``kg_sample``, ``kg_search`` and ``kg_choice_draw`` that runtime/fastsample.py drives.
     (The compiled local fit, ``kg_fit``, was removed on 2026-11-25, issue 17: the local fit
@@ -197,6 +220,7 @@ class FastPath:
     """
 
     def __init__(self, library: Path, module: ModuleType):
+        self.library = Path(library)
         lib = ctypes.CDLL(str(library))
         self._root = lib.kg_closest_root
         self._root.argtypes = [ctypes.c_long, ctypes.c_void_p, ctypes.c_double, ctypes.c_void_p]
@@ -216,8 +240,14 @@ class FastPath:
         self.choice = lib.kg_choice_draw  # one draw of kg_search's (fastsample.py)
         self.choice.argtypes = [ctypes.c_void_p, ctypes.c_long, ctypes.c_long, ctypes.c_void_p]
         self.choice.restype = None
+        # kg_sample calls the twins by number: all of TWINS, or none (KG_TWINS 0: the family
+        # names no two-view initializer, kanagen_geometry.c is not compiled in)
+        count = lib.kg_sample_twins()
+        if count not in (0, len(TWINS)):
+            raise RuntimeError(f"compiled library {library} has {count} closed forms in "
+                               f"kg_sample, TWINS names {len(TWINS)}")
         self._twins = {}  # the compiled initialisers by name (initializer)
-        for name in TWINS:
+        for name in TWINS if count else ():
             fn = getattr(lib, f"kg_{name}")
             fn.argtypes = [ctypes.c_long] + [ctypes.c_void_p] * 3
             fn.restype = ctypes.c_int
@@ -237,18 +267,21 @@ class FastPath:
         lib.kg_sizes(sizes)
         expected = [self.n, len(meta["constants"]), len(meta["channels"]), len(meta["models"]),
                     len(meta["derived"]), len(meta.get("slack", ()))]
-        if lib.kg_sample_twins() != len(TWINS):  # kg_sample calls the twins by number
-            raise RuntimeError(f"compiled library {library} has {lib.kg_sample_twins()} "
-                               f"closed forms in kg_sample, TWINS names {len(TWINS)}")
         if list(sizes) != expected:
             raise RuntimeError(f"compiled library {library} does not match family "
                                f"{meta['name']!r}: sizes {list(sizes)} vs {expected}")
 
+    @property
+    def has_twins(self) -> bool:
+        """Does the library hold the compiled closed forms (``kg_two_view_*``)?"""
+        return bool(self._twins)
+
     @classmethod
     def load(cls, library: Path, module: ModuleType) -> FastPath | None:
         """The fast path of ``library``, or None (with a warning) when the Python it ports
-        has changed since the port (see :data:`FINGERPRINTS`)."""
-        stale = changed()
+        has changed since the port (see :data:`FINGERPRINTS`; the two-view closed forms
+        only when the library holds their twins)."""
+        stale = changed(twins=ctypes.CDLL(str(library)).kg_sample_twins() > 0)
         if stale:
             warnings.warn("the compiled fast path of the estimator is off: the Python it "
                           f"ports has changed ({', '.join(stale)}); fits run the NumPy "
@@ -326,17 +359,18 @@ class FastPath:
         """The compiled twin of the registered initializer ``name``
         (:data:`~kanagen.runtime.initializers.INITIALIZERS`): the same function of
         ``(rows, constants)``, the same candidates to rounding level (codegen/c/
-        kanagen_geometry.c), or None when it has none. Where the C code does not cover a
-        sample (a degenerate one, whose outcome in the Python follows LAPACK's arbitrary
-        basis) the twin runs the Python."""
+        kanagen_geometry.c), or None when it has none or the library lacks it (a family
+        that names no two-view initializer). Where the C code does not cover a sample (a
+        degenerate one, whose outcome in the Python follows LAPACK's arbitrary basis) the
+        twin runs the Python."""
         fn = self._twins.get(name)
         if fn is None:
             return None
-        from .initializers import _TWO_VIEW_Q, INITIALIZERS
+        from .initializers import INITIALIZERS
 
         python = INITIALIZERS[name].fn
         names = TWINS[name]
-        width = len(_TWO_VIEW_Q)
+        width = TWIN_WIDTH
         local = self._local
 
         def twin(rows, constants):

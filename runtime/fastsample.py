@@ -20,8 +20,7 @@ import weakref
 
 import numpy as np
 
-from .fastpath import TWINS
-from .initializers import _TWO_VIEW_Q
+from .fastpath import TWIN_WIDTH, TWINS
 from .minimal import coherence_errors, minimal_solve_problem
 from .scoring import relevance
 
@@ -56,7 +55,7 @@ class Sampler:
         head += [-np.inf, *ranks]
         head += [constants["cx"], constants["cy"], constants["f0"]] if twin is not None \
             else [0.0, 0.0, 0.0]
-        head += [index[named[i]] if i in named else -1 for i in range(len(_TWO_VIEW_Q))]
+        head += [index[named[i]] if i in named else -1 for i in range(TWIN_WIDTH)]
         self.sin = np.array(head + list(np.asarray(start, dtype=float)) + [0.0] * size)
         self.rows_at = len(head) + self.n
         self.relevance = relevance  # the scorer is eq. 29's: hopeless solutions abandoned

@@ -10,6 +10,8 @@ decompositions of a homography). Degenerate samples give what the Python gives.
 
 from __future__ import annotations
 
+import ctypes
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -17,7 +19,7 @@ from hypothesis import strategies as st
 from test_fastpath import compiled
 
 import kanagen
-from kanagen.runtime import initializers as init
+from kanagen.runtime import two_view_starts as init
 from kanagen.runtime.initializers import INITIALIZERS, model_initializers
 from kanagen.scenes import MOTIONS, two_view_scene
 
@@ -131,6 +133,29 @@ def test_the_compiled_backend_uses_the_twins(family):
     assert named is not init.two_view_homography
     # the NumPy backend runs the Python
     assert model_initializers(kanagen.load("two_view"))["general"] \
+        is init.two_view_fundamental
+
+
+def test_only_a_family_naming_a_two_view_initializer_has_the_twins(family):
+    """kanagen_geometry.c is compiled into a family's library only when one of its models
+    names a two-view initializer (issue 17, "Vision as a plugin"): the conic library has no
+    kg_two_view_* and no twins to call; a name it lacks runs the Python closed form."""
+    from kanagen.codegen.compile import TWIN_INITIALIZERS, uses_twins
+    from kanagen.runtime.fastpath import TWIN_WIDTH, TWINS
+
+    assert TWIN_INITIALIZERS == tuple(TWINS) == NAMES
+    assert TWIN_WIDTH == len(init._TWO_VIEW_Q)
+    conic = compiled("conic")
+    assert not uses_twins(conic.module.FAMILY) and uses_twins(family.module.FAMILY)
+    with_twins = ctypes.CDLL(str(family.fastpath.library))
+    without = ctypes.CDLL(str(conic.fastpath.library))
+    for name in NAMES:
+        assert hasattr(with_twins, f"kg_{name}") and not hasattr(without, f"kg_{name}")
+    assert with_twins.kg_sample_twins() == len(TWINS) and without.kg_sample_twins() == 0
+    assert family.fastpath.has_twins and not conic.fastpath.has_twins
+    assert conic.fastpath.initializer("two_view_fundamental") is None
+    # an override naming a closed form the library lacks runs the Python
+    assert model_initializers(conic, {"conic": "two_view_fundamental"})["conic"] \
         is init.two_view_fundamental
 
 

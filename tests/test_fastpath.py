@@ -31,11 +31,12 @@ channels:
 models:
   free:
     constraints: []
-    alternatives: [tied]
+    alternatives: [tied, sphere]
   tied:
     constraints: [a - 2*b]
   sphere:
     constraints: [a**2 + b**2 + c**2 - 1.61]
+    alternatives: [positive]
   positive:
     constraints: {norm: a**2 + b**2 + c**2 - 1.61, pos: c > 0}
 derived:

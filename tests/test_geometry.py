@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from kanagen.runtime import geometry as g
-from kanagen.runtime.initializers import two_view_fundamental, two_view_homography
+from kanagen.runtime.two_view_starts import two_view_fundamental, two_view_homography
 from kanagen.scenes import two_view_scene
 
 

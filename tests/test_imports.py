@@ -76,3 +76,111 @@ def test_public_names_resolve():
         kanagen.no_such_name  # noqa: B018
     with pytest.raises(AttributeError):
         kanagen.runtime.no_such_module  # noqa: B018
+
+
+#: the two-view code, a plugin of the initializer registry (issue 17, "Vision as a plugin")
+VISION = ("kanagen.runtime.geometry", "kanagen.runtime.two_view_starts", "kanagen.scenes",
+          "kanagen.datasets")
+
+LATTICE_SEARCH = """\
+import numpy as np, kanagen
+fam = kanagen.load('conic_lattice', backend={backend!r})
+assert (fam.fastpath is not None) == ({backend!r} == 'compiled')
+rng = np.random.default_rng(0)
+t = rng.uniform(0.0, 3.0, 60)
+xy = np.c_[5 * np.cos(t), 3 * np.sin(t)] + rng.normal(0.0, 0.02, (60, 2))
+xy[::6] = rng.uniform(-6, 6, (10, 2))
+est = kanagen.Estimator(fam, scale=4.0, seed=0)
+est.add_measures('point', xy, info=1.0)
+assert est.run(max_samples=400) is not None
+res = kanagen.robust_fit(fam, 'conic', {{'point': xy}}, {{'point': 1.0}}, scale=4.0, seed=1)
+"""
+
+
+@pytest.mark.parametrize("backend", ["numpy", "compiled"])
+def test_a_family_naming_no_two_view_initializer_loads_no_vision_code(backend):
+    """A search and a robust fit of the conic lattice (its models name no initializer)
+    import neither the two-view closed forms nor the epipolar geometry, on the compiled
+    backend either (its library has no twins: their fingerprints are not checked)."""
+    if backend == "compiled":
+        from kanagen.codegen.compile import CompileError, compiler
+
+        try:
+            compiler()
+        except CompileError as exc:
+            pytest.skip(f"no compiled backend here: {exc}")
+    assert imported_after(LATTICE_SEARCH.format(backend=backend), VISION) == []
+
+
+def test_the_registry_names_its_initializers_without_importing_them():
+    code = ("from kanagen.runtime.initializers import INITIALIZERS, resolve\n"
+            "names = sorted(INITIALIZERS)\n"
+            "assert names == ['two_view_fundamental', 'two_view_homography', "
+            "'two_view_rotation', 'two_view_translation'], names\n"
+            "assert 'two_view_rotation' in INITIALIZERS and len(INITIALIZERS) == 4\n"
+            "assert INITIALIZERS.get('nope') is None\n"
+            "try:\n"
+            "    resolve('nope')\n"
+            "except ValueError as exc:\n"
+            "    assert 'known: two_view_fundamental, two_view_homography' in str(exc)\n")
+    assert imported_after(code, VISION) == []
+    # a lookup imports the provider, which registers all four
+    looked_up = code + ("import sys\n"
+                        "from kanagen.runtime import two_view_starts\n"
+                        "assert INITIALIZERS['two_view_homography'].equivalent\n"
+                        "assert resolve('two_view_rotation') is two_view_starts"
+                        ".two_view_rotation\n")
+    assert imported_after(looked_up, VISION) == list(VISION[:2])
+
+
+def test_reading_a_spec_imports_the_closed_forms_it_names_only():
+    """The spec reader checks an ``initializer:`` against the registry: a spec naming none
+    (or an unknown one: the error lists every name) imports no two-view code; the two-view
+    spec imports the closed forms it names (their needs are checked)."""
+    read = ("from kanagen.modelspec.parse import parse_spec\n"
+            "text = open('examples/{}.yaml', encoding='utf-8').read()\n")
+    assert imported_after(read.format("conic_lattice") + "parse_spec(text)", VISION) == []
+    unknown = read.format("conic") + (
+        "from kanagen.modelspec import SpecError\n"
+        "text = text.replace('  conic:\\n', '  conic:\\n    initializer: nope\\n', 1)\n"
+        "try:\n"
+        "    parse_spec(text)\n"
+        "    raise AssertionError('accepted')\n"
+        "except SpecError as exc:\n"
+        "    assert \"unknown initializer 'nope' (known: two_view_fundamental, "
+        "two_view_homography, two_view_rotation, two_view_translation)\" in str(exc), exc\n")
+    assert imported_after(unknown, VISION) == []
+    assert imported_after(read.format("two_view") + "parse_spec(text)", VISION) == \
+        list(VISION[:2])
+
+
+def test_a_plugin_registers_its_initializers(monkeypatch, tmp_path):
+    """A module listed in PROVIDERS is imported on the first lookup of its name and must
+    register it; :func:`register` refuses another function under a taken name."""
+    from kanagen.runtime import initializers as reg
+
+    def mine(rows, constants):
+        return [{"a": 1.0}]
+
+    entry = reg.Initializer("my_start", mine, ("a",), (), 2, "a test start")
+    monkeypatch.setattr(reg, "_REGISTERED", dict(reg._REGISTERED))
+    monkeypatch.setattr(reg, "PROVIDERS", {**reg.PROVIDERS, "lazy_start": "my_kanagen_plugin"})
+    assert "lazy_start" in reg.INITIALIZERS and "my_start" not in reg.INITIALIZERS
+    assert reg.register(entry) is entry and reg.register(entry) is entry
+    assert reg.resolve("my_start") is mine and "my_start" in sorted(reg.INITIALIZERS)
+    with pytest.raises(ValueError, match="registered already"):
+        reg.register(reg.Initializer("my_start", lambda r, k: [], ("a",), (), 2, "another"))
+    (tmp_path / "my_kanagen_plugin.py").write_text(
+        "from kanagen.runtime.initializers import Initializer, register\n"
+        "register(Initializer('lazy_start', lambda rows, k: [{'b': 2.0}], ('b',), (), 2, "
+        "'lazy'))\n", encoding="utf-8")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    try:
+        assert reg.INITIALIZERS["lazy_start"].fn(None, {}) == [{"b": 2.0}]
+        # a provider that does not register what it is listed for is an error (not a
+        # KeyError, which would read as an unknown name)
+        monkeypatch.setitem(reg.PROVIDERS, "ghost_start", "my_kanagen_plugin")
+        with pytest.raises(LookupError, match="does not register"):
+            reg.INITIALIZERS.get("ghost_start")
+    finally:
+        sys.modules.pop("my_kanagen_plugin", None)

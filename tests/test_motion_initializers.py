@@ -17,12 +17,8 @@ import pytest
 
 import kanagen
 from kanagen.runtime import geometry as g
-from kanagen.runtime.initializers import (
-    INITIALIZERS,
-    start_from,
-    two_view_rotation,
-    two_view_translation,
-)
+from kanagen.runtime.initializers import INITIALIZERS, start_from
+from kanagen.runtime.two_view_starts import two_view_rotation, two_view_translation
 from kanagen.scenes import two_view_scene
 
 CLOSED = {"rotation": two_view_rotation, "translation": two_view_translation}

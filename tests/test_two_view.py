@@ -192,7 +192,7 @@ def test_initializers_hook(fam):
     calls = []
 
     def counted(rows, constants):
-        from kanagen.runtime.initializers import two_view_fundamental
+        from kanagen.runtime.two_view_starts import two_view_fundamental
 
         calls.append(len(rows))
         return two_view_fundamental(rows, constants)

@@ -1,8 +1,9 @@
 /* The closed-form initialisers of the two-view family in C: a mechanical port of
- * runtime/initializers.py (two_view_fundamental, two_view_homography, two_view_rotation,
+ * runtime/two_view_starts.py (two_view_fundamental, two_view_homography, two_view_rotation,
  * two_view_translation) and of the functions
  * of runtime/geometry.py they call (docs/fastpath.md). Compiled in the translation unit of
- * kanagen_fast.c, after it (kg_column_norms).
+ * kanagen_fast.c, after it (kg_column_norms), when a model of the family names one of them
+ * (KG_TWINS 1, codegen/compile.py: uses_twins).
  *
  * Null spaces come from Householder reflections (a minimal sample: the complement of
  * its rows) or one-sided Jacobi rotations (over-determined: after a QR of the tall
@@ -15,7 +16,7 @@
  * two decompositions of a homography, which in the Python too follows the arbitrary
  * basis. Matrices are row-major. */
 
-/* runtime/initializers.py */
+/* runtime/two_view_starts.py */
 #define KG_FOCAL_MIN 0.1 /* _FOCAL_RANGE */
 #define KG_FOCAL_MAX 10.0
 #define KG_TWO_VIEW_Q 12 /* len(_TWO_VIEW_Q): f1 f2 qw qx qy qz tx ty tz wx wy wz */

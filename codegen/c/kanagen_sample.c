@@ -6,18 +6,25 @@
  * in the Python's order and with its arithmetic. Scoring stays in Python: a scorer is any
  * callable, and relevance's np.sum adds pairwise.
  *
- * Compiled after kanagen_fast.c and kanagen_geometry.c (their static functions). The family
- * has no slacks (start_from's candidates need no with_slacks) and the model's samples are
- * not over-determined (the Python fits those). */
+ * Compiled after kanagen_fast.c and, when the family names a two-view initializer
+ * (KG_TWINS 1), kanagen_geometry.c (their static functions). The family has no slacks
+ * (start_from's candidates need no with_slacks) and the model's samples are not
+ * over-determined (the Python fits those). */
 
 #include <stdint.h>
 
+#if KG_TWINS
 typedef int (*kg_twin_fn)(long, const double *, const double *, double *);
 /* the compiled twins by number (1, 2, ...): runtime/fastpath.py TWINS, in its order */
 static const kg_twin_fn kg_twins[] = {kg_two_view_fundamental, kg_two_view_homography,
                                        kg_two_view_rotation, kg_two_view_translation};
 #define KG_NTWINS ((int)(sizeof kg_twins / sizeof kg_twins[0]))
-#define KG_TWIN_WIDTH 12 /* values per candidate (initializers._TWO_VIEW_Q) */
+#else
+#define KG_NTWINS 0 /* no twin: kanagen_geometry.c is not compiled in */
+#endif
+/* values per candidate (two_view_starts._TWO_VIEW_Q; fastpath.TWIN_WIDTH): the layout of
+ * kg_sample's input, with or without twins */
+#define KG_TWIN_WIDTH 12
 #define KG_TWIN_MAX 4    /* candidates at most */
 
 #define KG_CHUNK 64 /* measures projected at a time while a solution may be abandoned */
@@ -73,7 +80,8 @@ static int kg_sample_errors(const kg_problem *pb, const double *q, int iteration
     return 1;
 }
 
-/* The twins' count, for the Python to check its TWINS against (runtime/fastsample.py) */
+/* The twins' count, for the Python to check its TWINS against (runtime/fastpath.py; 0:
+ * the library has none) */
 int kg_sample_twins(void) { return KG_NTWINS; }
 
 /* in: kg_coherence's input (every measure; one projection step). sin: the sampled channel,
@@ -141,7 +149,9 @@ static int kg_sample_core(const kg_problem *ppb, int iterations, double tol,
     if (!twin) {
         memcpy(starts[0], start, sizeof(double) * n);
         nstarts = 1;
-    } else {
+    }
+#if KG_TWINS
+    else {
         double cand[KG_TWIN_MAX * KG_TWIN_WIDTH];
         int count = kg_twins[twin - 1](s, X, k3, cand);
         if (count < 0 || count > KG_TWIN_MAX) {
@@ -160,6 +170,7 @@ static int kg_sample_core(const kg_problem *ppb, int iterations, double tol,
             nstarts += ok;
         }
     }
+#endif
     /* _solutions, then coherence_errors(problem, q, iterations=1, ranks=caps) of each */
     int solutions = 0;
     double *at = out + 1;
