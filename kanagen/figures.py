@@ -118,7 +118,7 @@ def lattice_graph(edges, states: list[dict], chosen: str | None, null_model: str
         if s is None or not s.get("samples"):
             label, style["ls"] = f"{n}\nnot estimated", "--"
         else:
-            label = (f"{n}\nd = {s['dof']}, L̃²/d = {_num(s['cost'])}\n"
+            label = (f"{n}\nd = {s['dof']}, L̃²/d = {_num(s['normalized_cost'])}\n"
                      f"relevance {_num(s['relevance'])}, {s['inliers']} inliers")
             if n == chosen:
                 style.update(fc="#e5f5e0", ec=CHOSEN, lw=3)

@@ -291,8 +291,12 @@ def finite(obj):
 def estimator_to_json(est: Estimator, chosen: str | None, measures: int | None = None) -> dict:
     """An Estimator's lattice and chosen model as JSON data (inf and NaN as null after
     :func:`finite`); ``errors[i]`` is measure ``i``'s error under the chosen model (eq. 24;
-    ``measures`` long, ids from 0)."""
+    ``measures`` long, ids from 0). The costs mean what they mean on every result (and in
+    :func:`result_to_json`): ``cost`` is L~^2, ``normalized_cost`` L~^2/d (the lattice's
+    comparison); the chosen model also has ``chi2`` = 2 L~^2, ``chi2_dof``, ``reduced_chi2``
+    and ``chi2_pvalue``."""
     lattice = [{"model": s.model, "parent": s.parent, "dof": s.dof, "cost": s.cost,
+                "normalized_cost": s.normalized_cost, "reduced_chi2": s.reduced_chi2,
                 "relevance": s.relevance, "inliers": len(s.inliers), "outliers": len(s.outliers),
                 "samples": s.samples, "accepted": s.accepted, "threshold": s.threshold,
                 "status": s.status, "chosen": s.model == chosen}
@@ -312,8 +316,7 @@ def estimator_to_json(est: Estimator, chosen: str | None, measures: int | None =
         "components": [*best.params, *best.slacks],  # rows of covariance and info
         "covariance": np.asarray(best.covariance),
         "info": np.asarray(best.info),
-        "cost": best.cost,
-        "dof": best.dof,
+        **best.goodness_of_fit(),  # cost (L~^2), normalized_cost, dof, chi2, ...
         "relevance": best.relevance,
         "threshold": best.threshold,
         "samples": best.samples,
@@ -328,7 +331,9 @@ def estimator_to_json(est: Estimator, chosen: str | None, measures: int | None =
 
 
 def result_to_json(res) -> dict:
-    """A FitResult as JSON data (inf and NaN as null after :func:`finite`)."""
+    """A FitResult as JSON data (inf and NaN as null after :func:`finite`): ``cost`` is L~^2
+    here, ``normalized_cost`` L~^2/d, with ``chi2`` = 2 L~^2, ``chi2_dof``, ``reduced_chi2``
+    and ``chi2_pvalue``."""
     def arr(a):
         return np.asarray(a).tolist()
 
@@ -340,9 +345,7 @@ def result_to_json(res) -> dict:
         "components": [*res.params, *res.slacks],  # rows of covariance and info
         "covariance": arr(res.covariance),
         "info": arr(res.info),
-        "cost": res.cost,
-        "dof": res.dof,
-        "normalized_cost": res.normalized_cost,
+        **res.goodness_of_fit(),  # cost (L~^2), normalized_cost, dof, chi2, ...
         "residual": res.residual,
         "iterations": res.iterations,
         "success": res.success,

@@ -41,7 +41,7 @@ CREATE TABLE IF NOT EXISTS results (
     inliers TEXT,                   -- JSON list of measure ids (rows of the dataset)
     n_inliers INTEGER,
     measures INTEGER,
-    cost REAL,                      -- L~^2/d
+    cost REAL,                      -- L~^2/d: the record's normalized_cost
     dof INTEGER,
     message TEXT,                   -- why the search stopped, or the error
     seconds REAL,                   -- estimation time of the dataset
@@ -93,7 +93,7 @@ def encode(record: dict | None) -> Encoded:
     return Encoded(record.get("model"), _dumps(estimate), _dumps(record.get("std")),
                    _dumps(record.get("info")), _dumps(inliers),
                    None if inliers is None else len(inliers), _count(record),
-                   record.get("normalized_cost" if record.get("local") else "cost"),
+                   record.get("normalized_cost"),
                    record.get("dof"), _dumps(record))
 
 

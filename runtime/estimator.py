@@ -122,6 +122,11 @@ class Estimator:
         self.max_threshold = max_threshold
         if model is not None:
             fam.model(model)
+        elif len(fam.models) > 1 and not any(fam.model(m).alternatives for m in fam.models):
+            raise ValueError(
+                f"family {fam.name!r} declares no lattice (none of its models names "
+                f"alternatives): give model= one of {', '.join(map(repr, fam.models))} to "
+                f"search that model, or link the models with alternatives: in the spec")
         self.model = model  # a single model (no lattice), or None for the whole lattice
         self.initializers = model_initializers(fam, initializers)
         self.q0 = parameter_vector(fam, q0)
@@ -525,14 +530,15 @@ class Estimator:
         errors = np.concatenate([est.errors[n] for n in names])
         order = np.argsort(scored, kind="stable")
         state = ModelState(model, parent, est.params, est.q, est.fit.info, est.fit.covariance,
-                           np.sort(inliers), np.sort(outliers), est.fit.normalized_cost,
+                           np.sort(inliers), np.sort(outliers), est.fit.cost,
                            est.fit.dof, est.relevance, est.samples, est.threshold, True,
                            est.fit.derived,
                            "estimated" if est.fit.success else est.fit.message,
-                           est.fit.slacks, scored[order], errors[order])
+                           est.fit.slacks, scored[order], errors[order],
+                           est.fit.equations)
         if parent is not None:
             p = self._states.get(parent)
-            if p is not None and p.samples and np.isfinite(p.cost):
+            if p is not None and p.samples and np.isfinite(p.normalized_cost):
                 # only an honest success (a verified minimum) may replace its parent
                 state = replace(state, accepted=bool(est.fit.success) and lattice.beats(
                     p, state, self._shape, self._replaces))
@@ -560,7 +566,7 @@ class Estimator:
 
     def _select(self, states: list[ModelState]) -> ModelState:
         """:func:`~kanagen.runtime.lattice.select`, remembered (its cost tests refit)."""
-        key = tuple((s.model, s.samples, s.cost, s.relevance) for s in states)
+        key = tuple((s.model, s.samples, s.normalized_cost, s.relevance) for s in states)
         if key not in self._selected:
             self._selected[key] = lattice.select(states, self._shape, self._replaces)
         return self._selected[key]

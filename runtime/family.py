@@ -277,10 +277,12 @@ class ModelFamily:
         return fn(np.asarray(q, dtype=float), np.asarray(m, dtype=float), self._k(constants))
 
     def derived(self, q, constants=None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        """Every derived quantity and its Jacobian in q."""
+        """Every derived quantity and its Jacobian in q. A quantity undefined at q (a
+        circle's radius on a line) is NaN, without a floating-point warning."""
         if self.functions.derived is None:
             return {}
-        return self.functions.derived(np.asarray(q, dtype=float), self._k(constants))
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            return self.functions.derived(np.asarray(q, dtype=float), self._k(constants))
 
     def kernel(self, p: int, k: int):
         """The (whiten, correct) pair for p equations and k corrected components."""

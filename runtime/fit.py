@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 
 from .family import ModelFamily
-from .inputs import channel_data, parameter_vector, prior_information
+from .inputs import channel_data, data_hint, describe, parameter_vector, prior_information
 from .iterate import CONVERGED, iterate
 from .minimal import minimal_solve_problem
 from .projector import Problem, evaluate, project
@@ -28,7 +28,7 @@ def make_problem(fam: ModelFamily, model: str, data: Mapping | None = None,
     already (the estimator's, one problem per model)."""
     fam.model(model)
     if channels is None:
-        channels = tuple(channel_data(fam, data or {}, info, exact))
+        channels = tuple(channel_data(fam, {} if data is None else data, info, exact))
     k = fam.constant_vector(constants)
     measures, kernels = [], []
     for ch in channels:
@@ -102,9 +102,14 @@ def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
     >>> res = kanagen.fit(fam, "line", data={"point": np.array([[0., 1.], [1., 3.], [2., 5.]])})
     ... # doctest: +SKIP
     """
+    if model is not None and not isinstance(model, str):  # fit(fam, X): measures as model
+        raise ValueError(f"model must be a model name (family {fam.name!r} has "
+                         f"{list(fam.models)}), got {describe(model)}; pass the measures "
+                         f"as {data_hint(fam)}")
     model = model or fam.null_model
     check_options(max_iter, xtol, eps)
-    problem = make_problem(fam, model, data or {}, info, q0, Q0, constants, eps, exact)
+    problem = make_problem(fam, model, {} if data is None else data, info, q0, Q0, constants,
+                           eps, exact)
     if not any(ch.size for ch in problem.channels) and not np.any(problem.Q0):
         raise ValueError("nothing to estimate: no measures (data has no rows) and no prior "
                          "information (Q0)")

@@ -157,7 +157,7 @@ def select(states: list[ModelState], shape: Shape, replaces: Replaces) -> ModelS
     top = max(s.inliers.size for s in states)
     cands = [s for s in states if s.inliers.size * MORE_SUPPORT >= top] or list(states)
     cands.sort(key=lambda s: (-shape.get(s.model, (1, 0))[0], shape.get(s.model, (1, 0))[1],
-                              s.cost))
+                              s.normalized_cost))
     current = cands[0]
     for other in cands[1:]:
         if not (current.samples and other.samples):

@@ -110,9 +110,125 @@ def propagate(J: np.ndarray, covariance: np.ndarray) -> np.ndarray:
     return out
 
 
-@dataclass(frozen=True)
-class FitResult:
-    """The outcome of :func:`kanagen.fit` (SPEC §2 outputs).
+class ParameterStd(dict):
+    """Standard deviations by component name (the parameter's, then its slack components),
+    from the diagonal of the covariance: 0 (to rounding) for a component the model's
+    constraints pin,
+    ``inf`` for an unobservable one, NaN when the covariance is undefined (a failed fit).
+
+    A dict that also reads as the array of its values in ``q``'s order, as ``std`` was
+    before it was a dict: ``std[0]``, ``np.asarray(std)``, ``np.max(std)``."""
+
+    def __getitem__(self, key):
+        if isinstance(key, int | np.integer | slice) and not isinstance(key, bool):
+            return np.asarray(self)[key]
+        return super().__getitem__(key)
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        return np.fromiter(self.values(), dtype=float, count=len(self)).astype(
+            float if dtype is None else dtype, copy=False)
+
+
+class ResultProtocol:
+    """What every result (:class:`FitResult`, :class:`ModelState`,
+    :class:`~kanagen.runtime.robust.RobustEstimate`) says, with one meaning on all three.
+
+    ``model``, ``params`` (dict, slacks apart in ``slacks``), ``q``, ``covariance``,
+    ``std`` (:class:`ParameterStd`), ``derived``, ``success``, ``dof`` = d = n − p + Σ pᵢ
+    (eq. 7: the equations kept plus the free degrees of freedom), and the costs:
+
+    - ``cost`` = ``total_cost`` = L̃² = ½‖q̃−q0‖²_Q0 + Σ ½‖m̃−m‖²_Q (with the ½ of eq. 2,
+      as ``scipy.optimize.least_squares``' ``cost``);
+    - ``normalized_cost`` = L̃²/d, about ½ when the weights are right: the lattice compares
+      models by it;
+    - ``chi2`` = 2 L̃², the sum of the squared whitened residuals; ``chi2_dof`` = ν, the
+      redundancy: the equations kept minus the free degrees of freedom (Σ pᵢ − (n − p); a
+      prior ``Q0`` is not counted); ``reduced_chi2`` = χ²/ν, about 1 when the weights are
+      right (scipy.odr's ``res_var``, lmfit's ``redchi``); ``chi2_pvalue``: the chance of a
+      χ² at least this large under the model with those weights.
+
+    Subclasses provide ``model, params, q, covariance, cost, dof, derived, slacks`` and
+    ``equations`` (Σ pᵢ).
+    """
+
+    @property
+    def std(self) -> ParameterStd:
+        cov = np.asarray(self.covariance, dtype=float)
+        diag = np.diag(cov) if cov.ndim == 2 else np.full(len(self.q), np.nan)
+        values = np.where(np.isnan(diag), np.nan, np.sqrt(np.clip(diag, 0.0, None)))
+        names = [*self.params, *self.slacks]
+        return ParameterStd(zip(names, (float(v) for v in values), strict=False))
+
+    @property
+    def total_cost(self) -> float:
+        """L̃² (the same as ``cost``)."""
+        return float(self.cost)
+
+    @property
+    def normalized_cost(self) -> float:
+        """L̃²/d (eq. 7)."""
+        return self.cost / self.dof if self.dof > 0 else float("inf")
+
+    @property
+    def chi2(self) -> float:
+        """χ² = 2 L̃², the sum of the squared whitened residuals."""
+        return 2.0 * float(self.cost)
+
+    @property
+    def chi2_dof(self) -> int:
+        """ν = Σ pᵢ − (n − p): the equations kept minus the free degrees of freedom."""
+        return 2 * int(self.equations) - int(self.dof)
+
+    @property
+    def reduced_chi2(self) -> float:
+        """χ²/ν, about 1 when the weights are right (NaN when ν ≤ 0)."""
+        nu = self.chi2_dof
+        return self.chi2 / nu if nu > 0 else float("nan")
+
+    @property
+    def chi2_pvalue(self) -> float:
+        """P(χ²_ν ≥ χ²), NaN when ν ≤ 0 or χ² is not finite."""
+        nu, chi2 = self.chi2_dof, self.chi2
+        if nu <= 0 or not np.isfinite(chi2):
+            return float("nan")
+        from scipy.stats import chi2 as chi2_law  # lazily: import kanagen stays light
+
+        return float(chi2_law.sf(chi2, nu))
+
+    def goodness_of_fit(self) -> dict[str, float]:
+        """The costs and χ² statistics as a dict (the JSON records carry them)."""
+        return {"cost": float(self.cost), "normalized_cost": float(self.normalized_cost),
+                "dof": int(self.dof), "chi2": self.chi2, "chi2_dof": self.chi2_dof,
+                "reduced_chi2": self.reduced_chi2, "chi2_pvalue": self.chi2_pvalue}
+
+    def _headline(self) -> str:
+        return f"model {self.model!r}"
+
+    def summary(self) -> str:
+        """A short human-readable table: the fit's statistics, then ``name = value ± std``
+        per parameter (slack components marked) and the derived quantities."""
+        nu = self.chi2_dof
+        lines = [self._headline(),
+                 f"  cost L~^2 = {self.cost:.6g}, d = {self.dof}, L~^2/d = "
+                 f"{self.normalized_cost:.6g}",
+                 f"  chi2 = {self.chi2:.6g}, nu = {nu}, chi2/nu = {self.reduced_chi2:.4g}, "
+                 f"p = {self.chi2_pvalue:.3g}"]
+        lines += estimate_lines(self.params, self.slacks, np.asarray(self.std), self.derived)
+        return "\n".join(lines)
+
+    def __repr__(self) -> str:
+        params = ", ".join(f"{k}={v:.6g}" for k, v in list(self.params.items())[:8])
+        if len(self.params) > 8:
+            params += f", ... ({len(self.params)} in all)"
+        return (f"{type(self).__name__}(model={self.model!r}, cost={self.cost:.6g}, "
+                f"dof={self.dof}, reduced_chi2={self.reduced_chi2:.4g}, "
+                f"success={bool(self.success)}, params={{{params}}})")
+
+
+@dataclass(frozen=True, repr=False)
+class FitResult(ResultProtocol):
+    """The outcome of :func:`kanagen.fit` (SPEC §2 outputs); the fields common to every
+    result are :class:`ResultProtocol`'s.
 
     Attributes
     ----------
@@ -125,15 +241,18 @@ class FitResult:
         Corrected measures per channel, all columns (exact ones unchanged).
     info : ndarray (n, n)
         Q̃ = Q0 + A at the solution (report eq. 6).
-    covariance, std : ndarray
-        Covariance of q̃ under the constraints (inverse of the bordered information), and
-        the standard deviations.
+    covariance : ndarray (n, n)
+        Covariance of q̃ under the constraints (inverse of the bordered information).
+    std : ParameterStd
+        Standard deviations by component name (reads as an array too).
     cost : float
-        L̃² = ½‖q̃−q0‖²_Q0 + Σ ½‖m̃−m‖²_Q.
+        L̃² = ½‖q̃−q0‖²_Q0 + Σ ½‖m̃−m‖²_Q (also ``total_cost``).
     dof : int
         d = n − p + Σ p_i with the ranks kept by the reduced square roots (eq. 7).
     normalized_cost : float
         L̃² / d.
+    chi2, chi2_dof, reduced_chi2, chi2_pvalue
+        2 L̃², ν = Σ p_i − (n − p), χ²/ν (about 1 when the weights are right), P(χ²_ν ≥ χ²).
     residual : float
         E², the constraint violation in the whitened metric (eq. 13/17).
     iterations, success, status, message
@@ -159,20 +278,13 @@ class FitResult:
     slacks: dict[str, float] = field(default_factory=dict)  # appendix F's added components
 
     @property
-    def std(self) -> np.ndarray:
-        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+    def equations(self) -> int:
+        """Σ pᵢ, the equations the measures keep."""
+        return int(sum(int(np.sum(r)) for r in self.ranks.values()))
 
-    @property
-    def normalized_cost(self) -> float:
-        return self.cost / self.dof if self.dof > 0 else float("inf")
-
-    def summary(self) -> str:
-        """A human-readable table of the estimate."""
-        lines = [f"model {self.model!r}: {self.message} after {self.iterations} iteration(s)",
-                 f"  cost L~^2 = {self.cost:.6g}, d = {self.dof}, L~^2/d = "
-                 f"{self.normalized_cost:.6g}, residual E^2 = {self.residual:.3g}"]
-        lines += estimate_lines(self.params, self.slacks, self.std, self.derived)
-        return "\n".join(lines)
+    def _headline(self) -> str:
+        return (f"model {self.model!r}: {self.message} after {self.iterations} iteration(s), "
+                f"residual E^2 = {self.residual:.3g}")
 
 
 def estimate_lines(params: dict, slacks: dict, std, derived: dict) -> list[str]:
@@ -200,9 +312,15 @@ def _indent(text: str, prefix: str = "    ") -> str:
     return "\n".join(prefix + line for line in text.splitlines())
 
 
-@dataclass(frozen=True)
-class ModelState:
-    """One model as estimated so far (report §5, "a model state")."""
+@dataclass(frozen=True, repr=False)
+class ModelState(ResultProtocol):
+    """One model as estimated so far (report §5, "a model state"); the fields common to
+    every result are :class:`ResultProtocol`'s.
+
+    ``cost`` is L̃² (as on :class:`FitResult`; ``normalized_cost`` = L̃²/d is what the
+    lattice compares), ``equations`` Σ pᵢ of the fit on the inliers, ``status``
+    "estimated" (a verified minimum: ``success``), "null" (the first moment's placeholder)
+    or the refinement's message."""
 
     model: str
     parent: str | None
@@ -212,7 +330,7 @@ class ModelState:
     covariance: np.ndarray
     inliers: np.ndarray  # measure ids
     outliers: np.ndarray  # measure ids
-    cost: float  # L̃²/d, the normalised cost compared between models
+    cost: float  # L̃² of the fit on the inliers (L̃²/d: normalized_cost)
     dof: int
     relevance: float
     samples: int
@@ -224,8 +342,19 @@ class ModelState:
     # every measure's error at the estimate (eq. 24), aligned with the ascending measure ids
     measure_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    equations: int = 0  # Σ pᵢ of the fit on the inliers
 
     @property
     def estimated(self) -> bool:
         """False for the placeholder of the first moment (the null model at ``q0``)."""
         return self.samples > 0
+
+    @property
+    def success(self) -> bool:
+        """The refinement on the inliers reached a verified minimum."""
+        return self.status == "estimated"
+
+    def _headline(self) -> str:
+        return (f"model {self.model!r} ({self.status}): {len(self.inliers)} inlier(s), "
+                f"{len(self.outliers)} outlier(s), relevance {self.relevance:.4g}, "
+                f"{self.samples} sample(s)")

@@ -25,16 +25,19 @@ from .inputs import check_search_options
 from .minimal import coherence_errors, manifold_ranks, minimal_solve_problem
 from .projector import Problem
 from .refine import Refinement
-from .results import FitResult
+from .results import FitResult, ResultProtocol
 from .scoring import relevance, samples_for_confidence
 from .scoring import scorer as get_scorer
 
 _NEIGHBOURHOOD = 4  # a local sample is drawn among this many sample sizes of nearest measures
 
 
-@dataclass(frozen=True)
-class RobustEstimate:
-    """The outcome of a robust search of one model."""
+@dataclass(frozen=True, repr=False)
+class RobustEstimate(ResultProtocol):
+    """The outcome of a robust search of one model. The fields common to every result
+    (:class:`~kanagen.runtime.results.ResultProtocol`: ``params``, ``q``, ``std``,
+    ``covariance``, ``cost`` = L̃², ``dof``, ``chi2``, ``reduced_chi2``, ``success``, ...)
+    are those of ``fit``, the refined estimate on the inliers."""
 
     model: str
     fit: FitResult  # the refined estimate (full estimator on the inliers)
@@ -56,6 +59,22 @@ class RobustEstimate:
         return self.fit.params
 
     @property
+    def slacks(self) -> dict[str, float]:
+        return self.fit.slacks
+
+    @property
+    def info(self) -> np.ndarray:
+        return self.fit.info
+
+    @property
+    def covariance(self) -> np.ndarray:
+        return self.fit.covariance
+
+    @property
+    def derived(self) -> dict:
+        return self.fit.derived
+
+    @property
     def cost(self) -> float:
         return self.fit.cost
 
@@ -64,8 +83,27 @@ class RobustEstimate:
         return self.fit.dof
 
     @property
-    def normalized_cost(self) -> float:
-        return self.fit.normalized_cost
+    def equations(self) -> int:
+        return self.fit.equations
+
+    @property
+    def success(self) -> bool:
+        return self.fit.success
+
+    @property
+    def status(self) -> int:
+        return self.fit.status
+
+    @property
+    def message(self) -> str:
+        return self.fit.message
+
+    def _headline(self) -> str:
+        inliers = sum(len(v) for v in self.inliers.values())
+        outliers = sum(len(v) for v in self.outliers.values())
+        return (f"model {self.model!r} ({self.fit.message}): {inliers} inlier(s), "
+                f"{outliers} outlier(s), relevance {self.relevance:.4g}, "
+                f"{self.samples} sample(s)")
 
 
 class ModelSearch:
@@ -449,7 +487,7 @@ def robust_fit(fam: ModelFamily, model: str | None = None, data: Mapping | None 
     2.0
     """
     model = model or fam.null_model
-    problem = make_problem(fam, model, data or {}, info, q0, Q0, constants)
+    problem = make_problem(fam, model, {} if data is None else data, info, q0, Q0, constants)
     names = [ch.name for ch in problem.channels]
     if channel is None:
         if len(names) != 1:

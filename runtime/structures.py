@@ -202,7 +202,7 @@ def _assign(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelSta
             all_errors = np.concatenate(coherence_errors(prob, fit.q))
             kept.append(replace(
                 state, params=fit.params, q=fit.q, info=fit.info, covariance=fit.covariance,
-                cost=fit.normalized_cost, dof=fit.dof, derived=fit.derived,
+                cost=fit.cost, dof=fit.dof, equations=fit.equations, derived=fit.derived,
                 slacks=fit.slacks, status="estimated" if fit.success else fit.message,
                 threshold=outlier_threshold(all_errors, scale, window,
                                             options.get("max_threshold")),

@@ -91,7 +91,7 @@ def test_batch_records_every_dataset_with_its_error_and_resumes(tmp_path, schedu
         assert np.array(row["info"]).shape == (8, 8)
         assert row["inliers"] == rec["inliers"] and row["n_inliers"] == len(rec["inliers"])
         assert row["measures"] == len(rec["errors"]) == 21  # 15 points and 6 outliers
-        assert row["cost"] == rec["cost"] > 0 and row["dof"] == rec["dof"]
+        assert row["cost"] == rec["normalized_cost"] > 0 and row["dof"] == rec["dof"]
         assert row["seconds"] > 0 and row["finished"]
     # resume: nothing is estimated again, nothing duplicated, nothing changed
     again = kanagen.batch(LATTICE, str(tmp_path / "data" / "*.csv"), db=db, **FAST)
