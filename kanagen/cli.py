@@ -135,25 +135,42 @@ def show(spec, trusted, limit):
     except SpecError as exc:
         _fail(str(exc))
     click.echo(f"family {fam.name!r} (sha256 {fam.sha256[:12]}...) from {spec}")
-    click.echo("  parameter: " + ", ".join(f"{n}={v:g}" for n, v in fam.parameter))
+    click.echo(_wrap_expr("parameter: " + ", ".join(f"{n}={v:g}" for n, v in fam.parameter),
+                          "  "))
     if fam.constants:
-        click.echo("  constants: " + ", ".join(f"{n}={v:g}" for n, v in fam.constants))
+        click.echo(_wrap_expr("constants: " + ", ".join(f"{n}={v:g}" for n, v in fam.constants),
+                              "  "))
     for ch in fam.channels:
         exact = f" (exact: {', '.join(ch.exact)})" if ch.exact else ""
         click.echo(f"  channel {ch.name}: [{', '.join(ch.components)}]{exact}")
         for eq in ch.equations:
-            click.echo(f"    {eq} = 0")
+            click.echo(_wrap_expr(f"{eq} = 0", "    "))
     for m in fam.models:
         marker = " (null model)" if m.name == fam.null_model else ""
         click.echo(f"  model {m.name}{marker}: {len(m.constraints)} constraint(s)")
         for c in m.constraints:
-            click.echo(f"    {c} = 0")
+            click.echo(_wrap_expr(f"{c} = 0", "    "))
         for ch, eqs in m.equations:
-            click.echo(f"    channel {ch} overridden: " + "; ".join(f"{e} = 0" for e in eqs))
+            text = "; ".join(f"{e} = 0" for e in eqs)
+            click.echo(_wrap_expr(f"channel {ch} overridden: {text}", "    "))
         for alt in m.alternatives:
             click.echo(f"    -> {alt.model} (phi {alt.phi})")
     for d in fam.derived:
         click.echo(f"  derived {d.name}: shape {d.shape or 'scalar'}")
+
+
+SHOW_WIDTH = 100
+
+
+def _wrap_expr(text: str, indent: str, width: int = SHOW_WIDTH) -> str:
+    """``text`` indented, folded at the spaces around its operators (`` + ``, `` - ``,
+    ``; ``, ``, ``) into lines of about ``width`` columns, the continuations indented four more.
+    A run without spaces longer than the line (a long product) is not cut."""
+    import textwrap
+
+    return "\n".join(textwrap.wrap(text, width, initial_indent=indent,
+                                    subsequent_indent=indent + "    ",
+                                    break_long_words=False, break_on_hyphens=False))
 
 
 def fit_options(command):
@@ -234,9 +251,10 @@ def fit(spec, data, channel, json_out, backend, trusted, limit, **options):
     """Find the model of SPEC that the measures in DATA support, despite outliers.
 
     DATA is a CSV file whose header names the channel's components (in any order, other
-    columns ignored), an NPZ file (an array named after the channel, or a single array) or a
-    JSON file ({channel: rows}, a list of rows or a list of {component: value}). A measure's
-    id is its row in DATA, from 0.
+    columns ignored, names case-sensitive; a file without a header is read when it has
+    exactly the components' columns, in spec order), an NPZ file (an array named after the
+    channel, or a single array) or a JSON file ({channel: rows}, a list of rows or a list of
+    {component: value}). A measure's id is its row in DATA, from 0.
 
     By default, the robust lattice search of report §5: random minimal samples fit the null
     model, then each more general model from the measures its parent left out; each sample's
@@ -250,19 +268,30 @@ def fit(spec, data, channel, json_out, backend, trusted, limit, **options):
 
     With --local, fit one model to all the measures with the local estimator of §2–3.
 
+    Ctrl-C stops the search: the best model so far is printed (and written to --json) as
+    usual, with stop reason "interrupted", and the exit status is 130, as for `kanagen batch`.
+
     Exit status: 0 when a model was found (--local: when the fit converged), 1 otherwise,
-    2 on bad input.
+    2 on bad input, 130 when interrupted (Ctrl-C).
 
     \b
     Examples:
       kanagen fit examples/conic_lattice.yaml arc.csv --scale 4 --json result.json
       kanagen fit examples/conic.yaml examples/data/ellipse_arc.csv --model conic --local
     """
+    opts = _fit_options(**options)
+    try:
+        _fit(spec, data, channel, json_out, backend, trusted, limit, opts)
+    except KeyboardInterrupt:  # before or after the search: nothing to report
+        _fail("interrupted", 130)
+
+
+def _fit(spec, data, channel, json_out, backend, trusted, limit, opts):
+    """The body of ``kanagen fit``; exits with its status."""
     from . import load
     from .dataio import read_measures
     from .fitjob import local_record, make_estimator, resolve_channel
 
-    opts = _fit_options(**options)
     try:
         fam = load(spec, backend=backend, limits=_limits(trusted, limit))
         channel = resolve_channel(fam, channel)
@@ -281,9 +310,9 @@ def fit(spec, data, channel, json_out, backend, trusted, limit, **options):
         click.echo(res.summary(), err=to_err)
         _write_json(record, json_out)
         sys.exit(0 if res.success else 1)
-    found = _report_robust(est, fam, channel, X, json_out, to_err, opts, spec=spec,
-                           data=data)
-    sys.exit(0 if found else 1)
+    found, interrupted = _report_robust(est, fam, channel, X, json_out, to_err, opts,
+                                        spec=spec, data=data)
+    sys.exit(130 if interrupted else 0 if found else 1)
 
 
 @main.command()
@@ -424,8 +453,9 @@ def _parse_pairs(items, option: str) -> dict[str, float]:
 
 
 def _report_robust(est, fam, channel, X, json_out, to_err, opts, *, spec,
-                   data) -> bool:
-    """Run the search, print the lattice and the chosen model; True when a model was found."""
+                   data) -> tuple[bool, bool]:
+    """Run the search, print the lattice and the chosen model; (a model was found, the
+    search was interrupted by Ctrl-C)."""
     from .fitjob import robust_record
 
     interrupted = False
@@ -445,7 +475,7 @@ def _report_robust(est, fam, channel, X, json_out, to_err, opts, *, spec,
     else:
         click.echo("no model found: no sample gave an estimate", err=to_err)
     _write_json(record, json_out)
-    return record["found"]
+    return record["found"], interrupted
 
 
 def _search(est, max_samples: int) -> int:
@@ -465,7 +495,7 @@ def _lattice_table(states, chosen: str | None) -> str:
     header = ("model", "parent", "d", "L~^2/d", "relevance", "inliers", "samples", "accepted")
     rows = [header]
     for s in states:
-        rows.append((s.model, s.parent or "-", str(s.dof), f"{s.cost:.4g}",
+        rows.append((s.model, s.parent or "-", str(s.dof), f"{s.normalized_cost:.4g}",
                      f"{s.relevance:.4g}", str(len(s.inliers)), str(s.samples),
                      "yes" if s.accepted else "no"))
     widths = [max(len(r[i]) for r in rows) for i in range(len(header))]
@@ -482,7 +512,8 @@ def _state_summary(best, measures: int) -> str:
     from .runtime.results import estimate_lines
 
     lines = [f"chosen model {best.model!r}: {len(best.inliers)} inlier(s), "
-             f"{len(best.outliers)} outlier(s) of {measures} measures; L~^2/d = {best.cost:.6g}"
+             f"{len(best.outliers)} outlier(s) of {measures} measures; "
+             f"L~^2/d = {best.normalized_cost:.6g}"
              f" (d = {best.dof}), relevance {best.relevance:.4g}, threshold "
              f"{best.threshold:.4g}, {best.samples} sample(s)"]
     if best.status not in ("estimated", "null"):

@@ -27,7 +27,10 @@ def read_measures(path: str | Path, components: tuple[str, ...], channel: str) -
     """The (M, len(components)) array of ``channel`` from a data file.
 
     * CSV: a header row naming columns; the components are picked by name, in spec order
-      (a UTF-8 byte-order mark is skipped; a column named twice is refused).
+      (a UTF-8 byte-order mark is skipped; a column named twice is refused; names are
+      case-sensitive). A file whose first line is numbers has no header: it is read as
+      data when it has exactly the channel's columns, in spec order (as NPZ and JSON
+      rows); otherwise an error says the header is missing.
     * NPZ: an array named after the channel (or the only array), columns in spec order.
     * JSON: ``{channel: [[...], ...]}`` or a list of rows, or a list of ``{component: value}``.
 
@@ -97,16 +100,44 @@ def _from_csv(path: Path, components) -> np.ndarray:
         csv.field_size_limit(limit)
     if not rows:
         raise DataError(f"{path}: empty data file")
+    first = rows[0][1]
+    if all(_is_number(f) and f.strip() not in components for f in first):  # no header
+        width = len(first)
+        if width != len(components):
+            raise DataError(
+                f"{path}:{rows[0][0]}: no header (the first line is numbers) and {width} "
+                f"column(s), not the {len(components)} of the components "
+                f"{list(components)}: add a header line naming the columns, e.g. "
+                f"{','.join(components)}")
+        return _csv_rows(path, rows, range(width))
     header = [h.strip() for h in rows[0][1]]
     twice = sorted({h for h in header if header.count(h) > 1})
     if twice:
         raise DataError(f"{path}:{rows[0][0]}: column(s) {twice} named twice in the header")
     missing = [c for c in components if c not in header]
     if missing:
-        raise DataError(f"{path}: header {header[:20]} lacks component(s) {missing}")
-    cols = [header.index(c) for c in components]
-    out = np.empty((len(rows) - 1, len(cols)))
-    for at, (line, row) in enumerate(rows[1:]):
+        folded = {h.casefold(): h for h in header}
+        cased = [f"{folded[c.casefold()]!r} for {c!r}" for c in missing
+                 if c.casefold() in folded]
+        hint = f" (names are case-sensitive: the header has {', '.join(cased)})" \
+            if cased else ""
+        raise DataError(f"{path}: header {header[:20]} lacks component(s) {missing}{hint}")
+    return _csv_rows(path, rows[1:], [header.index(c) for c in components])
+
+
+def _is_number(field: str) -> bool:
+    try:
+        float(field)
+    except ValueError:
+        return False
+    return True
+
+
+def _csv_rows(path: Path, rows, cols) -> np.ndarray:
+    """The columns ``cols`` of ``rows`` (``(line, fields)``) as numbers."""
+    cols = list(cols)
+    out = np.empty((len(rows), len(cols)))
+    for at, (line, row) in enumerate(rows):
         try:
             out[at] = [float(row[j]) for j in cols]
         except (ValueError, IndexError):

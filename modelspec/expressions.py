@@ -197,6 +197,15 @@ def shape_text(value) -> str:
     return f"{value.rows}×{value.cols} matrix" if isinstance(value, Matrix) else "scalar"
 
 
+def _called(func: ast.AST) -> str:
+    """What a call calls, as written (``np.hypot``), shortened; never an AST dump."""
+    try:
+        text = ast.unparse(func)
+    except (RecursionError, ValueError):
+        return type(func).__name__
+    return text if len(text) <= 60 else text[:60] + "..."
+
+
 class _Builder:
     def __init__(self, symbols, source, line, text, limits: Limits):
         self.symbols = symbols
@@ -291,8 +300,11 @@ class _Builder:
         raise self.fail(f"{type(node).__name__} not allowed")
 
     def binary(self, node: ast.BinOp) -> sp.Expr | Matrix:
-        left, right = self.build(node.left), self.build(node.right)
         op = node.op
+        if isinstance(op, ast.BitXor):
+            raise self.fail("'^' is not allowed (in Python it is not a power): write '**' "
+                            "for the power, e.g. x**2")
+        left, right = self.build(node.left), self.build(node.right)
         shapes = (isinstance(left, Matrix), isinstance(right, Matrix))
         if isinstance(op, ast.Add | ast.Sub):
             return self.checked(self.add(left, right, "+" if isinstance(op, ast.Add) else "-"))
@@ -339,9 +351,14 @@ class _Builder:
     def call(self, node: ast.Call) -> sp.Expr | Matrix:
         name = node.func.id if isinstance(node.func, ast.Name) else None
         if name not in FUNCTIONS and name not in MATRIX_FUNCTIONS:
-            name = name or ast.dump(node.func)
             allowed = ", ".join([*FUNCTIONS, *MATRIX_FUNCTIONS])
-            raise self.fail(f"call to {name!r} not allowed (allowed: {allowed})")
+            hint = ""
+            if name is None:  # np.hypot, math.sqrt, f(x)(y): name it as written
+                name = _called(node.func)
+                last = node.func.attr if isinstance(node.func, ast.Attribute) else None
+                if last in FUNCTIONS or last in MATRIX_FUNCTIONS:
+                    hint = f"; write {last}(...) without the module"
+            raise self.fail(f"call to {name!r} not allowed{hint} (allowed: {allowed})")
         if node.keywords:
             raise self.fail("keyword arguments not allowed")
         if name in FUNCTIONS:

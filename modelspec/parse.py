@@ -7,6 +7,7 @@ expression may use, the models' alternatives and the acyclicity of the model lat
 from __future__ import annotations
 
 import hashlib
+import re
 from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
@@ -115,6 +116,7 @@ class _Builder:
         self.src = located
         self.digest = digest
         self.limits = limits
+        self.derived_names: set[str] = set()  # to say so when one uses another
 
     def error(self, message: str, *path) -> SpecError:
         return SpecError(message, self.src.source, self.src.line(*path))
@@ -278,14 +280,16 @@ class _Builder:
         )
         self.check_acyclic(models)
         parameter, models, slack_fields = self.add_slacks(parameter, constants, models)
+        derived_specs = self.mapping(top.get("derived"), "derived", "derived")
+        self.derived_names = {n for n in derived_specs if isinstance(n, str)}
         derived = tuple(
-            self.derived(dname, spec, base, declare)
-            for dname, spec in self.mapping(top.get("derived"), "derived", "derived").items()
+            self.derived(dname, spec, base, declare) for dname, spec in derived_specs.items()
         )
         self.check_model_extras(models, derived, parameter, constants, channels)
         null_model = top.get("null_model", models[0].name)
         if null_model not in models_spec:
             raise self.error(f"null_model {null_model!r} is not a declared model", "null_model")
+        self.check_reachable(models, null_model)
         return Family(
             name=name,
             **slack_fields,
@@ -523,10 +527,44 @@ class _Builder:
             if model.name not in state:
                 visit(model.name, [model.name])
 
+    def check_reachable(self, models, null_model):
+        """Every model is the null model or the target of an alternative of a model the
+        search reaches from it: another would silently never be tried (issue 20). A family
+        whose models name no alternatives at all declares no lattice: a set of models each
+        fitted on its own (``kanagen.fit``), which the lattice search refuses by name."""
+        edges = {m.name: [a.model for a in m.alternatives] for m in models}
+        if not any(edges.values()):
+            return
+        reached, todo = {null_model}, [null_model]
+        while todo:
+            for nxt in edges[todo.pop()]:
+                if nxt not in reached:
+                    reached.add(nxt)
+                    todo.append(nxt)
+        for model in models:
+            if model.name in reached:
+                continue
+            parents = [m for m, targets in edges.items() if model.name in targets]
+            how = (f"its parent(s) {', '.join(map(repr, parents))} are not reached either"
+                   if parents else "no model names it among its alternatives")
+            raise self.error(
+                f"model {model.name!r} is never tried: the lattice search starts at the null "
+                f"model {null_model!r} and no chain of alternatives leads to it ({how}); "
+                f"add it to the alternatives of a model, or remove it", "models", model.name)
+
     def derived(self, name, spec, base, declare) -> Derived:
         path = ("derived", name)
         name = declare(name, "derived quantity", *path)
-        value = self.value(spec, base, *path)
+        try:
+            value = self.value(spec, base, *path)
+        except SpecError as exc:
+            used = re.match(r"unknown symbol '(\w+)'", exc.message)
+            if not used or used[1] not in self.derived_names:
+                raise
+            raise SpecError(
+                f"derived quantity {name!r} uses the derived quantity {used[1]!r}: derived "
+                f"quantities cannot use each other; name the shared expression under define: "
+                f"and use that name in both", exc.source, exc.line) from None
         if not isinstance(value, Matrix):
             return Derived(name, (), (value,))
         shape = (value.rows,) if value.cols == 1 else value.shape

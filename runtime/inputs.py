@@ -124,11 +124,33 @@ def inverse_root(Q: np.ndarray) -> np.ndarray:
     return np.linalg.solve(L, eye)
 
 
+def data_hint(fam: ModelFamily) -> str:
+    """How to pass measures to ``fam``: ``data={'point': array} (channels of family ...)``."""
+    channels = "; ".join(f"{name!r} with columns {list(ch.components)}"
+                         for name, ch in fam.channels.items())
+    first = next(iter(fam.channels), "channel")
+    return f"data={{{first!r}: array}} (channels of family {fam.name!r}: {channels})"
+
+
+def describe(value) -> str:
+    """``an array of shape (20, 2)``, ``a str``: what a user passed, for a message."""
+    if isinstance(value, np.ndarray | list | tuple):
+        return f"an array of shape {np.shape(value)}"
+    return f"a {type(value).__name__}"
+
+
+def check_data_mapping(fam: ModelFamily, data) -> None:
+    """``data`` is a dict ``{channel: array}``; otherwise (a bare array, say) a ValueError
+    that says how to pass it, naming the family's channels and their components."""
+    if not isinstance(data, Mapping):
+        raise ValueError(f"data must be a dict {{channel name: array}}, got {describe(data)}: "
+                         f"pass {data_hint(fam)}")
+
+
 def channel_data(fam: ModelFamily, data: Mapping, info: Mapping | None,
                  exact: Mapping | None = None) -> list[ChannelData]:
     """Validate ``data``, ``info`` and ``exact`` (dicts keyed by channel name)."""
-    if not isinstance(data, Mapping):
-        raise ValueError("data must be a dict {channel name: array}")
+    check_data_mapping(fam, data)
     info = info or {}
     exact = exact or {}
     for what, value in (("info", info), ("exact", exact)):

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import json
 import shutil
+import signal
+import subprocess
+import sys
+import time
 from importlib.metadata import version
 from pathlib import Path
 
@@ -198,6 +202,19 @@ def test_show_lists_the_lattice(run):
     assert "model circle (null model)" in out.output and "-> conic (phi ftest)" in out.output
 
 
+@pytest.mark.parametrize("spec", ["two_view", "hysteresis"])
+def test_show_wraps_long_expressions(run, spec):
+    """Issue 20: the expanded equations of two_view are ~1,000 characters; show folds them
+    (and the parameter list) at about 100 columns."""
+    out = run("show", ROOT / "examples" / f"{spec}.yaml")
+    assert out.exit_code == 0
+    lines = out.output.splitlines()
+    assert max(map(len, lines)) <= 120, max(lines, key=len)
+    if spec == "two_view":
+        assert any(line.startswith("        ") for line in lines)  # a continuation
+        assert "channel match overridden:" in out.output
+
+
 def test_build_casadi_backend_and_check(run, tmp_path):
     spec = tmp_path / "line.yaml"
     shutil.copy(ROOT / "examples" / "line.yaml", spec)
@@ -229,3 +246,30 @@ def test_fit_on_the_compiled_backend_gives_the_same_answer(run, circle_csv):
     assert outs[0]["model"] == outs[1]["model"] and outs[0]["inliers"] == outs[1]["inliers"]
     np.testing.assert_allclose(list(outs[1]["params"].values()),
                                list(outs[0]["params"].values()), rtol=1e-8, atol=1e-12)
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="SIGINT to a child needs POSIX")
+def test_ctrl_c_during_fit_reports_the_best_so_far_and_exits_130(tmp_path):
+    """Issue 20: Ctrl-C during a long `kanagen fit` prints what it has and exits 130, like
+    `kanagen batch` (it used to exit 0)."""
+    xy = np.random.default_rng(0).uniform(-10, 10, (5000, 2))  # noise: a long search
+    path = tmp_path / "noise.csv"
+    np.savetxt(path, xy, delimiter=",", header="x,y", comments="", fmt="%.6f")
+    json_out = tmp_path / "result.json"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "kanagen", "fit", str(LATTICE), str(path), "--scale", "4",
+         "--max-samples", "10000000", "--json", str(json_out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        time.sleep(3)  # well into the search (or still loading: 130 all the same)
+        assert proc.poll() is None, proc.communicate()
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 130, out + err
+    assert "interrupted" in out + err
+    if json_out.exists():  # interrupted in the search: the best model so far is written
+        assert json.loads(json_out.read_text())["stop_reason"].startswith("interrupted")

@@ -125,6 +125,29 @@ def test_duplicate_key_and_cycle():
     assert "cycle in the model lattice" in err.message
 
 
+@pytest.mark.parametrize(
+    ("extra", "model", "fragment"),
+    [
+        ("  orphan:\n    constraints: [b]\n", "orphan", "no model names it"),
+        ("  child:\n    constraints: []\n  orphan:\n    constraints: [b]\n"
+         "    alternatives: [child]\n", "child", "parent(s) 'orphan' are not reached"),
+    ],
+    ids=["no edge", "edge from an unreached model"],
+)
+def test_a_model_no_edge_reaches_is_an_error(extra, model, fragment):
+    """Issue 20: a model the lattice search never reaches from the null model is a spec
+    error naming the model, file and line, not a model silently never tried."""
+    err = _error(GOOD + extra)
+    assert f"model {model!r} is never tried" in err.message and fragment in err.message
+    assert "null model 'flat'" in err.message
+    assert str(err).startswith("bad.yaml:15: ")
+    # reached through an alternative: fine
+    parse_spec(GOOD.replace("{line: ftest}", "{line: ftest, orphan: ftest}") + extra)
+    # the search starts at the declared null model: from 'line', 'flat' is never tried
+    err = _error(GOOD + "null_model: line\n")
+    assert "model 'flat' is never tried" in err.message and err.line == 10
+
+
 def test_yaml_tags_and_bad_yaml_rejected():
     assert "tag" in _error("name: !!python/object/apply:os.system ['true']\n").message
     assert "invalid YAML" in _error("name: [unclosed\n").message
