@@ -6,7 +6,8 @@
 * adding 10 % more measures to a finished search reaches the same model with fewer than a
   quarter of the samples of a restart.
 
-Run: ``python benchmarks/conic_lattice.py [--trials N]``.
+Run: ``python benchmarks/conic_lattice.py [--trials N] [--scale L*]`` (default: the
+estimator's default L*, from the information: σ = 1 px, ``info = 1``).
 """
 
 from __future__ import annotations
@@ -30,11 +31,16 @@ def f1(found: np.ndarray, truth: np.ndarray) -> float:
     return 2 * tp / max(np.count_nonzero(found) + np.count_nonzero(truth), 1)
 
 
-def trial(fam, kind, seed, outliers, rng):
+def options(scale):
+    """The estimator's options: L* only when given (default: the library's own)."""
+    return {} if scale is None else {"scale": scale}
+
+
+def trial(fam, kind, seed, outliers, rng, scale=None):
     n = int(rng.integers(100, 301))
     radius = float(rng.uniform(50, 200))
     xy, truth = arc(kind, seed, n=n, outliers=outliers, radius=radius)
-    est = kanagen.Estimator(fam, scale=4.0, seed=seed)
+    est = kanagen.Estimator(fam, seed=seed, **options(scale))
     ids = est.add_measures("point", xy, info=1.0)
     t0 = time.perf_counter()
     best = est.run(max_samples=5000)
@@ -46,7 +52,10 @@ def trial(fam, kind, seed, outliers, rng):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=40, help="scenes per motion kind")
+    parser.add_argument("--scale", type=float, default=None,
+                        help="L* (default: the library's default, from the information)")
     args = parser.parse_args()
+    print(f"L* = {'default' if args.scale is None else args.scale}")
     fam = kanagen.load("conic_lattice")
     rng = np.random.default_rng(2026)
     print(f"{'kind':<10}{'outliers':>9}{'right':>8}{'F1 med':>8}{'F1 min':>8}{'s/scene':>9}"
@@ -54,7 +63,7 @@ def main() -> None:
     rights, f1s_half = [], []
     for outliers in (0.3, 0.5):
         for j, kind in enumerate(LATTICE_MODEL):
-            rows = [trial(fam, kind, 1000 * k + 97 * j, outliers, rng)
+            rows = [trial(fam, kind, 1000 * k + 97 * j, outliers, rng, args.scale)
                     for k in range(args.trials)]
             right = np.mean([r[0] for r in rows])
             f1s = np.array([r[1] for r in rows])
@@ -76,14 +85,14 @@ def main() -> None:
     for k in range(10):
         xy, _ = arc("circle", 500 + k, n=220, radius=float(rng.uniform(50, 200)))
         first, more = xy[:200], xy[200:]
-        est = kanagen.Estimator(fam, scale=4.0, seed=k)
+        est = kanagen.Estimator(fam, seed=k, **options(args.scale))
         est.add_measures("point", first)
         est.run()
         used = len(est.history)
         est.add_measures("point", more)
         est.run()
         resumed = len(est.history) - used
-        fresh = kanagen.Estimator(fam, scale=4.0, seed=k)
+        fresh = kanagen.Estimator(fam, seed=k, **options(args.scale))
         fresh.add_measures("point", xy)
         fresh.run()
         ratios.append(resumed / len(fresh.history))

@@ -38,12 +38,12 @@ from kanagen.scenes import MOTIONS, sampson_rms, transfer_rms, two_view_scene  #
 F_TYPE = ("translation", "general")
 THRESHOLD = 1.5  # px, OpenCV's and pycolmap's RANSAC threshold (3 σ)
 SPEED_FLOOR = 3.0  # our median time per scene over pycolmap's, at most (issue 5)
-SCALE = 9.0  # L*: an inlier's error (eq. 24, in σ² units per equation) up to 3 σ
 
 
-def ours(fam, scene, seed):
-    est = kanagen.Estimator(fam, scale=SCALE, seed=seed, constants=scene.constants,
-                            adaptive=True)
+def ours(fam, scene, seed, scale=None):
+    """Our estimate at the defaults (``scale``: an L* instead of the default's)."""
+    options = {} if scale is None else {"scale": scale}
+    est = kanagen.Estimator(fam, seed=seed, constants=scene.constants, **options)
     ids = est.add_measures("match", scene.data, info=1.0 / scene.sigma**2)
     t0 = time.perf_counter()
     best = est.run(max_samples=10_000)
@@ -90,6 +90,8 @@ def main() -> None:
     parser.add_argument("--n", type=int, default=200, help="inliers per scene")
     parser.add_argument("--outliers", type=float, default=0.3)
     parser.add_argument("--sigma", type=float, default=0.5)
+    parser.add_argument("--scale", type=float, default=None,
+                        help="L* (default: the estimator's, from the information 1/σ²)")
     parser.add_argument("--backend", default="compiled", choices=["numpy", "casadi", "compiled"],
                         help="kanagen's backend (default: the compiled estimator and scoring)")
     args = parser.parse_args()
@@ -103,7 +105,7 @@ def main() -> None:
             seed = 1000 * j + k
             scene = two_view_scene(motion, n=args.n, outliers=args.outliers,
                                    sigma=args.sigma, seed=seed)
-            est, best, ids, seconds = ours(fam, scene, seed)
+            est, best, ids, seconds = ours(fam, scene, seed, args.scale)
             confusion[motion][best.model] += 1
             times["ours"].append(seconds)
             F_cv, H_cv, t_cv = opencv(scene)
@@ -128,7 +130,8 @@ def main() -> None:
                                        if best.model != free_model and kind in best.derived
                                        else acc[motion]["ours"][-1])
     print(f"(a) chosen model per motion class, {args.trials} scenes each "
-          f"({args.n} inliers, {args.outliers:.0%} outliers, σ = {args.sigma} px)")
+          f"({args.n} inliers, {args.outliers:.0%} outliers, σ = {args.sigma} px, L* = "
+          f"{'default' if args.scale is None else args.scale})")
     print(f"{'motion':<12}" + "".join(f"{m:>12}" for m in MOTIONS) + f"{'right':>8}"
           + "   pycolmap configuration")
     rights = []

@@ -1,34 +1,23 @@
 """Code generation: a description of WHAT to generate (derivatives, CSE, reductions), and
 backends (NumPy, CasADi) that render it through jinja2 templates.
 
-Importing this package imports SymPy and jinja2: the runtime never does (it imports
-:mod:`kanagen.codegen.compile` only for the "compiled" backend).
+Generating imports SymPy and jinja2; importing this package does not (its names load on
+first use), so the run time may use :mod:`kanagen.codegen.version` (cache keys) and
+:mod:`kanagen.codegen.compile` (the "compiled" backend) without them.
 """
 
 from ..modelspec.lazy import lazy as _lazy
-from .backend import Backend
-from .build import BACKENDS, build, check, committed_backends, generator_fingerprint, render_spec
-from .describe import FORMAT, Description, describe
-from .printer import CASADI_FUNCTIONS, NUMPY_FUNCTIONS, CasadiPrinter, CodegenError, NumpyPrinter
 
-__all__ = [
-    "BACKENDS",
-    "CASADI_FUNCTIONS",
-    "FORMAT",
-    "NUMPY_FUNCTIONS",
-    "Backend",
-    "CasadiPrinter",
-    "CodegenError",
-    "Description",
-    "NumpyPrinter",
-    "build",
-    "check",
-    "committed_backends",
-    "describe",
-    "generator_fingerprint",
-    "render_spec",
-]
+_NAMES = {
+    "BACKENDS": ".generate", "build": ".generate", "check": ".generate",
+    "committed_backends": ".generate", "render_spec": ".generate",
+    "generator_fingerprint": ".version", "FORMAT": ".version",
+    "Backend": ".backend", "Description": ".description", "describe": ".description",
+    "CASADI_FUNCTIONS": ".printer", "NUMPY_FUNCTIONS": ".printer",
+    "CasadiPrinter": ".printer", "CodegenError": ".printer", "NumpyPrinter": ".printer",
+}
 
+__all__ = sorted(_NAMES)
 
-# a submodule not imported yet (``kanagen.codegen.compile``), on first access (PEP 562)
-__getattr__ = _lazy(__name__)[0]
+# each name (and a submodule such as ``kanagen.codegen.compile``) on first access (PEP 562)
+__getattr__, __dir__ = _lazy(__name__, _NAMES)

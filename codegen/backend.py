@@ -1,6 +1,6 @@
 """HOW to generate: a backend is a template folder, a printer and a list of templates.
 
-The description of WHAT to generate (:class:`~kanagen.codegen.describe.Description`) is the
+The description of WHAT to generate (:class:`~kanagen.codegen.description.Description`) is the
 same for every backend. A backend turns it into plain data for its templates (names, shapes
 and code strings printed by its printer, which holds the backend's one SymPy lookup table)
 and renders the templates listed in :attr:`Backend.templates`.
@@ -30,7 +30,7 @@ from functools import cache
 import jinja2
 
 from ..modelspec.ir import Family
-from .describe import Description, Function, describe
+from .description import Description, Function, describe
 from .printer import TablePrinter
 from .safe import comment_text
 

@@ -15,7 +15,7 @@ import math
 import re
 
 from .backend import Backend, printed
-from .describe import FORMAT, Description, Function
+from .description import FORMAT, Description, Function
 from .printer import CasadiPrinter
 
 

@@ -76,7 +76,7 @@ def cache_key(sha256: str) -> str:
     import casadi
 
     from .. import __version__
-    from .build import generator_fingerprint
+    from .version import generator_fingerprint
 
     text = f"{sha256}:{__version__}:{generator_fingerprint()}:{casadi.__version__}"
     return hashlib.sha256(text.encode()).hexdigest()[:20]

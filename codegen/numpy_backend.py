@@ -6,7 +6,7 @@ from __future__ import annotations
 import pprint
 
 from .backend import Backend, printed
-from .describe import FORMAT, Description, Function, family_metadata
+from .description import FORMAT, Description, Function, family_metadata
 from .printer import NumpyPrinter
 
 

@@ -93,7 +93,8 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
     retry_errors : estimate again the datasets whose earlier run failed.
     progress : called with an :class:`Outcome` as each dataset finishes.
     on_start : called with (datasets to estimate, datasets skipped) before the first one.
-    options : FitOptions, or the same as keywords (``scale=4.0, max_samples=500, ...``).
+    options : FitOptions, or the same as keywords (``max_samples=500, sigma=0.5, ...``;
+        ``scale`` defaults to each model's χ² quantile, ``adaptive`` to True).
     backend : ``"numpy"``, ``"casadi"`` or ``"compiled"`` (as :func:`kanagen.load`; each
         worker loads, and for ``"compiled"`` compiles once into the shared cache). The same
         estimates whatever the backend: not part of what a re-run resumes on.
@@ -112,7 +113,7 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
     Examples
     --------
     >>> summary = kanagen.batch("examples/conic_lattice.yaml", "scenes/*.csv",
-    ...                         db="results.sqlite", scale=4.0, workers=2)  # doctest: +SKIP
+    ...                         db="results.sqlite", workers=2)  # doctest: +SKIP
     >>> kanagen.read_results("results.sqlite", as_frame=True)  # doctest: +SKIP
     """
     from . import load

@@ -38,6 +38,14 @@ def _limits(trusted: bool, limit: tuple[str, ...]):
         _fail(str(exc))
 
 
+def _initializers():
+    """The runtime's initialiser registry: the names a spec's models may give, and what
+    each needs (handed to the spec reader as data)."""
+    from .runtime.initializers import INITIALIZERS
+
+    return INITIALIZERS
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="kanagen")
 def main():
@@ -49,9 +57,9 @@ def main():
     Typical use:
       kanagen show examples/conic.yaml          # what the spec declares
       kanagen build examples/conic.yaml -o generated
-      kanagen fit examples/conic_lattice.yaml points.csv --scale 4   # robust, lattice
+      kanagen fit examples/conic_lattice.yaml points.csv             # robust, lattice
       kanagen fit examples/conic.yaml examples/data/ellipse_arc.csv --model conic --local
-      kanagen batch examples/conic_lattice.yaml 'scenes/*.csv' --db results.sqlite --scale 4
+      kanagen batch examples/conic_lattice.yaml 'scenes/*.csv' --db results.sqlite
       kanagen report result.json -o report.html       # a page with the pictures
     """
 
@@ -86,7 +94,7 @@ def build(specs, out_dir, backends, compile_, check, trusted, limit):
             _fail("no spec given and no examples/*.yaml here")
     try:
         if check:
-            diffs = check_specs(list(specs), out_dir, backends or None)
+            diffs = check_specs(list(specs), out_dir, backends or None, _initializers())
             for diff in diffs:
                 click.echo(diff, nl=False)
             if diffs:
@@ -97,7 +105,7 @@ def build(specs, out_dir, backends, compile_, check, trusted, limit):
             return
         names = ("numpy", *(b for b in backends if b != "numpy"))
         for spec in specs:
-            for path in build_spec(spec, out_dir, names, limits):
+            for path in build_spec(spec, out_dir, names, limits, _initializers()):
                 click.echo(f"{spec} -> {path}")
             if compile_:
                 _compile(spec, limits)
@@ -112,7 +120,7 @@ def _compile(spec: str, limits) -> None:
     from .modelspec import load_spec
     from .runtime.family import cache_dir
 
-    family = load_spec(spec, limits)
+    family = load_spec(spec, limits, _initializers())
     try:
         library = compile_family(_module_for(family, "casadi"),
                                  _module_for(family, "numpy").FAMILY, cache_dir())
@@ -131,7 +139,7 @@ def show(spec, trusted, limit):
     from .modelspec import load_spec
 
     try:
-        fam = load_spec(spec, _limits(trusted, limit))
+        fam = load_spec(spec, _limits(trusted, limit), _initializers())
     except SpecError as exc:
         _fail(str(exc))
     click.echo(f"family {fam.name!r} (sha256 {fam.sha256[:12]}...) from {spec}")
@@ -179,10 +187,12 @@ def fit_options(command):
     options = [
         click.option("--channel", default=None,
                      help="Channel of DATA (default: the only one of SPEC)."),
-        click.option("--scale", type=float, default=1.0, show_default=True, metavar="L*",
+        click.option("--scale", type=float, default=None, metavar="L*",
                      help="L*, the order of magnitude of an inlier's error (report eq. 29). "
-                          "Errors are squared distances in units of --sigma: an inlier's is "
-                          "about 1."),
+                          "Errors are squared distances in units of --sigma per equation: an "
+                          "inlier's is about 1. Default: each model's chi-square quantile "
+                          "chi2_p(0.999)/p of its p equations per measure (10.83 for one, 6.91 "
+                          "for two), right when --sigma is the noise."),
         click.option("--scorer", type=click.Choice(["relevance", "ransac", "trimmed"]),
                      default="relevance", show_default=True,
                      help="Score of a sample's estimate over all the measures."),
@@ -194,6 +204,10 @@ def fit_options(command):
         click.option("--max-samples", type=click.IntRange(min=1), default=2000,
                      show_default=True,
                      help="Stop the search after this many random samples in all."),
+        click.option("--fixed-budget", is_flag=True,
+                     help="Draw for each model the samples of eq. 25 at an assumed half of "
+                          "inliers (default: as many as the inlier ratio of its best estimate "
+                          "so far asks, within --max-samples)."),
         click.option("--model", default=None,
                      help="Robust: search this model only, not the lattice. With --local: the "
                           "model to fit (default: the null model)."),
@@ -224,8 +238,8 @@ backend_option = click.option(
          "the compiled estimator (same results, faster).")
 
 
-def _fit_options(scale, scorer, phi, seed, max_samples, model, local, sigma, consts,
-                 max_iter, starts):
+def _fit_options(scale, scorer, phi, seed, max_samples, fixed_budget, model, local, sigma,
+                 consts, max_iter, starts):
     """The validated FitOptions of :func:`fit_options`' values; bad input exits 2."""
     from .fitjob import FitOptions
 
@@ -233,7 +247,8 @@ def _fit_options(scale, scorer, phi, seed, max_samples, model, local, sigma, con
         return FitOptions(scale=scale, scorer=scorer, phi=phi, seed=seed,
                           max_samples=max_samples, model=model, local=local, sigma=sigma,
                           constants=_parse_constants(consts), max_iter=max_iter,
-                          start=_parse_pairs(",".join(starts).split(","), "--start"))
+                          start=_parse_pairs(",".join(starts).split(","), "--start"),
+                          adaptive=not fixed_budget)
     except ValueError as exc:
         _fail(str(exc))
 
@@ -276,7 +291,7 @@ def fit(spec, data, channel, json_out, backend, trusted, limit, **options):
 
     \b
     Examples:
-      kanagen fit examples/conic_lattice.yaml arc.csv --scale 4 --json result.json
+      kanagen fit examples/conic_lattice.yaml arc.csv --json result.json
       kanagen fit examples/conic.yaml examples/data/ellipse_arc.csv --model conic --local
     """
     opts = _fit_options(**options)
@@ -350,7 +365,7 @@ def batch(spec, data_glob, channel, db, workers, scheduler, retry_errors, backen
 
     \b
     Examples:
-      kanagen batch examples/conic_lattice.yaml 'scenes/*.csv' --db results.sqlite --scale 4
+      kanagen batch examples/conic_lattice.yaml 'scenes/*.csv' --db results.sqlite
       kanagen batch spec.yaml 'pairs/**/*.npz' --channel match --db r.sqlite --workers 8
       kanagen batch spec.yaml 'pairs/*.csv' --db r.sqlite --scheduler tcp://10.0.0.1:8786
     """
@@ -417,7 +432,7 @@ def report(result, db, dataset, out, data, images):
     \b
     Examples:
       kanagen fit examples/conic_lattice.yaml examples/data/ellipse_outliers.csv \\
-          --scale 4 --json result.json && kanagen report result.json -o report.html
+          --json result.json && kanagen report result.json -o report.html
       kanagen report --db results.sqlite --dataset scenes/s001.csv -o s001.html
     """
     from .report import write_report
@@ -467,7 +482,7 @@ def _report_robust(est, fam, channel, X, json_out, to_err, opts, *, spec,
                            data=data, interrupted=interrupted)
     measures = len(X)
     click.echo(f"family {fam.name!r}, channel {channel!r}: {measures} measures, "
-               f"L* = {opts.scale:g}, scorer {opts.scorer}, {samples} sample(s): "
+               f"L* = {_scale_text(record, opts)}, scorer {opts.scorer}, {samples} sample(s): "
                f"{record['stop_reason']}", err=to_err)
     click.echo(_lattice_table(est.states(), record["model"]), err=to_err)
     if record["found"]:
@@ -478,16 +493,39 @@ def _report_robust(est, fam, channel, X, json_out, to_err, opts, *, spec,
     return record["found"], interrupted
 
 
+def _scale_text(record: dict, opts) -> str:
+    """L* as the summary says it: the one given, or the chosen model's default."""
+    if opts.scale is not None:
+        return f"{opts.scale:g}"
+    if record.get("scale") is None:
+        return "default (chi2_p(0.999)/p)"
+    return f"{record['scale']:.3g} (default, chi2_p(0.999)/p)"
+
+
+def planned_total(est, max_samples: int, drawn: int) -> int:
+    """The length of the progress bar: what the search plans in all now
+    (:attr:`~kanagen.Estimator.planned`, counted from this run's first sample), within
+    ``max_samples``, and never below what is drawn."""
+    return max(min(est.planned - (est.samples - drawn), max_samples), drawn, 1)
+
+
 def _search(est, max_samples: int) -> int:
-    """Step the estimator up to ``max_samples`` samples; a progress bar on a terminal."""
+    """Step the estimator up to ``max_samples`` samples; a progress bar on a terminal, whose
+    length is the samples the search plans (it moves as the budgets adapt)."""
     from .fitjob import search
 
     if not sys.stderr.isatty():
         return search(est, max_samples)
-    with click.progressbar(length=max_samples, label="sampling", file=sys.stderr,
-                           item_show_func=lambda status: status) as bar:
-        samples = search(est, max_samples, lambda e: bar.update(1, e.status))
-        bar.update(max_samples - samples, est.status)  # explored before the budget: full bar
+    with click.progressbar(length=planned_total(est, max_samples, 0), label="sampling",
+                           file=sys.stderr, item_show_func=lambda status: status) as bar:
+        def on_sample(e):
+            drawn = bar.pos + 1
+            bar.length = planned_total(e, max_samples, drawn)
+            bar.update(1, e.status)
+
+        samples = search(est, max_samples, on_sample)
+        bar.length = max(samples, 1)  # done (or stopped): the bar is full
+        bar.update(0, est.status)
     return samples
 
 
@@ -518,7 +556,8 @@ def _state_summary(best, measures: int) -> str:
              f"{best.threshold:.4g}, {best.samples} sample(s)"]
     if best.status not in ("estimated", "null"):
         lines.append(f"  refinement: {best.status}")
-    lines += estimate_lines(best.params, best.slacks, std(best.covariance), best.derived)
+    lines += estimate_lines(best.params, best.slacks, std(best.covariance), best.derived,
+                            best.units, best.pinned)
     return "\n".join(lines)
 
 

@@ -32,13 +32,18 @@ class FitOptions:
 
     Parameters
     ----------
-    scale : float
-        ``L*``, the order of magnitude of an inlier's error (eq. 29).
+    scale : float, optional
+        ``L*``, the order of magnitude of an inlier's error (eq. 29); default (None): each
+        model's χ² quantile of its equations per measure, ``χ²_p(0.999)/p``
+        (:func:`~kanagen.runtime.scoring.default_scale`; the record says the one used).
     scorer : str
         ``"relevance"``, ``"ransac"`` or ``"trimmed"``.
     phi : float or str, optional
         Cost factor of every edge of the lattice (default: the spec's factor per edge).
     seed, max_samples : random seed and sample budget of the robust search.
+    adaptive : bool
+        Each model's samples follow the inlier ratio of its best estimate (eq. 25 as
+        samples come; default); False: eq. 25 at an assumed half of inliers.
     model : str, optional
         Robust: search this model only; with ``local``: the model to fit.
     local : bool
@@ -63,7 +68,7 @@ class FitOptions:
     ValueError: scale (L*) must be positive and finite, got 0
     """
 
-    scale: float = 1.0
+    scale: float | None = None
     scorer: str = "relevance"
     phi: float | str | None = None
     seed: int = 0
@@ -74,12 +79,15 @@ class FitOptions:
     constants: tuple[tuple[str, float], ...] = field(default=())
     max_iter: int = 100
     start: tuple[tuple[str, float], ...] = field(default=())
+    adaptive: bool = True
 
     def __post_init__(self):
         def put(name, value):
             object.__setattr__(self, name, value)
 
-        put("scale", _positive(self.scale, "scale (L*)"))
+        if self.scale is not None:
+            put("scale", _positive(self.scale, "scale (L*)"))
+        put("adaptive", bool(self.adaptive))
         if self.sigma is not None:
             put("sigma", _positive(self.sigma, "sigma"))
         if self.scorer not in SCORERS:
@@ -178,7 +186,7 @@ def make_estimator(fam: ModelFamily, X: np.ndarray, channel: str,
     """The robust lattice search of one dataset, measures in, not yet run."""
     est = Estimator(fam, scale=opts.scale, scorer=opts.scorer, phi=opts.phi, seed=opts.seed,
                     channel=channel, constants=dict(opts.constants), model=opts.model,
-                    q0=opts.q0())
+                    q0=opts.q0(), adaptive=opts.adaptive)
     est.add_measures(channel, X, info=_info(opts))
     return est
 
@@ -189,13 +197,19 @@ def _info(opts: FitOptions) -> float | None:
 
 def search(est: Estimator, max_samples: int,
            on_sample: Callable[[Estimator], None] | None = None) -> int:
-    """Step the estimator up to ``max_samples`` samples; returns the samples drawn."""
-    samples = 0
-    while samples < max_samples and est.step():
-        samples += 1
-        if on_sample is not None:
+    """Run the estimator up to ``max_samples`` samples (:meth:`Estimator.run`: the adaptive
+    budgets share them); returns the samples drawn. ``on_sample(est)``: called after each
+    sample (the samples then go one at a time)."""
+    before = est.samples
+    if on_sample is None:
+        est.run(max_samples=max_samples)
+    else:
+        def until(history) -> bool:
             on_sample(est)
-    return samples
+            return False
+
+        est.run(max_samples=max_samples, until=until)
+    return est.samples - before
 
 
 def robust_record(est: Estimator, fam: ModelFamily, opts: FitOptions, *, channel: str,
@@ -210,7 +224,12 @@ def robust_record(est: Estimator, fam: ModelFamily, opts: FitOptions, *, channel
         status = f"stopped at --max-samples {opts.max_samples} ({est.status})"
     record = estimator_to_json(est, best.model if found else None, len(X))
     record.update(_header(fam, channel, spec, data, X))
-    record.update({"scale": opts.scale, "scorer": opts.scorer, "phi": opts.phi,
+    # L*: the chosen model's (given, or its default), each model's, and whether given
+    chosen = best.model if best is not None else None
+    scale = opts.scale if opts.scale is not None else est.scales.get(chosen)
+    record.update({"scale": scale, "scales": dict(est.scales),
+                   "scale_given": opts.scale is not None, "adaptive": opts.adaptive,
+                   "planned_samples": est.planned, "scorer": opts.scorer, "phi": opts.phi,
                    "seed": opts.seed, "max_samples": opts.max_samples, "measures": len(X),
                    "start": dict(opts.start),
                    "total_samples": samples, "status": est.status, "stop_reason": status,
@@ -310,48 +329,54 @@ def estimator_to_json(est: Estimator, chosen: str | None, measures: int | None =
     inside = best.measure_ids < errors.size
     errors[best.measure_ids[inside]] = best.errors[inside]
     out.update({
-        "params": dict(best.params),
-        "std": dict(zip(best.params, std(best.covariance).tolist(), strict=False)),
-        "slacks": dict(best.slacks),
-        "components": [*best.params, *best.slacks],  # rows of covariance and info
-        "covariance": np.asarray(best.covariance),
-        "info": np.asarray(best.info),
-        **best.goodness_of_fit(),  # cost (L~^2), normalized_cost, dof, chi2, ...
+        **estimate_json(best),
         "relevance": best.relevance,
         "threshold": best.threshold,
         "samples": best.samples,
         "inliers": np.asarray(best.inliers, dtype=int),
         "outliers": np.asarray(best.outliers, dtype=int),
         "errors": errors,
-        "derived": {k: {"value": np.asarray(v.value), "std": np.asarray(v.std)}
-                    for k, v in best.derived.items()},
         "model_status": best.status,
     })
     return out
 
 
+def estimate_json(res) -> dict:
+    """What every result's record says (the result protocol): the estimate and its std by
+    name (the components the model pins apart, in ``pinned``), covariance and information
+    over ``components``, the costs and χ² statistics, the derived quantities, the spec's
+    units."""
+    def arr(a):
+        return np.asarray(a).tolist()
+
+    return {
+        "params": dict(res.params),
+        "std": dict(zip(res.params, arr(res.std), strict=False)),
+        "slacks": dict(res.slacks),
+        "pinned": dict(res.pinned),
+        "units": dict(res.units),
+        "components": [*res.params, *res.slacks],  # rows of covariance and info
+        "covariance": arr(res.covariance),
+        "info": arr(res.info),
+        **res.goodness_of_fit(),  # cost (L~^2), normalized_cost, dof, chi2, ...
+        "derived": {k: {"value": arr(v.value), "std": arr(v.std)}
+                    for k, v in res.derived.items()},
+    }
+
+
 def result_to_json(res) -> dict:
-    """A FitResult as JSON data (inf and NaN as null after :func:`finite`): ``cost`` is L~^2
-    here, ``normalized_cost`` L~^2/d, with ``chi2`` = 2 L~^2, ``chi2_dof``, ``reduced_chi2``
-    and ``chi2_pvalue``."""
+    """A FitResult as JSON data (inf and NaN as null after :func:`finite`): the protocol's
+    record (:func:`estimate_json`), then the local fit's own fields."""
     def arr(a):
         return np.asarray(a).tolist()
 
     return {
         "model": res.model,
-        "params": res.params,
-        "std": dict(zip(res.params, arr(res.std), strict=False)),
-        "slacks": res.slacks,
-        "components": [*res.params, *res.slacks],  # rows of covariance and info
-        "covariance": arr(res.covariance),
-        "info": arr(res.info),
-        **res.goodness_of_fit(),  # cost (L~^2), normalized_cost, dof, chi2, ...
+        **estimate_json(res),
         "residual": res.residual,
         "iterations": res.iterations,
         "success": res.success,
         "status": res.status,
         "message": res.message,
-        "derived": {k: {"value": arr(v.value), "std": arr(v.std)}
-                    for k, v in res.derived.items()},
         "measures": {k: arr(v) for k, v in res.measures.items()},
     }

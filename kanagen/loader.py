@@ -71,12 +71,14 @@ def load(spec: str | Path | Family, *, backend: str = "numpy",
         raise ValueError(f"unknown backend {backend!r} (choose from {', '.join(LOAD_BACKENDS)})")
     if _is_family(spec):
         family = spec
+        _check_initializers(family)
     else:
         path = Path(spec)
         if path.suffix in (".yaml", ".yml") or path.exists():
             from .modelspec.parse import load_spec
+            from .runtime.initializers import INITIALIZERS
 
-            family = load_spec(path, limits)
+            family = load_spec(path, limits, INITIALIZERS)
         else:
             family = None
             module = _shipped_by_name(str(spec))
@@ -105,13 +107,35 @@ def load(spec: str | Path | Family, *, backend: str = "numpy",
     return ModelFamily(module, use_generated_kernels, functions, eliminate_linear, fastpath)
 
 
+def _check_initializers(family) -> None:
+    """A family built elsewhere (``family_from_data`` without the registry): the
+    initialisers its models name must be registered and have what they need."""
+    from .modelspec import SpecError
+    from .runtime.initializers import INITIALIZERS
+
+    for model in family.models:
+        if model.initializer is None:
+            continue
+        entry = INITIALIZERS.get(model.initializer)
+        if entry is None:
+            raise SpecError(f"model {model.name!r}: unknown initializer {model.initializer!r} "
+                            f"(known: {', '.join(sorted(INITIALIZERS))})", family.source)
+        missing = entry.missing(parameter=list(family.parameter_names),
+                                constants=[n for n, _ in family.constants],
+                                channels={c.name: c.components for c in family.channels})
+        if missing:
+            raise SpecError(f"model {model.name!r}: initializer {model.initializer!r} needs "
+                            f"{missing}", family.source)
+
+
 def load_text(text: str, source: str = "<spec>", *, limits: Limits = DEFAULT,
               **options) -> ModelFamily:
     """Load a family from YAML text; ``source`` names it in errors and in the header.
     ``limits`` and ``options`` are those of :func:`load`."""
     from .modelspec.parse import parse_spec
+    from .runtime.initializers import INITIALIZERS
 
-    return load(parse_spec(text, source, limits), **options)
+    return load(parse_spec(text, source, limits, INITIALIZERS), **options)
 
 
 def _is_family(spec) -> bool:
@@ -135,13 +159,16 @@ def _shipped_by_name(name: str):
 def _module_for(family: Family, backend: str):
     """The generated module of ``family`` for ``backend``: the shipped one when current,
     else built into the cache."""
-    from .codegen import BACKENDS, FORMAT, generator_fingerprint, render_spec
+    from .codegen.version import FORMAT, generator_fingerprint
 
-    target = BACKENDS[backend].templates["module.py.jinja"].format(name=family.name)
-    stem = target.removesuffix(".py")
+    stem = f"{family.name}_{backend}" if backend != "numpy" else family.name
     module = shipped_module(stem, family.sha256, FORMAT)
     if module is not None:
         return module
+    from .codegen import BACKENDS, render_spec  # SymPy and jinja2: only to generate
+
+    target = BACKENDS[backend].templates["module.py.jinja"].format(name=family.name)
+    assert target == f"{stem}.py", target
     key = cache_key(family.sha256, generator_fingerprint())
     folder = cache_dir() / key
     text = render_spec(family, [backend])[target]

@@ -151,7 +151,7 @@ def render_report(record: dict, *, measures: np.ndarray | None = None,
     return page.render(rec=record, row=row, count=count, figures=figs, notes=notes,
                        title=title or record.get("data") or "result", num=_num,
                        options=_options(record), estimate=_estimate(record),
-                       version=_version())
+                       pinned=_pinned(record), version=_version())
 
 
 def write_report(out: str | Path, result: str | Path | None = None, *,
@@ -232,18 +232,30 @@ def _options(record: dict) -> list[tuple[str, str]]:
             for n in names if n in record]
 
 
-def _estimate(record: dict) -> list[tuple[str, str, str]]:
+def _estimate(record: dict) -> list[tuple[str, str, str, str]]:
+    """(name, value, std, unit) of each estimated component and derived quantity; the
+    components the model pins are no estimates (:func:`_pinned`)."""
     params = {**(record.get("params") or {}), **(record.get("slacks") or {})}
-    std = record.get("std") or {}
-    rows = [(n, _num(v), _num(std.get(n)) if n in std else "") for n, v in params.items()]
+    std, pinned = record.get("std") or {}, record.get("pinned") or {}
+    units = record.get("units") or {}
+    rows = [(n, _num(v), _num(std.get(n)) if n in std else "", units.get(n, ""))
+            for n, v in params.items() if n not in pinned]
     for name, d in (record.get("derived") or {}).items():
         value, sd = np.asarray(d["value"], dtype=object), np.asarray(d["std"], dtype=object)
+        unit = units.get(name, "")
         if value.ndim == 0:
-            rows.append((name, _num(value.item()), _num(sd.item())))
+            rows.append((name, _num(value.item()), _num(sd.item()), unit))
             continue
         for index in np.ndindex(value.shape):
-            rows.append((f"{name}{list(index)}", _num(value[index]), _num(sd[index])))
+            rows.append((f"{name}{list(index)}", _num(value[index]), _num(sd[index]), unit))
     return rows
+
+
+def _pinned(record: dict) -> str:
+    """``B = 0, ...``: what the chosen model fixes."""
+    pinned, slacks = record.get("pinned") or {}, record.get("slacks") or {}
+    return ", ".join(f"{name} = {_num(value)}" for name, value in pinned.items()
+                     if name not in slacks)
 
 
 def _version() -> str:

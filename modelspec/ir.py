@@ -82,6 +82,9 @@ class Family:
     slack_owner: tuple[str, ...] = ()  # the model each slack belongs to, same order
     #: per model, its clauses made of inequalities only (slack indices): one must hold each
     slack_clauses: tuple[tuple[str, tuple[tuple[int, ...], ...]], ...] = ()
+    #: (name, unit) of parameter components, derived quantities, constants and measured
+    #: components, as the spec's ``units:`` says (display only: nothing is converted)
+    units: tuple[tuple[str, str], ...] = ()
 
     @property
     def parameter_names(self) -> tuple[str, ...]:

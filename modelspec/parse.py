@@ -30,7 +30,9 @@ from .limits import DEFAULT, Limits
 from .yamlsrc import Located, read_yaml
 
 _TOP_KEYS = ("name", "description", "constants", "parameter", "define", "channels", "models",
-             "derived", "null_model")
+             "derived", "null_model", "units")
+#: a unit as people write it: "px", "deg", "m/s^2", "µm", "1/K", "N·m", "%"
+_UNIT = re.compile(r"[A-Za-z0-9µΩ°%²³·/^*(). -]{1,24}")
 _CHANNEL_KEYS = ("components", "exact", "equations", "description")
 _MODEL_KEYS = ("constraints", "equations", "alternatives", "derived", "initializer",
                "description")
@@ -38,8 +40,14 @@ _PHI_WORDS = ("aic", "ftest", "exp")
 _SYMPY_FUNCS = tuple(f for f in FUNCTIONS.values() if isinstance(f, type))  # sqrt is a Pow
 
 
-def load_spec(path: str | Path, limits: Limits = DEFAULT) -> Family:
+def load_spec(path: str | Path, limits: Limits = DEFAULT,
+              initializers: Mapping | None = None) -> Family:
     """Read and validate a YAML spec file (within ``limits``: :mod:`.limits`).
+
+    ``initializers`` maps the initialiser names a model may give to what each needs (an
+    object with ``missing(parameter, constants, channels) -> str``: the runtime's registry,
+    handed over as data by :func:`kanagen.load` and the command line); None leaves the
+    names unchecked here (the runtime refuses an unknown one when the family is used).
 
     Examples
     --------
@@ -57,18 +65,21 @@ def load_spec(path: str | Path, limits: Limits = DEFAULT) -> Family:
     except UnicodeDecodeError as exc:
         raise SpecError(f"the spec is not UTF-8 text ({exc.reason} at byte {exc.start})",
                         str(path)) from None
-    return parse_spec(text, source=str(path), limits=limits)
+    return parse_spec(text, source=str(path), limits=limits, initializers=initializers)
 
 
-def parse_spec(text: str, source: str = "<spec>", limits: Limits = DEFAULT) -> Family:
+def parse_spec(text: str, source: str = "<spec>", limits: Limits = DEFAULT,
+               initializers: Mapping | None = None) -> Family:
     """Validate a YAML spec given as text; ``source`` names it in errors; ``limits`` bound
-    what it may cost (:mod:`.limits`)."""
-    return _Builder(read_yaml(text, source, limits), sha256_text(text), limits).family()
+    what it may cost (:mod:`.limits`); ``initializers`` as in :func:`load_spec`."""
+    return _Builder(read_yaml(text, source, limits), sha256_text(text), limits,
+                    initializers).family()
 
 
 def family_from_data(data: Mapping, source: str = "<python>",
-                     limits: Limits = DEFAULT) -> Family:
-    """Validate a spec given as Python data: the YAML layout, with SymPy expressions or text.
+                     limits: Limits = DEFAULT, initializers: Mapping | None = None) -> Family:
+    """Validate a spec given as Python data: the YAML layout, with SymPy expressions or text
+    (``initializers`` as in :func:`load_spec`).
 
     Symbols may be given as ``sympy.Symbol`` or as names, anywhere a name is expected.
 
@@ -85,7 +96,7 @@ def family_from_data(data: Mapping, source: str = "<python>",
     """
     plain = _plain(data)
     digest = hashlib.sha256(sp.srepr(_sympy_only(plain)).encode("utf-8")).hexdigest()
-    return _Builder(Located(plain, {}, source), digest, limits).family()
+    return _Builder(Located(plain, {}, source), digest, limits, initializers).family()
 
 
 def _plain(value):
@@ -112,10 +123,12 @@ def _sympy_only(value):
 
 
 class _Builder:
-    def __init__(self, located: Located, digest: str, limits: Limits = DEFAULT):
+    def __init__(self, located: Located, digest: str, limits: Limits = DEFAULT,
+                 initializers: Mapping | None = None):
         self.src = located
         self.digest = digest
         self.limits = limits
+        self.initializers = initializers  # name -> needs (missing(...)); None: unchecked
         self.derived_names: set[str] = set()  # to say so when one uses another
 
     def error(self, message: str, *path) -> SpecError:
@@ -290,8 +303,13 @@ class _Builder:
         if null_model not in models_spec:
             raise self.error(f"null_model {null_model!r} is not a declared model", "null_model")
         self.check_reachable(models, null_model)
+        units = self.units(top.get("units"), [n for n, _ in parameter
+                                                    if n not in slack_fields.get("slack", ())]
+                           + [n for n, _ in constants] + [d.name for d in derived]
+                           + [c for ch in channels for c in ch.components])
         return Family(
             name=name,
+            units=units,
             **slack_fields,
             parameter=parameter,
             constants=constants,
@@ -486,22 +504,21 @@ class _Builder:
 
     def check_model_extras(self, models, derived, parameter, constants, channels):
         """A model's ``derived`` names declared quantities; its ``initializer`` is a name of
-        the runtime's registry whose needs (parameter, constants, channel) the family meets."""
-        from ..runtime.initializers import INITIALIZERS  # names only: never executable text
-
+        the registry handed over (names only: never executable text) whose needs
+        (parameter, constants, channel) the family meets."""
         names = {d.name for d in derived}
         for m in models:
             for i, d in enumerate(m.derived or ()):
                 if d not in names:
                     raise self.error(f"model {m.name!r} reports an unknown derived quantity "
                                      f"{d!r}", "models", m.name, "derived", i)
-            if m.initializer is None:
+            if m.initializer is None or self.initializers is None:
                 continue
             where = ("models", m.name, "initializer")
-            entry = INITIALIZERS.get(m.initializer)
+            entry = self.initializers.get(m.initializer)
             if entry is None:
                 raise self.error(f"unknown initializer {m.initializer!r} (known: "
-                                 f"{', '.join(sorted(INITIALIZERS))})", *where)
+                                 f"{', '.join(sorted(self.initializers))})", *where)
             missing = entry.missing(parameter=[n for n, _ in parameter],
                                     constants=[n for n, _ in constants],
                                     channels={c.name: c.components for c in channels})
@@ -551,6 +568,21 @@ class _Builder:
                 f"model {model.name!r} is never tried: the lattice search starts at the null "
                 f"model {null_model!r} and no chain of alternatives leads to it ({how}); "
                 f"add it to the alternatives of a model, or remove it", "models", model.name)
+
+    def units(self, value, names: list[str]) -> tuple[tuple[str, str], ...]:
+        """``units:``: a unit (text shown beside values, nothing converted) per parameter
+        component, constant, derived quantity or measured component."""
+        out = []
+        for name, unit in self.mapping(value, "units", "units").items():
+            if name not in names:
+                raise self.error(f"units: {name!r} is not a parameter component, constant, "
+                                 f"derived quantity or measured component", "units", name)
+            if not isinstance(unit, str) or not _UNIT.fullmatch(unit):
+                raise self.error(f"units: the unit of {name!r} must be short text (up to 24 "
+                                 f"letters, digits, spaces and µΩ°%²³·/^*().-), got {unit!r}",
+                                 "units", name)
+            out.append((name, unit))
+        return tuple(out)
 
     def derived(self, name, spec, base, declare) -> Derived:
         path = ("derived", name)

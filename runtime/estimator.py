@@ -47,8 +47,12 @@ class Estimator:
     Parameters
     ----------
     fam : ModelFamily
-    scale : float
-        ``L*``, the order of magnitude of an inlier's error (eq. 29).
+    scale : float, optional
+        ``L*``, the order of magnitude of an inlier's error (eq. 29). Default (None): each
+        model's from the χ² quantile of its measures' equations ``p``, ``χ²_p(0.999)/p``
+        (:func:`~kanagen.runtime.scoring.default_scale`: 10.83 for one equation per measure,
+        6.91 for two): with the right information (``info = 1/σ²``) 99.9 % of the inliers fall
+        under it. The L* each search used: :attr:`scales`.
     scorer : str or callable
         ``"relevance"`` (default), ``"ransac"``, ``"trimmed"`` or ``f(errors, scale)``.
     phi : optional
@@ -59,10 +63,17 @@ class Estimator:
     channel : str, optional
         The channel samples are drawn from (default: the only one).
     samples_per_model : int, optional
-        Samples per model (default: eq. 25 with ``confidence`` and ``inlier_ratio``).
+        Adaptive: the most samples of one model's search (default
+        :data:`~kanagen.runtime.budget.MODEL_CAP`, 5000; :meth:`run`'s ``max_samples`` and
+        ``time_budget`` bound the whole search); not adaptive: the samples of each model's
+        search (default: eq. 25 with ``confidence`` and ``inlier_ratio``).
     adaptive : bool
-        Stop a model's search as soon as eq. 25 holds for the inlier ratio of its best
-        estimate so far (at least ``min_samples`` samples); the budget above still caps it.
+        Default True: each model's search draws the samples of eq. 25 at the inlier ratio of
+        its best estimate so far, updated as samples come (as adaptive RANSAC does; at
+        least ``min_samples``; :class:`~kanagen.runtime.budget.SampleBudget`): fewer than
+        the assumed ``inlier_ratio`` asks on easy data, more on hard data. False: eq. 25 at
+        the assumed ``inlier_ratio`` (0.5) for every model, whatever the data.
+        :attr:`planned` is the samples the search plans in all so far.
     q0, Q0, constants : the prior and the constants, as for :func:`kanagen.fit`.
     model : str, optional
         Search this model only (no lattice); default: the lattice from the null model.
@@ -81,18 +92,18 @@ class Estimator:
     Examples
     --------
     >>> import numpy as np, kanagen
-    >>> est = kanagen.Estimator(kanagen.load("line"), scale=4.0, seed=0)
+    >>> est = kanagen.Estimator(kanagen.load("line"), seed=0)
     >>> x = np.linspace(0, 10, 40)
     >>> ids = est.add_measures("point", np.c_[x, 0.5 * x + 3], info=100.0)
     >>> best = est.run(max_samples=200)
-    >>> best.model, round(best.params["a"], 3)
-    ('line', 0.5)
+    >>> best.model, round(best.params["a"], 3), round(est.scales["line"], 2)
+    ('line', 0.5, 10.83)
     """
 
-    def __init__(self, fam: ModelFamily, scale: float = 1.0,
+    def __init__(self, fam: ModelFamily, scale: float | None = None,
                  scorer: str | Callable = "relevance", phi=None, seed: int | None = 0,
                  channel: str | None = None, samples_per_model: int | None = None,
-                 confidence: float = 0.99, inlier_ratio: float = 0.5, adaptive: bool = False,
+                 confidence: float = 0.99, inlier_ratio: float = 0.5, adaptive: bool = True,
                  min_samples: int = 20, window: float = 0.35,
                  q0=None, Q0=None, constants=None, model: str | None = None,
                  initializers: dict | None = None, local: float = 0.0,
@@ -104,7 +115,10 @@ class Estimator:
         if phi is not None:
             get_phi(phi)
         self.fam = fam
-        self.scale = float(scale)
+        #: L* as given (None: each model's default, :attr:`scales`)
+        self.scale = None if scale is None else float(scale)
+        #: the L* of each model searched so far (the one given, or the model's default)
+        self.scales: dict[str, float] = {}
         self.scorer = scorer
         self.phi = phi
         self.seed = seed
@@ -116,7 +130,7 @@ class Estimator:
         if not 0.0 <= local <= 1.0:
             raise ValueError(f"local must be a fraction in [0, 1], got {local}")
         self.local = float(local)
-        if max_threshold is not None and not max_threshold >= scale:
+        if max_threshold is not None and scale is not None and not max_threshold >= scale:
             raise ValueError(f"max_threshold must be at least scale (L* = {scale}), got "
                              f"{max_threshold}")
         self.max_threshold = max_threshold
@@ -138,6 +152,7 @@ class Estimator:
         self._running = threading.Event()
         self._running.set()
         self._stopped = False
+        self._horizon: int | None = None  # in a run(): the samples drawn when it stops
         self._on_model: list[Callable] = []
         self._on_done: list[Callable] = []
         self._pending: list[tuple[Callable, object]] = []  # callbacks to call, lock released
@@ -229,6 +244,21 @@ class Estimator:
         budget = self._samples + max_samples
         batch = _BATCH if no_gain is None and until is None else 1
         reason = None
+        self._horizon = budget  # adaptive budgets share what is left of it (_share)
+        try:
+            reason = self._run(budget, batch, started, time_budget, no_gain, until)
+        finally:
+            self._horizon = None
+        if reason is not None and not self._done:
+            base = self.status.split("; ", 1)[1] if self.status.startswith("paused (") \
+                else self.status
+            self.status = f"paused ({reason}); {base}"
+        return self.best()
+
+    def _run(self, budget: int, batch: int, started: float, time_budget: float | None,
+             no_gain: int | None, until: Callable | None) -> str | None:
+        """:meth:`run`'s loop: the reason it paused, or None when the search is done."""
+        reason = None
         while reason is None:
             if self._samples >= budget:
                 reason = "sample budget"
@@ -251,16 +281,29 @@ class Estimator:
                 reason = f"no gain in {no_gain} samples"
             elif until is not None and until(self.history):
                 reason = "until()"
-        if reason is not None and not self._done:
-            base = self.status.split("; ", 1)[1] if self.status.startswith("paused (") \
-                else self.status
-            self.status = f"paused ({reason}); {base}"
-        return self.best()
+        return reason
 
     @property
     def samples(self) -> int:
         """Random samples drawn so far."""
         return self._samples
+
+    @property
+    def planned(self) -> int:
+        """The samples the search plans in all, as far as it knows now: those drawn, the rest
+        of the current model's budget (it moves as the budget adapts to the inlier ratio of
+        the best estimate), and at least ``min_samples`` for each model queued (the lattice
+        queues a model's more general ones when it is done). Equal to :attr:`samples` once
+        the search is done."""
+        with self._lock:
+            total = self._samples
+            if self._search is not None:
+                _, _, search, budget, cap, least = self._search
+                total += max(self.budget.now(search, budget, cap, least) - search.samples, 0)
+            if not self._done:
+                total += sum(1 if self.fam.free_dof(m, self._constants) == 0 else
+                             self.budget.min_samples for m, _, _ in self._queue)
+            return total
 
     def step(self) -> bool:
         """One unit of work (usually one random sample). False when nothing is left to do."""
@@ -312,7 +355,9 @@ class Estimator:
         self._root = self.model or self.fam.null_model
         self._queue: list[tuple[str, str | None, np.ndarray | None]] = [
             (self._root, None, None)]
-        self._search: tuple[str, str | None, ModelSearch, int] | None = None
+        # (model, parent, search, budget, the most it may grow to, the inliers it must
+        # reach to matter: SampleBudget.now)
+        self._search: tuple[str, str | None, ModelSearch, int, int | None, int] | None = None
         self._samples = 0
         self._done = False
         self._measures.invalidate()
@@ -335,7 +380,8 @@ class Estimator:
         return ModelState(self._root, None, self.fam.params_dict(self.q0),
                           self.q0.copy(), self.Q0.copy(), np.full((n, n), np.inf),
                           np.zeros(0, int), np.zeros(0, int), np.inf, 0, 0.0, 0, np.inf, True,
-                          status="null")
+                          status="null", units=self.fam.units,
+                          pinned=self.fam.pinned(self._root))
 
     def _problem_for(self, model: str) -> tuple[Problem, list[np.ndarray], int]:
         """The model's problem, the measure ids per channel, the sampled channel's index."""
@@ -360,8 +406,8 @@ class Estimator:
         if self._search is None and not self._start_next():
             self._finish()
             return False
-        model, parent, search, budget = self._search
-        limit = self.budget.limit(search, budget, batch)
+        model, parent, search, budget, cap, least = self._search
+        limit = self.budget.limit(search, budget, batch, cap, least)
         before, previous = search.samples, self.history[-1][1] if self.history else -np.inf
         level = max(previous, self._best_relevance(search))
         search.step(limit)
@@ -369,7 +415,7 @@ class Estimator:
         self.history.extend((self._samples + i, level) for i in range(1, done))
         self._samples += done
         self.history.append((self._samples, max(previous, self._best_relevance(search))))
-        if search.samples >= self.budget.now(search, budget) or search.exhausted:
+        if search.samples >= self.budget.now(search, budget, cap, least) or search.exhausted:
             self._search = None
             self._conclude(model, parent, search)
         return True
@@ -417,14 +463,33 @@ class Estimator:
                 self._skipped[model] = parent
                 self._queue_alternatives(model)
                 continue
+            self.scales[model] = search.scale
             budget = self._budget(search, parent_state)
+            cap = self._share(budget) if self.fam.free_dof(model, self._constants) > 0 \
+                else budget
             if resume is not None:  # re-queued: resume from its estimate, a few more samples
                 search.seed_estimate(resume)
-                budget = max(1, budget // _RESUME_FRACTION)
-            self._search = (model, parent, search, budget)
+                budget = cap = max(1, budget // _RESUME_FRACTION)
+            # a model that explains fewer than this is chosen by no one (lattice.select)
+            least = int(max((s.inliers.size for s in self._states.values()
+                             if s.accepted and s.samples), default=0) / lattice.MORE_SUPPORT)
+            self._search = (model, parent, search, budget, cap, least)
             self.status = f"searching {model}"
             return True
         return False
+
+    def _share(self, budget: int) -> int | None:
+        """The most samples an adaptive budget may grow to, within a :meth:`run`: an equal
+        share of its samples left among this model and the models of the lattice not yet
+        searched — a model that fits next to nothing of the data (a plane among the matches
+        of a 3-D scene) asks eq. 25 for tens of thousands, and would leave the rest of the
+        lattice none — but not less than ``budget``, eq. 25 at the assumed inlier ratio (a
+        short run still searches each model as a fixed budget would); None outside a run
+        (then :data:`~kanagen.runtime.budget.MODEL_CAP`)."""
+        if self._horizon is None or not self.budget.adaptive:
+            return None
+        left = len(self._reachable - set(self._states) - set(self._skipped))
+        return max(budget, (self._horizon - self._samples) // max(left, 1))
 
     def _conclude(self, model: str, parent: str | None, search: ModelSearch) -> None:
         self._from_parent(parent, search)
@@ -535,7 +600,7 @@ class Estimator:
                            est.fit.derived,
                            "estimated" if est.fit.success else est.fit.message,
                            est.fit.slacks, scored[order], errors[order],
-                           est.fit.equations)
+                           est.fit.equations, est.fit.units, est.fit.pinned)
         if parent is not None:
             p = self._states.get(parent)
             if p is not None and p.samples and np.isfinite(p.normalized_cost):

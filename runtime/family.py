@@ -103,6 +103,8 @@ class ModelFamily:
             for name, m in meta["models"].items()
         }
         self.derived_shapes = {k: tuple(v) for k, v in meta["derived"].items()}
+        #: the spec's ``units:`` (name -> unit text; display only)
+        self.units: dict[str, str] = dict(meta.get("units", {}))
         self.null_model: str = meta["null_model"]
         #: Components added for inequalities (appendix F), last in q; not "the parameter".
         self.slack_names = tuple(meta.get("slack", ()))
@@ -250,6 +252,17 @@ class ModelFamily:
         """``q = T r + t`` for ``model`` when its linear constraints are eliminated (report
         §6, :mod:`kanagen.codegen.eliminate`): only with ``eliminate_linear=True``."""
         return self._reductions.get(model) if self.eliminate_linear else None
+
+    def pinned(self, model: str) -> dict[str, float]:
+        """The components of q ``model``'s linear constraints fix to a value (a circle's
+        ``B = 0``; the slacks of the other models' inequalities): not estimates, so results
+        list them apart."""
+        r = self._reductions.get(model)
+        if r is None:
+            return {}
+        fixed = ~np.any(r.T != 0.0, axis=1)
+        return {name: float(r.t[i]) for i, name in enumerate(self.parameter_names)
+                if fixed[i]}
 
     def free_dof(self, model: str, constants=None) -> int:
         """``n − p``: the degrees of freedom ``model``'s constraints leave free, ``p`` their

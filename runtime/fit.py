@@ -187,6 +187,8 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
         ranks={ch.name: r for ch, r in zip(problem.channels, ranks, strict=True)},
         derived=derived_values(fam, x.q, covariance, problem.k, model),
         slacks=fam.slack_dict(x.q),
+        units=fam.units,
+        pinned=fam.pinned(model),
     )
 
 

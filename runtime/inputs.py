@@ -254,7 +254,7 @@ def check_search_options(*, scale, seed=0, samples_per_model=None, confidence=0.
     def number(value) -> bool:
         return not isinstance(value, bool) and isinstance(value, int | float | np.number)
 
-    if not (number(scale) and 0 < scale < np.inf):
+    if scale is not None and not (number(scale) and 0 < scale < np.inf):
         raise ValueError(f"scale (L*) must be a positive finite number, got {scale!r}")
     if not (number(confidence) and 0 < confidence < 1):
         raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")

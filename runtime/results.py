@@ -213,7 +213,8 @@ class ResultProtocol:
                  f"{self.normalized_cost:.6g}",
                  f"  chi2 = {self.chi2:.6g}, nu = {nu}, chi2/nu = {self.reduced_chi2:.4g}, "
                  f"p = {self.chi2_pvalue:.3g}"]
-        lines += estimate_lines(self.params, self.slacks, np.asarray(self.std), self.derived)
+        lines += estimate_lines(self.params, self.slacks, np.asarray(self.std), self.derived,
+                                self.units, self.pinned)
         return "\n".join(lines)
 
     def __repr__(self) -> str:
@@ -276,6 +277,8 @@ class FitResult(ResultProtocol):
     ranks: dict[str, np.ndarray] = field(default_factory=dict)
     derived: dict[str, DerivedValue] = field(default_factory=dict)
     slacks: dict[str, float] = field(default_factory=dict)  # appendix F's added components
+    units: dict[str, str] = field(default_factory=dict)  # the spec's units: (display only)
+    pinned: dict[str, float] = field(default_factory=dict)  # components the model fixes
 
     @property
     def equations(self) -> int:
@@ -287,24 +290,36 @@ class FitResult(ResultProtocol):
                 f"residual E^2 = {self.residual:.3g}")
 
 
-def estimate_lines(params: dict, slacks: dict, std, derived: dict) -> list[str]:
-    """Lines ``name = value ± std`` for the parameter, then its slack components (appendix
-    F; ``std`` covers both, slacks last), then the derived quantities."""
+def estimate_lines(params: dict, slacks: dict, std, derived: dict,
+                   units: dict | None = None, pinned: dict | None = None) -> list[str]:
+    """Lines ``name = value ± std unit`` for the parameter, then its slack components
+    (appendix F; ``std`` covers both, slacks last), then the derived quantities; the
+    components the model pins (``pinned``) are no estimates: one line names them last."""
     std = np.asarray(std, dtype=float)
+    units, pinned = units or {}, pinned or {}
     values = {**params, **slacks}
-    width = max((len(k) for k in values), default=0)
+    width = max((len(k) for k in values if k not in pinned), default=0)
     lines = []
     for i, (name, value) in enumerate(values.items()):
+        if name in pinned:
+            continue
         tag = "  (slack)" if name in slacks else ""
-        lines.append(f"  {name:<{width}} = {value: .10g}  ± {std[i]:.3g}{tag}")
+        unit = f" {units[name]}" if name in units else ""
+        lines.append(f"  {name:<{width}} = {value: .10g}  ± {std[i]:.3g}{unit}{tag}")
     for name, d in derived.items():
         value = np.asarray(d.value)
+        unit = f" {units[name]}" if name in units else ""
         if value.ndim == 0:
-            lines.append(f"  {name} = {float(value): .10g}  ± {float(d.std):.3g}")
+            lines.append(f"  {name} = {float(value): .10g}  ± {float(d.std):.3g}{unit}")
         else:
-            lines.append(f"  {name} =\n" + _indent(np.array2string(value, precision=6)))
+            lines.append(f"  {name}{f' ({units[name]})' if unit else ''} =\n"
+                         + _indent(np.array2string(value, precision=6)))
             lines.append(f"  {name} std =\n" + _indent(np.array2string(np.asarray(d.std),
                                                                           precision=3)))
+    shown = {name: value for name, value in pinned.items() if name not in slacks}
+    if shown:
+        lines.append("  pinned by the model (not estimated): " + ", ".join(
+            f"{name} = {value:.10g}" for name, value in shown.items()))
     return lines
 
 
@@ -343,6 +358,8 @@ class ModelState(ResultProtocol):
     measure_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
     equations: int = 0  # Σ pᵢ of the fit on the inliers
+    units: dict[str, str] = field(default_factory=dict)  # the spec's units: (display only)
+    pinned: dict[str, float] = field(default_factory=dict)  # components the model fixes
 
     @property
     def estimated(self) -> bool:

@@ -22,11 +22,12 @@ from .fastsample import draws_as_numpy, sampler_for
 from .fit import fit_problem, make_problem
 from .initializers import InitializerFn, equivalent, model_initializers, start_from
 from .inputs import check_search_options
+from .iterate import CONVERGED, UNVERIFIED
 from .minimal import coherence_errors, manifold_ranks, minimal_solve_problem
 from .projector import Problem
 from .refine import Refinement
 from .results import FitResult, ResultProtocol
-from .scoring import relevance, samples_for_confidence
+from .scoring import default_scale, relevance, samples_for_confidence
 from .scoring import scorer as get_scorer
 
 _NEIGHBOURHOOD = 4  # a local sample is drawn among this many sample sizes of nearest measures
@@ -49,6 +50,7 @@ class RobustEstimate(ResultProtocol):
     samples: int
     degenerate: int
     history: list[tuple[int, float]] = field(default_factory=list)  # (samples, best score)
+    scale: float | None = None  # the L* of the search (given, or its default)
 
     @property
     def q(self) -> np.ndarray:
@@ -73,6 +75,14 @@ class RobustEstimate(ResultProtocol):
     @property
     def derived(self) -> dict:
         return self.fit.derived
+
+    @property
+    def units(self) -> dict[str, str]:
+        return self.fit.units
+
+    @property
+    def pinned(self) -> dict[str, float]:
+        return self.fit.pinned
 
     @property
     def cost(self) -> float:
@@ -118,6 +128,9 @@ class ModelSearch:
         Index of the sampled channel in ``problem.channels``.
     start : ndarray
         Starting value of the minimal solves (the parent's estimate, or q0).
+    scale : float, optional
+        ``L*``; default (None): :func:`~kanagen.runtime.scoring.default_scale` of the fewest
+        equations per measure among the channels (``χ²_p(0.999) / p``, :attr:`scale`).
     pool : ndarray, optional
         Measures of the sampled channel that samples may use (default all).
     sample_size : int, optional
@@ -144,7 +157,7 @@ class ModelSearch:
     """
 
     def __init__(self, fam: ModelFamily, model: str, problem: Problem, channel: int,
-                 start: np.ndarray, rng: np.random.Generator, scale: float = 1.0,
+                 start: np.ndarray, rng: np.random.Generator, scale: float | None = None,
                  scorer: str | Callable = "relevance", pool: np.ndarray | None = None,
                  sample_size: int | None = None, parent_free: int | None = None,
                  base: np.ndarray | None = None, initializer: InitializerFn | None = None,
@@ -159,13 +172,14 @@ class ModelSearch:
         self.channel = channel
         self.start = fam.with_slacks(np.asarray(start, dtype=float), problem.k, model)
         self.rng = rng
-        self.scale = float(scale)
         self.score_fn = get_scorer(scorer)
         self.initializer = initializer
         self.equivalent = equivalent(initializer)
         self._constants = dict(zip(fam.constant_names, problem.k.tolist(), strict=True))
         # equations per measure, per channel (the caller's when it has them already)
         self.ranks = manifold_ranks(problem, self.start) if ranks is None else ranks
+        #: L*: the one given, else the χ² quantile of the measures' equations
+        self.scale = float(scale) if scale is not None else default_scale(self.equations)
         size = problem.channels[channel].size
         self.pool = np.arange(size) if pool is None else np.asarray(pool, dtype=int)
         self.sample_size = sample_size or self._minimal(parent_free)
@@ -202,6 +216,14 @@ class ModelSearch:
         self._needed: tuple = (None, None, None)  # samples_needed of the best estimate
         self.history: list[tuple[int, float]] = []
 
+    @property
+    def equations(self) -> int:
+        """The fewest independent equations of a measure among the channels with measures
+        (the ``p`` of the default ``L*``: the largest of the channels' quantiles)."""
+        counts = [max(int(r), 1) for r, ch in zip(self.ranks, self.problem.channels,
+                                                  strict=True) if ch.size]
+        return min(counts, default=max(int(self.ranks[self.channel]), 1))
+
     def _equations_per_measure(self) -> int:
         """Independent equations of one measure (on its equations' zero set)."""
         return max(self.ranks[self.channel], 1)
@@ -220,21 +242,23 @@ class ModelSearch:
         self.best_errors = errors
         self.best_score = self.score_fn(np.concatenate(errors), self.scale)
 
-    def samples_needed(self, confidence: float) -> int | None:
+    def samples_needed(self, confidence: float, floor: float = 0.0) -> int | None:
         """Eq. 25 with the inlier fractions (errors below ``L*``) of the best estimate so far
-        in the pools the samples are drawn from — adaptive stopping (None before any
-        estimate, or when no sample can be all inliers)."""
+        in the pools the samples are drawn from — adaptive budgets (None before any
+        estimate, or when no sample can be all inliers). ``floor``: the least inlier
+        fraction of the pool planned for (a structure with fewer would not matter)."""
         if self.best_errors is None or not self.pool.size:
             return None
-        if self._needed[0] is self.best_errors and self._needed[1] == confidence:
+        key = (confidence, floor)
+        if self._needed[0] is self.best_errors and self._needed[1] == key:
             return self._needed[2]  # the best estimate has not changed since
-        needed = self._samples_needed(confidence)
-        self._needed = (self.best_errors, confidence, needed)
+        needed = self._samples_needed(confidence, floor)
+        self._needed = (self.best_errors, key, needed)
         return needed
 
-    def _samples_needed(self, confidence: float) -> int | None:
+    def _samples_needed(self, confidence: float, floor: float = 0.0) -> int | None:
         good = self.best_errors[self.channel] < self.scale
-        p = float(np.mean(good[self.pool])) ** self.sample_size
+        p = max(float(np.mean(good[self.pool])), min(floor, 1.0)) ** self.sample_size
         if self.base_size:
             p *= float(np.mean(good[self.base])) ** self.base_size
         if p <= 0.0:
@@ -375,9 +399,17 @@ class ModelSearch:
             rows if i == self.channel else np.zeros(0, dtype=int)
             for i in range(len(self.problem.channels))))
         for start in starts:
-            if self.overdetermined:
-                fit = fit_problem(self.fam, self.model, sample, q_start=start, max_iter=20)
-                if fit.success and np.all(np.isfinite(fit.q)):
+            if self.overdetermined and self.initializer is not None:
+                # a closed form on an over-determined sample is its least-squares hypothesis
+                # already (LO and the final rounds refine the best): kept on the constraints
+                c0 = self.problem.c0(start, self.problem.k)[0]
+                if np.all(np.isfinite(start)) and np.max(np.abs(c0), initial=0.0) <= 1e-8:
+                    out.append(start)
+                continue
+            if self.overdetermined:  # a hypothesis, scored next: its end is not verified
+                fit = fit_problem(self.fam, self.model, sample, q_start=start, max_iter=20,
+                                  verify=False)
+                if fit.status in (CONVERGED, UNVERIFIED) and np.all(np.isfinite(fit.q)):
                     out.append(fit.q)
                 continue
             sol = minimal_solve_problem(sample, start)
@@ -454,21 +486,29 @@ class ModelSearch:
             samples=self.samples,
             degenerate=self.degenerate,
             history=list(self.history),
+            scale=self.scale,
         )
 
 def robust_fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
-               info: Mapping | None = None, *, channel: str | None = None, scale: float = 1.0,
-               scorer: str | Callable = "relevance", seed: int | None = 0,
-               max_samples: int = 500, confidence: float | None = None,
-               inlier_ratio: float | None = None, no_gain: int | None = None,
+               info: Mapping | None = None, *, channel: str | None = None,
+               scale: float | None = None, scorer: str | Callable = "relevance",
+               seed: int | None = 0, max_samples: int = 500, confidence: float | None = None,
+               inlier_ratio: float | None = None, adaptive: bool = False,
+               min_samples: int = 20, no_gain: int | None = None,
                time_budget: float | None = None, stop: Callable | None = None,
                window: float = 0.35, q0=None, Q0=None, constants=None,
                initializers: dict | None = None) -> RobustEstimate | None:
     """Robust estimate of one model: random minimal samples, threshold, refinement.
 
+    ``scale``: ``L*``; default: the χ² quantile of the measures' equations
+    (:func:`~kanagen.runtime.scoring.default_scale`), said in the result's ``scale``.
+
     Stopping: ``max_samples``; eq. 25 when ``confidence`` and ``inlier_ratio`` are given;
-    ``no_gain`` samples without a better estimate; ``time_budget`` seconds; or
-    ``stop(history)`` returning True (history: list of (samples, best score)).
+    else, ``adaptive``, eq. 25 at the inlier ratio of the best estimate so far (``confidence``
+    default 0.99; at least ``min_samples``; off by default: ``max_samples`` is this search's
+    budget, where the :class:`Estimator` adapts each model's); ``no_gain`` samples without a
+    better estimate; ``time_budget`` seconds; or ``stop(history)`` returning True (history:
+    list of (samples, best score)).
     ``initializers``: ``{model: name or callable or None}`` over the spec's closed-form
     initializer (see :class:`~kanagen.Estimator`).
 
@@ -480,11 +520,11 @@ def robust_fit(fam: ModelFamily, model: str | None = None, data: Mapping | None 
     >>> xy = np.c_[x, 2 * x + 1 + rng.normal(0, 0.1, 60)]
     >>> xy[:15, 1] += rng.choice([-1, 1], 15) * rng.uniform(3, 20, 15)  # 25 % outliers
     >>> est = kanagen.robust_fit(kanagen.load("line"), "line", data={"point": xy},
-    ...                          info={"point": 100.0}, scale=4.0, max_samples=100)
+    ...                          info={"point": 100.0}, max_samples=100)
     >>> sorted(set(range(15)) & set(est.inliers["point"]))
     []
-    >>> round(est.params["a"], 1)
-    2.0
+    >>> round(est.params["a"], 1), round(est.scale, 2)  # the default L* of one equation
+    (2.0, 10.83)
     """
     model = model or fam.null_model
     problem = make_problem(fam, model, {} if data is None else data, info, q0, Q0, constants)
@@ -498,17 +538,24 @@ def robust_fit(fam: ModelFamily, model: str | None = None, data: Mapping | None 
     check_search_options(scale=scale, seed=seed, max_samples=max_samples,
                          confidence=0.99 if confidence is None else confidence,
                          inlier_ratio=0.5 if inlier_ratio is None else inlier_ratio,
-                         window=window)
+                         window=window, min_samples=min_samples)
     search = ModelSearch(fam, model, problem, names.index(channel), problem.q0,
                          np.random.default_rng(seed), scale, scorer,
                          initializer=model_initializers(fam, initializers).get(model))
     budget = max_samples
-    if confidence is not None and inlier_ratio is not None:
+    fixed = confidence is not None and inlier_ratio is not None
+    if fixed:
         budget = min(budget, samples_for_confidence(confidence, inlier_ratio,
                                                     search.sample_size))
+
+    def planned() -> int:  # adaptive: eq. 25 at the best estimate's inlier ratio
+        needed = None if fixed or not adaptive else \
+            search.samples_needed(0.99 if confidence is None else confidence)
+        return budget if needed is None else min(budget, max(needed, min_samples))
+
     started = time.perf_counter()
     since_gain = 0
-    while search.samples < budget and not search.exhausted:
+    while search.samples < planned() and not search.exhausted:
         since_gain = 0 if search.step() else since_gain + 1
         if no_gain is not None and since_gain >= no_gain:
             break

@@ -8,11 +8,46 @@ threshold).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 
 import numpy as np
 
 Scorer = Callable[[np.ndarray, float], float]
+
+#: The χ² quantile of the default ``L*`` (:func:`default_scale`): an inlier's error falls
+#: under ``L*`` with this probability when the information is right (``info = 1/σ²``).
+SCALE_QUANTILE = 0.999
+
+
+def default_scale(equations: int, quantile: float | None = None) -> float:
+    """The default ``L*`` of a measure of ``equations`` independent equations (``p`` of
+    eq. 24): ``χ²_p(quantile) / p``.
+
+    An inlier's error (eq. 24) is ``‖m̃ − m‖²_Q / p``; with the right information
+    (``info = 1/σ²``) ``‖m̃ − m‖²_Q`` is χ² with ``p`` degrees of freedom to first order, so
+    an inlier's error falls under this ``L*`` with probability ``quantile``: 10.83 for one
+    equation (a point on a conic, an epipolar constraint), 6.91 for two (a homography's
+    transfer), at the default :data:`SCALE_QUANTILE` 0.999 (``quantile`` None).
+
+    Examples
+    --------
+    >>> round(default_scale(1), 2), round(default_scale(2), 2)
+    (10.83, 6.91)
+    """
+    if not (isinstance(equations, int | np.integer) and equations >= 1):
+        raise ValueError(f"equations per measure must be an integer >= 1, got {equations!r}")
+    quantile = SCALE_QUANTILE if quantile is None else float(quantile)
+    if not 0.0 < quantile < 1.0:
+        raise ValueError(f"the quantile of L* must be in (0, 1), got {quantile!r}")
+    return _chi2_scale(int(equations), quantile)
+
+
+@functools.lru_cache(maxsize=32)
+def _chi2_scale(equations: int, quantile: float) -> float:
+    from scipy.stats import chi2  # lazily: `import kanagen` stays light
+
+    return float(chi2.ppf(quantile, equations) / equations)
 
 
 def relevance(errors: np.ndarray, scale: float) -> float:

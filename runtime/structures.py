@@ -61,9 +61,10 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
         structure and ``τ`` the ceiling ``max_threshold`` (else ``2 L*``) — the truncated
         error of MSAC (Torr & Zisserman 2000) summed over the structures. Default 1.
     options : the :class:`Estimator` options (``scale``, ``scorer``, ``phi``, ``seed``,
-        ``channel``, ``constants``, ``max_threshold``, ...). Structures close to one another
-        make no minimum in the error histogram between them: ``max_threshold`` (e.g. twice
-        ``scale``) keeps one from taking its neighbours.
+        ``channel``, ``constants``, ``max_threshold``, ...). ``scale`` (``L*``) defaults to
+        each structure's model's χ² quantile, as the :class:`Estimator`'s. Structures close
+        to one another make no minimum in the error histogram between them:
+        ``max_threshold`` (e.g. twice ``L*``) keeps one from taking its neighbours.
 
     Returns
     -------
@@ -72,7 +73,7 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
         arrays given (ids follow the rows of ``data``, channel after channel). A measure is
         an inlier of one structure at most.
     """
-    check_search_options(scale=options.get("scale", 1.0), seed=options.get("seed", 0),
+    check_search_options(scale=options.get("scale"), seed=options.get("seed", 0),
                          max_samples=max_samples)
     if not (isinstance(max_structures, int) and max_structures >= 1):
         raise ValueError(f"max_structures must be an integer >= 1, got {max_structures!r}")
@@ -86,15 +87,15 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
     seed = options.pop("seed", 0)
     best, best_energy = [], np.inf
     for r in range(restarts):
-        found, needed = _extract(fam, data, info, max_structures, model, min_inliers,
-                                 max_samples, local, retries,
-                                 None if seed is None else seed + _RESTART_SEEDS * r, options)
+        found, needed, scales = _extract(
+            fam, data, info, max_structures, model, min_inliers, max_samples, local, retries,
+            None if seed is None else seed + _RESTART_SEEDS * r, options)
         if reassign and found:
-            found = _assign(fam, data, info, found, needed, reassign, options)
+            found, scales = _assign(fam, data, info, found, needed, scales, reassign, options)
         if restarts == 1:
             best = found
             break
-        energy = _energy(fam, data, info, found, options)
+        energy = _energy(fam, data, info, found, scales, options)
         if energy < best_energy:
             best, best_energy = found, energy
     return sorted(best, key=lambda s: -len(s.inliers))
@@ -103,14 +104,16 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
 def _extract(fam: ModelFamily, data: Mapping, info: Mapping, max_structures: int,
              model: str | None, min_inliers: int | None, max_samples: int, local: float,
              retries: int, seed: int | None, options: Mapping,
-             ) -> tuple[list[ModelState], list[int]]:
-    """The greedy extraction: find a structure, take its inliers out, search again."""
+             ) -> tuple[list[ModelState], list[int], list[float]]:
+    """The greedy extraction: find a structure, take its inliers out, search again. Returns
+    the structures, the inliers each needs, and the L* of each."""
     sizes = {name: len(np.asarray(rows)) for name, rows in data.items()}
     offsets = dict(zip(sizes, np.cumsum([0] + list(sizes.values()))[:-1].tolist(),
                        strict=True))
     remaining = {name: np.arange(size) for name, size in sizes.items()}
     found: list[ModelState] = []
     needed: list[int] = []
+    scales: list[float] = []
     attempt, failures = 0, 0
     while len(found) < max_structures:
         est = Estimator(fam, model=model, seed=None if seed is None else seed + attempt,
@@ -139,16 +142,18 @@ def _extract(fam: ModelFamily, data: Mapping, info: Mapping, max_structures: int
         state = replace(best, inliers=index[best.inliers], outliers=index[best.outliers])
         found.append(state)
         needed.append(need)
+        scales.append(est.scales.get(best.model, est.scale or 1.0))
         for name, rows in remaining.items():
             remaining[name] = rows[~np.isin(offsets[name] + rows, state.inliers)]
-    return found, needed
+    return found, needed, scales
 
 
 def _energy(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelState],
-            options: Mapping) -> float:
+            scales: list[float], options: Mapping) -> float:
     """``Σᵢ min(eᵢ, τ)``: each measure's error to its closest structure, truncated at the
-    ceiling ``τ`` (an outlier costs ``τ``)."""
-    ceiling = options.get("max_threshold") or 2.0 * float(options.get("scale", 1.0))
+    ceiling ``τ`` (an outlier costs ``τ``): ``max_threshold``, else twice the largest L*
+    of the structures."""
+    ceiling = options.get("max_threshold") or 2.0 * max(scales, default=1.0)
     size = sum(len(np.asarray(rows)) for rows in data.values())
     closest = np.full(size, np.inf)
     for state in found:
@@ -159,10 +164,11 @@ def _energy(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelSta
 
 
 def _assign(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelState],
-            needed: list[int], rounds: int, options: Mapping) -> list[ModelState]:
-    """Assign each measure to its best structure, refit, until stable (PEARL's steps)."""
+            needed: list[int], scales: list[float], rounds: int, options: Mapping,
+            ) -> tuple[list[ModelState], list[float]]:
+    """Assign each measure to its best structure, refit, until stable (PEARL's steps).
+    Returns the structures kept and their L*."""
     constants = options.get("constants")
-    scale = float(options.get("scale", 1.0))
     window = options.get("window", 0.35)
     score = get_scorer(options.get("scorer", "relevance"))
     problems = {}
@@ -185,8 +191,8 @@ def _assign(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelSta
         if np.array_equal(new, owner):
             break
         owner = new
-        kept, kept_needed = [], []
-        for k, (state, need) in enumerate(zip(found, needed, strict=True)):
+        kept, kept_needed, kept_scales = [], [], []
+        for k, (state, need, scale) in enumerate(zip(found, needed, scales, strict=True)):
             rows = np.flatnonzero(owner == k)
             if rows.size <= need:
                 continue  # a structure the others explain better is dropped
@@ -198,6 +204,7 @@ def _assign(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelSta
             if not np.all(np.isfinite(fit.q)):
                 kept.append(state)
                 kept_needed.append(need)
+                kept_scales.append(scale)
                 continue
             all_errors = np.concatenate(coherence_errors(prob, fit.q))
             kept.append(replace(
@@ -208,13 +215,14 @@ def _assign(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelSta
                                             options.get("max_threshold")),
                 relevance=score(all_errors, scale), inliers=rows))
             kept_needed.append(need)
+            kept_scales.append(scale)
         if not kept:
             break
-        found, needed = kept, kept_needed
+        found, needed, scales = kept, kept_needed, kept_scales
         owner = _owners(len(found), bounds[-1], [s.inliers for s in found])
     everything = np.arange(bounds[-1])
     return [replace(s, inliers=np.sort(s.inliers),
-                    outliers=np.setdiff1d(everything, s.inliers)) for s in found]
+                    outliers=np.setdiff1d(everything, s.inliers)) for s in found], scales
 
 
 def _owners(count: int, size: int, inliers: list[np.ndarray]) -> np.ndarray:

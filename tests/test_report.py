@@ -104,7 +104,12 @@ def test_report_of_a_robust_fit_has_every_figure(conic_result, tmp_path):
     assert not re.search(r'(?<!xmlns=")(?<!xmlns:xlink=")https?://', html)
     rec = json.loads(result.read_text())
     assert f"Chosen model: <span class=\"chosen\">{rec['model']}</span>" in html
-    assert "threshold" in html and "Φ" in html and "s_ellipse" in html
+    assert "threshold" in html and "Φ" in html
+    # an arc of a circle: B and the other models' slacks (appendix F) are pinned, no estimates
+    assert rec["model"] == "circle"
+    assert rec["pinned"] == {"B": 0.0, "s_ellipse": 1.0, "s_proper": 1.0}
+    assert "Pinned by the model circle (not estimated): B = 0." in html
+    assert "<td>s_ellipse</td>" not in html and "<td>B</td>" not in html
     # the ids of the figures never collide
     ids = re.findall(r' id="([^"]+)"', html)
     assert len(ids) == len(set(ids))
@@ -314,3 +319,29 @@ def test_conic_curve_lies_on_the_conic():
     line = conic_curve([[0, 0, 0], [0, 0, 0.5], [0, 0.5, -100]], (0.0, 50.0), (0.0, 200.0))
     assert np.allclose(line[:, 1], 100.0) and np.ptp(line[:, 0]) > 49.0
     assert conic_curve(M, (2000.0, 3000.0), (0.0, 480.0)).shape == (0, 2)
+
+
+def test_report_shows_units_and_not_the_pinned_components(tmp_path):
+    """Units beside the values; what the model pins (a circle's B = 0, the other models'
+    slacks) is said once, not listed as an estimate (issue 20)."""
+    xy, _ = arc("circle", 2, n=50, outliers=0.0)
+    data = tmp_path / "circle.csv"
+    np.savetxt(data, xy, delimiter=",", header="x,y", comments="", fmt="%.6f")
+    out = tmp_path / "circle.json"
+    done = run("fit", LATTICE, data, "--model", "circle", "--local", "--json", out)
+    assert done.exit_code == 0, done.output
+    rec = json.loads(out.read_text())
+    assert rec["pinned"] == {"B": 0.0, "s_ellipse": 1.0, "s_proper": 1.0}
+    assert rec["units"]["radius"] == "px" and rec["units"]["angle"] == "deg"
+    page = tmp_path / "circle.html"
+    assert run("report", out, "-o", page).exit_code == 0
+    html = page.read_text()
+    table = html[html.index("<h2>Estimate</h2>"):]
+    table = table[:table.index("</table>")]
+    rows = re.findall(r"<tr><td>([^<]+)</td><td class=\"num\">[^<]*</td>"
+                      r"<td class=\"num\">[^<]*</td><td>([^<]*)</td></tr>", table)
+    names = [name for name, _ in rows]
+    assert names[:5] == ["A", "C", "D", "E", "F"]
+    assert "B" not in names and "s_ellipse" not in names and "s_proper" not in names
+    assert dict(rows)["radius"] == "px" and dict(rows)["centre[0]"] == "px"
+    assert "Pinned by the model circle (not estimated): B = 0." in html

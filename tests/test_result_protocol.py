@@ -6,6 +6,7 @@ a short ``repr`` and a ``summary()`` table."""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -100,6 +101,28 @@ def test_pinned_components_have_zero_std(results):
     assert np.all(np.isfinite(std))
     assert circle.std["B"] <= 1e-12 * std.max()  # the circle pins B = 0 (to rounding)
     assert circle.std[1] == circle.std["B"] and circle.std["D"] > 1e-6 * std.max()
+
+
+@pytest.mark.parametrize("entry", ["fit", "robust", "best", "structure"])
+def test_every_result_names_units_and_what_its_model_pins(results, entry):
+    r = results[entry]
+    assert r.units["semi_axes"] == "px" and r.units["angle"] == "deg"
+    assert set(r.pinned) <= {*r.params, *r.slacks}
+    text = r.summary()
+    assert "px" in text
+    for name in r.pinned:  # a pinned component is no estimate: no "name = value ± std" line
+        assert not re.search(rf"^  {name}\s+= ", text, re.M), name
+
+
+def test_a_circle_pins_b_and_says_so(results):
+    lattice, xy = results["lattice"], arc("circle", 2, n=60, outliers=0.0)[0]
+    circle = kanagen.fit(lattice, "circle", data={"point": xy})
+    assert circle.pinned == {"B": 0.0, "s_ellipse": 1.0, "s_proper": 1.0}
+    text = circle.summary()
+    assert "pinned by the model (not estimated): B = 0" in text
+    assert re.search(r"^  radius = .* px$", text, re.M)
+    ellipse = kanagen.fit(lattice, "ellipse", data={"point": xy})
+    assert "B" not in ellipse.pinned and ellipse.pinned == {"s_proper": 1.0}
 
 
 def test_json_record_carries_the_chi2(results):

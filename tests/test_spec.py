@@ -105,6 +105,10 @@ def _error(text: str) -> SpecError:
         ("    equations:\n", "    exact: [z]\n    equations:\n", 7, "exact component 'z'"),
         ("name: demo", "name: demo\nextra: 1", 2, "unknown key 'extra'"),
         ("y - a*x - b*f0", "y - a*x/0", 8, "not finite"),
+        ("name: demo", "name: demo\nunits: {a: px, zz: m}", 2, "'zz' is not a parameter"),
+        ("name: demo", "name: demo\nunits: {a: '<b>px</b>'}", 2, "must be short text"),
+        ("name: demo", "name: demo\nunits: {a: 3}", 2, "must be short text"),
+        ("name: demo", "name: demo\nunits: [px]", 2, "units must be a mapping"),
     ],
 )
 def test_spec_errors_name_file_and_line(old, new, line, fragment):
@@ -114,6 +118,13 @@ def test_spec_errors_name_file_and_line(old, new, line, fragment):
     assert err.source == "bad.yaml"
     assert err.line == line, str(err)
     assert str(err).startswith(f"bad.yaml:{line}: ")
+
+
+def test_units_are_text_beside_values():
+    fam = parse_spec(GOOD.replace("name: demo", "name: demo\nunits: {a: 'm/s^2', x: µm, "
+                                  "f0: '°C'}"), "units.yaml")
+    assert dict(fam.units) == {"a": "m/s^2", "x": "µm", "f0": "°C"}
+    assert parse_spec(GOOD, "plain.yaml").units == ()
 
 
 def test_duplicate_key_and_cycle():

@@ -11,6 +11,7 @@ import sympy as sp
 
 import kanagen
 from kanagen.modelspec import SpecError, parse_expression, parse_spec
+from kanagen.runtime.initializers import INITIALIZERS
 
 X, Y, Z = (sp.Symbol(n, real=True) for n in "xyz")
 NAMES = {"x": X, "y": Y, "z": Z}
@@ -123,7 +124,7 @@ def test_per_model_derived_reaches_the_results():
 def _error(old: str, new: str) -> SpecError:
     assert old in SPEC
     with pytest.raises(SpecError) as info:
-        parse_spec(SPEC.replace(old, new), "bad.yaml")
+        parse_spec(SPEC.replace(old, new), "bad.yaml", initializers=INITIALIZERS)
     return info.value
 
 
@@ -152,6 +153,23 @@ def test_matrix_spec_errors_name_file_and_line(old, new, fragment):
     err = _error(old, new)
     line = SPEC.splitlines().index(next(x for x in SPEC.splitlines() if old in x)) + 1
     assert fragment in err.message and err.line == line, str(err)
+
+
+def test_initializer_names_are_data_handed_to_the_reader():
+    """modelspec imports nothing of the runtime: the registry reaches the reader as data
+    (kanagen.load and the command line hand it over); without it the names are unchecked
+    there, and kanagen.load refuses an unknown one of a family built elsewhere."""
+    import kanagen
+
+    text = SPEC.replace("    derived: [normal]", "    initializer: nope")
+    fam = parse_spec(text, "bad.yaml")  # no registry: not checked here
+    with pytest.raises(SpecError, match="unknown initializer 'nope'"):
+        kanagen.load(fam)
+    with pytest.raises(SpecError, match="bad.yaml:.*unknown initializer 'nope'"):
+        kanagen.load_text(text, "bad.yaml")
+    fake = {"nope": type("Needs", (), {"missing": lambda self, **kw: "a miracle"})()}
+    with pytest.raises(SpecError, match="'nope' needs a miracle"):
+        parse_spec(text, "bad.yaml", initializers=fake)
 
 
 def test_vector_equations_expand_to_their_entries():

@@ -19,6 +19,7 @@ import sympy as sp
 from ..modelspec.constructs import qualitative_labels
 from ..modelspec.ir import Family, symbol
 from .eliminate import Reduction, linear_reduction
+from .version import FORMAT  # noqa: F401 - the layout version, re-exported here
 
 #: Sums longer than this are differentiated as polynomials when they are.
 _LONG_SUM = 100
@@ -27,8 +28,6 @@ _CSE_LIMIT = 500
 #: Sums are printed in partial sums of this many terms.
 _CHUNK = 200
 
-#: Version of the generated-file layout; generated modules carry it and the loader checks it.
-FORMAT = 2
 
 
 @dataclass(frozen=True)
@@ -302,7 +301,7 @@ def describe(family: Family, source_name: str) -> Description:
 def family_metadata(desc: Description) -> dict:
     """What the runtime needs to know of the family, as plain data (no SymPy objects)."""
     family = desc.family
-    return {
+    meta = {
         "name": family.name,
         "parameter": [[n, v] for n, v in family.parameter],
         "constants": [[n, v] for n, v in family.constants],
@@ -329,6 +328,9 @@ def family_metadata(desc: Description) -> dict:
             for name, e in desc.models if e.reduction is not None
         },
     }
+    if family.units:  # only when the spec has some (families without generate as before)
+        meta["units"] = dict(family.units)
+    return meta
 
 
 def _model_metadata(model, parameter: tuple[str, ...]) -> dict:

@@ -3,17 +3,16 @@
 from __future__ import annotations
 
 import difflib
-import hashlib
-from collections.abc import Iterable
-from functools import cache
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 from ..modelspec import Family, load_spec
 from ..modelspec.limits import DEFAULT, Limits
 from .backend import Backend
 from .casadi_backend import BACKEND as CASADI
-from .describe import FORMAT, describe
+from .description import describe
 from .numpy_backend import BACKEND as NUMPY
+from .version import generator_fingerprint  # noqa: F401 - re-exported
 
 #: Every backend by name. The NumPy module is the family's reference (metadata, kernels):
 #: it is always generated; the others add their module beside it.
@@ -40,16 +39,18 @@ def render_spec(family: Family, backends: Iterable[str] = ("numpy",)) -> dict[st
 
 
 def build(spec: str | Path, out_dir: str | Path,
-          backends: Iterable[str] = ("numpy",), limits: Limits = DEFAULT) -> list[Path]:
+          backends: Iterable[str] = ("numpy",), limits: Limits = DEFAULT,
+          initializers: Mapping | None = None) -> list[Path]:
     """Generate the module(s) of ``spec`` into ``out_dir``; returns the written paths.
 
     Files are rewritten only when their text changes; ``limits``: what reading the spec may
-    cost (:mod:`kanagen.modelspec.limits`).
+    cost (:mod:`kanagen.modelspec.limits`); ``initializers``: the names a model may give
+    and their needs (:func:`~kanagen.modelspec.load_spec`).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []
-    for name, text in render_spec(load_spec(spec, limits), backends).items():
+    for name, text in render_spec(load_spec(spec, limits, initializers), backends).items():
         path = out / name
         if not path.exists() or path.read_text(encoding="utf-8") != text:
             path.write_text(text, encoding="utf-8")
@@ -70,7 +71,8 @@ def committed_backends(family: Family, out_dir: str | Path) -> list[str]:
 
 
 def check(specs: list[str | Path], out_dir: str | Path,
-          backends: Iterable[str] | None = None) -> list[str]:
+          backends: Iterable[str] | None = None,
+          initializers: Mapping | None = None) -> list[str]:
     """Unified diffs between the committed files in ``out_dir`` and a fresh generation.
 
     ``backends`` default: :func:`committed_backends`. An empty list means everything is
@@ -78,7 +80,7 @@ def check(specs: list[str | Path], out_dir: str | Path,
     """
     diffs = []
     for spec in specs:
-        family = load_spec(spec)
+        family = load_spec(spec, initializers=initializers)
         names = committed_backends(family, out_dir) if backends is None else backends
         for name, text in render_spec(family, names).items():
             path = Path(out_dir) / name
@@ -90,13 +92,3 @@ def check(specs: list[str | Path], out_dir: str | Path,
     return diffs
 
 
-@cache
-def generator_fingerprint() -> str:
-    """Hash of the generator itself (code and templates): keys the run-time build cache."""
-    digest = hashlib.sha256(f"format {FORMAT}".encode())
-    root = Path(__file__).parent
-    for path in sorted(list(root.glob("*.py")) + list(root.glob("templates/*/*.jinja"))
-                       + list(root.glob("c/*.c"))):
-        digest.update(str(path.relative_to(root)).encode())
-        digest.update(path.read_bytes())
-    return digest.hexdigest()
