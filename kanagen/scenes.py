@@ -239,3 +239,181 @@ def transfer_rms(H: np.ndarray, matches: np.ndarray) -> float:
     y = g.homogeneous(matches[:, :2]) @ H.T
     return float(np.sqrt(np.mean(np.sum((y[:, :2] / y[:, 2:] - matches[:, 2:]) ** 2,
                                         axis=1))))
+
+
+# --- calibrated cameras (the two_view_calibrated family) ---------------------------------
+
+#: Motion classes of the ``two_view_calibrated`` family, named as its models.
+CALIBRATED_MOTIONS = ("none", "rotation", "retinal_translation", "translation",
+                      "retinal_displacement", "planar", "general")
+_INTRINSICS = ("fx", "fy", "cx", "cy")
+
+
+def camera_matrix(width: float, height: float, focal: float,
+                  fy: float | None = None) -> np.ndarray:
+    """The 3×3 ``K`` of an image of ``width × height`` pixels with its principal point at the
+    centre and the focal length ``focal`` (pixels; ``fy`` the vertical one if it differs).
+
+    >>> camera_matrix(640, 480, 800.0)[:2]
+    array([[800.,   0., 320.],
+           [  0., 800., 240.]])
+    """
+    fy = focal if fy is None else fy
+    for name, value in (("width", width), ("height", height), ("focal", focal), ("fy", fy)):
+        if not (np.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a positive number of pixels, got {value!r}")
+    return np.array([[float(focal), 0.0, width / 2.0], [0.0, float(fy), height / 2.0],
+                     [0.0, 0.0, 1.0]])
+
+
+def _intrinsics(K, which: str) -> tuple[float, float, float, float]:
+    """``(fx, fy, cx, cy)`` of a 3×3 ``K``, with an error naming what is wrong."""
+    try:
+        K = np.array(K, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{which} must be a 3×3 matrix of numbers: {exc}") from None
+    if K.shape != (3, 3):
+        raise ValueError(f"{which} must be a 3×3 matrix, got shape {K.shape}")
+    if not np.all(np.isfinite(K)):
+        raise ValueError(f"{which} has a non-finite entry: {K.tolist()}")
+    if K[2, 0] != 0 or K[2, 1] != 0 or K[1, 0] != 0 or not K[2, 2] != 0:
+        raise ValueError(f"{which} must be upper triangular with K[2, 2] != 0 (a pinhole "
+                         f"camera [[fx, s, cx], [0, fy, cy], [0, 0, 1]]), got {K.tolist()}")
+    K = K / K[2, 2]
+    if K[0, 1] != 0:
+        raise ValueError(f"{which} has a skew K[0, 1] = {K[0, 1]:g}: the calibrated family "
+                         f"models cameras without skew")
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise ValueError(f"{which} must have positive focal lengths, got fx = {K[0, 0]:g}, "
+                         f"fy = {K[1, 1]:g}")
+    return float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
+
+
+def calibrated_constants(K1, K2=None) -> dict[str, float]:
+    """The constants ``fx1 fy1 cx1 cy1 fx2 fy2 cx2 cy2`` of the ``two_view_calibrated``
+    family from the 3×3 intrinsic matrices of the two cameras (``K2`` = ``K1`` when one
+    camera took both images); :func:`camera_matrix` makes a ``K`` from an image size and a
+    focal length. A ``K`` scaled by ``K[2, 2]`` is accepted; a skew, a non-positive focal
+    length, a lower-triangular entry or a non-finite one is an error.
+
+    >>> calibrated_constants(camera_matrix(640, 480, 800.0))["cx2"]
+    320.0
+    """
+    out = {}
+    for i, K in ((1, K1), (2, K1 if K2 is None else K2)):
+        for name, value in zip(_INTRINSICS, _intrinsics(K, f"K{i}"), strict=True):
+            out[f"{name}{i}"] = value
+    return out
+
+
+@dataclass(frozen=True)
+class CalibratedScene(TwoViewScene):
+    """A generated pair of views of calibrated cameras (``two_view_calibrated``): the same
+    fields as :class:`TwoViewScene`; the constants are both cameras' intrinsics."""
+
+    @property
+    def constants(self) -> dict[str, float]:
+        """``fx1 fy1 cx1 cy1 fx2 fy2 cx2 cy2`` of the two cameras."""
+        return calibrated_constants(self.K1, self.K2)
+
+    def params(self) -> dict[str, float]:
+        """The true parameter of the ``two_view_calibrated`` family: the unit quaternion of
+        ``R``, the unit translation direction (``(1, 0, 0)`` without translation) and, for a
+        planar scene, ``w = ‖t‖ n/d``."""
+        norm = float(np.linalg.norm(self.t))
+        w = np.zeros(3)
+        if self.motion == "planar":
+            w = self.plane[0] / self.plane[1] * norm
+        q = g.quaternion_from_rotation(self.R)
+        t = self.t / norm if norm > 0 else np.array([1.0, 0.0, 0.0])
+        return {"qw": q[0], "qx": q[1], "qy": q[2], "qz": q[3],
+                "tx": t[0], "ty": t[1], "tz": t[2], "wx": w[0], "wy": w[1], "wz": w[2]}
+
+    @property
+    def rotation_angle(self) -> float:
+        """The true rotation angle (degrees)."""
+        return float(np.degrees(np.arccos(np.clip((np.trace(self.R) - 1) / 2, -1.0, 1.0))))
+
+    @property
+    def translation_direction(self) -> np.ndarray:
+        """The true unit translation (zeros without translation)."""
+        norm = np.linalg.norm(self.t)
+        return self.t / norm if norm > 0 else np.zeros(3)
+
+
+def _calibrated_camera(rng, size) -> np.ndarray:
+    width, height = size
+    fx = width * rng.uniform(0.8, 1.4)
+    return np.array([[fx, 0.0, width / 2.0 + rng.uniform(-0.03, 0.03) * width],
+                     [0.0, fx * rng.uniform(0.98, 1.02), height / 2.0
+                      + rng.uniform(-0.03, 0.03) * height],
+                     [0.0, 0.0, 1.0]])
+
+
+def _off_axis(rng, min_tz: float) -> np.ndarray:
+    """A random unit translation with ``|tz| ≥ min_tz``; not a retinal one."""
+    while True:
+        t = _unit(rng.normal(size=3))
+        if abs(t[2]) >= min_tz:
+            return t
+
+
+def calibrated_scene(motion: str, n: int = 200, outliers: float = 0.0, sigma: float = 0.5,
+                     size: tuple[int, int] = (640, 480), seed: int | None = 0,
+                     depth: tuple[float, float] = (4.0, 12.0)) -> CalibratedScene:
+    """A random scene of one calibrated motion class (:data:`CALIBRATED_MOTIONS`), two
+    cameras of different known intrinsics (focal lengths 0.8–1.4 × the width, ``fy`` within
+    2 % of ``fx``, principal points within 3 % of the centre).
+
+    ``none``: ``R = I``, no translation; ``rotation``: 5–20° about a random axis, no
+    translation; ``retinal_translation``: ``R = I``, ``t`` in the retinal plane;
+    ``translation``: ``R = I``, ``t`` with ``|tz| ≥ 0.3 ‖t‖``; ``retinal_displacement``:
+    5–20° about the optical axis (either sense) and ``t`` in the retinal plane; ``planar``:
+    3–15° about a random axis, any ``t``, a plane; ``general``: 3–15°, ``t`` with
+    ``|tz| ≥ 0.3 ‖t‖``, 3-D points. Translations have norms 1–2, depths ``depth``. Noise,
+    outliers and the returned fields as in :func:`two_view_scene`.
+    """
+    if motion not in CALIBRATED_MOTIONS:
+        raise ValueError(f"unknown motion {motion!r} (one of {', '.join(CALIBRATED_MOTIONS)})")
+    if not 0.0 <= outliers < 1.0:
+        raise ValueError(f"outliers is a fraction in [0, 1), got {outliers}")
+    if n < 1 or sigma < 0:
+        raise ValueError("n must be positive and sigma non-negative")
+    rng = np.random.default_rng(seed)
+    K1, K2 = _calibrated_camera(rng, size), _calibrated_camera(rng, size)
+    R, t, plane = np.eye(3), np.zeros(3), None
+    norm = rng.uniform(1.0, 2.0)
+    if motion == "rotation":
+        R = _rotation(rng, 5.0, 20.0)
+    elif motion in ("retinal_translation", "retinal_displacement"):
+        phi = rng.uniform(0.0, 2 * np.pi)
+        t = np.array([np.cos(phi), np.sin(phi), 0.0]) * norm
+        if motion == "retinal_displacement":
+            R = g.rotation_about([0.0, 0.0, 1.0],
+                                 rng.choice([-1, 1]) * np.radians(rng.uniform(5.0, 20.0)))
+    elif motion == "translation":
+        t = _off_axis(rng, 0.3) * norm
+    elif motion in ("planar", "general"):
+        R = _rotation(rng, 3.0, 15.0)
+        t = (_unit(rng.normal(size=3)) if motion == "planar" else _off_axis(rng, 0.3)) * norm
+        if motion == "planar":
+            normal = _unit(np.array([0.0, 0.0, 1.0]) + 0.5 * rng.normal(size=3))
+            plane = (normal, float(rng.uniform(*depth)))
+    points = _visible(rng, K1, K2, R, t, size, depth, plane, n)
+    clean = np.c_[_project(K1, points), _project(K2, points @ R.T + t)]
+    noisy = clean + rng.normal(scale=sigma, size=clean.shape)
+    n_out = int(round(outliers * n / (1.0 - outliers)))
+    junk = np.c_[rng.uniform([0, 0], size, size=(n_out, 2)),
+                 rng.uniform([0, 0], size, size=(n_out, 2))]
+    order = rng.permutation(n + n_out)
+    data = np.r_[noisy, junk][order]
+    truth = np.r_[np.ones(n, bool), np.zeros(n_out, bool)][order]
+    clean_all = np.r_[clean, junk][order]
+    F = H = None
+    if motion not in ("none", "rotation"):
+        F = _unit(np.linalg.inv(K2).T @ g.skew(t) @ R @ np.linalg.inv(K1))
+    if motion in ("none", "rotation", "planar"):
+        Hc = R if plane is None else R + np.outer(t, plane[0]) / plane[1]
+        H = _unit(K2 @ Hc @ np.linalg.inv(K1))
+    return CalibratedScene(motion, data, clean_all, truth, K1, K2, R, t, points, plane, F, H,
+                           (int(size[0]), int(size[1])), float(sigma))

@@ -10,7 +10,7 @@ import numpy as np
 from scenes import arc, kasa_circle
 
 import kanagen
-from kanagen.scenes import two_view_scene
+from kanagen.scenes import calibrated_scene, two_view_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 SPECS = sorted((ROOT / "examples").glob("*.yaml"))
@@ -93,6 +93,21 @@ def two_view_cases():
     return cases
 
 
+def calibrated_cases():
+    """Calibrated views: H-type (rotation, planar) and F-type (retinal displacement, general)
+    scenes, noisy, from the truth moved off its constraints."""
+    fam = kanagen.load("two_view_calibrated")
+    cases = []
+    for motion, seed in (("rotation", 4), ("planar", 2), ("retinal_displacement", 3),
+                         ("general", 4)):
+        s = calibrated_scene(motion, n=30, sigma=0.5, seed=seed)
+        p = s.params()
+        q = np.array([p[n] for n in fam.parameter_names])
+        start = q + np.random.default_rng(seed).normal(0, 1e-3, q.size)
+        cases.append((motion, {"match": s.data}, {"match": 4.0}, start, s.constants))
+    return cases
+
+
 def pga_cases():
     """Readings at gain 4 (no glitches): the qualitative model from a start near the setting
     (its quartic constraint pulls the gain onto 4), from the setting 1 (a local solve stays
@@ -108,6 +123,7 @@ def pga_cases():
 #: spec file name -> cases (model, data, info, start, constants)
 SCENARIOS = {"conic.yaml": conic_cases, "conic_lattice.yaml": conic_lattice_cases,
              "line.yaml": line_cases, "hysteresis.yaml": hysteresis_cases,
-             "two_view.yaml": two_view_cases, "pga.yaml": pga_cases}
+             "two_view.yaml": two_view_cases, "pga.yaml": pga_cases,
+             "two_view_calibrated.yaml": calibrated_cases}
 
 

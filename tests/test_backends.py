@@ -105,7 +105,9 @@ def test_same_estimate_whatever_the_backend(spec, backend):
 @pytest.mark.parametrize("backend", ["casadi", "compiled"])
 @pytest.mark.parametrize("spec", [*SPECS, "allfun"], ids=lambda p: getattr(p, "name", p))
 def test_every_function_equals_the_numpy_module(spec, backend):
-    """Each function, evaluated at random points, by the NumPy module and by the backend."""
+    """Each function, evaluated at random points, by the NumPy module and by the backend, to
+    1e-12 of the largest entry (the evaluation orders differ: the calibrated rays' terms
+    cancel to 2e-13 of it)."""
     if spec == "allfun":
         spec = kanagen.modelspec.parse_spec(ALL_FUNCTIONS, "allfun.yaml")
     reference = kanagen.load(spec)
@@ -118,23 +120,23 @@ def test_every_function_equals_the_numpy_module(spec, backend):
             q = rng.uniform(0.2, 0.6, n)
             for a, b in zip(other.c0_function(model, reduced)(q, k),
                             reference.c0_function(model, reduced)(q, k), strict=True):
-                close(a, b, 1e-13)
+                close(a, b, 1e-12)
             for ch, info in reference.channels.items():
                 for M in (0, 1, 17):
                     X = rng.uniform(0.1, 0.9, (M, len(info.components)))
                     for a, b in zip(other.measurement_function(model, ch, reduced)(q, X, k),
                                     reference.measurement_function(model, ch, reduced)(q, X, k),
                                     strict=True):
-                        close(a, b, 1e-13)
+                        close(a, b, 1e-12)
     q = rng.uniform(0.2, 0.6, reference.n)
     ref, got = reference.derived(q, k), other.derived(q, k)
     assert ref.keys() == got.keys()
     for name in ref:
         for a, b in zip(got[name], ref[name], strict=True):
-            close(a, b, 1e-13)
+            close(a, b, 1e-12)
     if reference.slack_names:
         close(other.functions.slack_measures(q, k), reference.functions.slack_measures(q, k),
-              1e-13)
+              1e-12)
 
 
 def test_casadi_functions_have_named_inputs_and_outputs():

@@ -53,6 +53,36 @@ def test_fit_of_a_shipped_family_reads_no_spec(backend):
     assert loaded == ([] if backend == "numpy" else ["casadi"])
 
 
+def test_a_compiled_fit_from_its_cache_loads_no_generator():
+    """Once a family is compiled (its library cached), loading and fitting it with the
+    compiled backend imports neither SymPy nor jinja2: the cache key is computed by the
+    light kanagen.codegen.version, not by the generator."""
+    from kanagen.codegen.compile import CompileError
+
+    try:
+        kanagen.load("conic", backend="compiled")  # compiled into the cache, if needed
+    except CompileError as exc:  # pragma: no cover - a machine without a C compiler
+        pytest.skip(f"no compiled backend here: {exc}")
+    code = ("import numpy as np, kanagen\n"
+            "fam = kanagen.load('conic', backend='compiled')\n"
+            "assert fam.fastpath is not None\n"
+            "res = kanagen.fit(fam, 'conic', data={'point': np.random.default_rng(0)"
+            ".random((10, 2))})\n"
+            "assert res.params")
+    assert imported_after(code, SPEC_AND_GENERATOR) == []
+
+
+def test_the_spec_reader_imports_nothing_of_the_runtime():
+    """modelspec is the lowest layer: reading a spec (even one naming initialisers) imports
+    neither the runtime nor the generator."""
+    code = ("from kanagen.modelspec import load_spec\n"
+            "fam = load_spec('examples/two_view.yaml')\n"
+            "import sys\n"
+            "assert not [m for m in sys.modules if m.startswith(('kanagen.runtime', "
+            "'kanagen.codegen'))], sorted(sys.modules)")
+    assert imported_after(code, ("jinja2",)) == []
+
+
 def test_loading_a_spec_still_reads_it(tmp_path):
     # a spec file goes through the full pipeline: its reader and (not current) the generator
     spec = (ROOT / "examples" / "line.yaml").read_text(encoding="utf-8")
@@ -71,7 +101,7 @@ def test_public_names_resolve():
     assert set(kanagen.__all__) <= set(namespace)
     assert kanagen.fit is kanagen.runtime.fit.fit
     assert kanagen.SpecError is kanagen.modelspec.SpecError
-    assert kanagen.codegen.build.__module__ == "kanagen.codegen.build"  # the function
+    assert kanagen.codegen.build.__module__ == "kanagen.codegen.generate"  # the function
     with pytest.raises(AttributeError):
         kanagen.no_such_name  # noqa: B018
     with pytest.raises(AttributeError):
@@ -80,7 +110,7 @@ def test_public_names_resolve():
 
 #: the two-view code, a plugin of the initializer registry (issue 17, "Vision as a plugin")
 VISION = ("kanagen.runtime.geometry", "kanagen.runtime.two_view_starts", "kanagen.scenes",
-          "kanagen.datasets")
+          "kanagen.datasets", "kanagen.runtime.calibrated_starts")
 
 LATTICE_SEARCH = """\
 import numpy as np, kanagen
@@ -115,14 +145,17 @@ def test_a_family_naming_no_two_view_initializer_loads_no_vision_code(backend):
 def test_the_registry_names_its_initializers_without_importing_them():
     code = ("from kanagen.runtime.initializers import INITIALIZERS, resolve\n"
             "names = sorted(INITIALIZERS)\n"
-            "assert names == ['two_view_fundamental', 'two_view_homography', "
+            "assert names == ['calibrated_five_point', 'calibrated_homography', "
+            "'calibrated_retinal_displacement', 'calibrated_retinal_translation', "
+            "'calibrated_rotation', 'calibrated_translation', "
+            "'two_view_fundamental', 'two_view_homography', "
             "'two_view_rotation', 'two_view_translation'], names\n"
-            "assert 'two_view_rotation' in INITIALIZERS and len(INITIALIZERS) == 4\n"
+            "assert 'two_view_rotation' in INITIALIZERS and len(INITIALIZERS) == 10\n"
             "assert INITIALIZERS.get('nope') is None\n"
             "try:\n"
             "    resolve('nope')\n"
             "except ValueError as exc:\n"
-            "    assert 'known: two_view_fundamental, two_view_homography' in str(exc)\n")
+            "    assert 'known: calibrated_five_point, calibrated_homography' in str(exc)\n")
     assert imported_after(code, VISION) == []
     # a lookup imports the provider, which registers all four
     looked_up = code + ("import sys\n"
@@ -138,20 +171,28 @@ def test_reading_a_spec_imports_the_closed_forms_it_names_only():
     (or an unknown one: the error lists every name) imports no two-view code; the two-view
     spec imports the closed forms it names (their needs are checked)."""
     read = ("from kanagen.modelspec.parse import parse_spec\n"
+            "from kanagen.runtime.initializers import INITIALIZERS\n"
             "text = open('examples/{}.yaml', encoding='utf-8').read()\n")
     assert imported_after(read.format("conic_lattice") + "parse_spec(text)", VISION) == []
     unknown = read.format("conic") + (
         "from kanagen.modelspec import SpecError\n"
         "text = text.replace('  conic:\\n', '  conic:\\n    initializer: nope\\n', 1)\n"
         "try:\n"
-        "    parse_spec(text)\n"
+        "    parse_spec(text, initializers=INITIALIZERS)\n"
         "    raise AssertionError('accepted')\n"
         "except SpecError as exc:\n"
-        "    assert \"unknown initializer 'nope' (known: two_view_fundamental, "
-        "two_view_homography, two_view_rotation, two_view_translation)\" in str(exc), exc\n")
+        "    assert \"unknown initializer 'nope' (known: calibrated_five_point, "
+        "calibrated_homography, calibrated_retinal_displacement, "
+        "calibrated_retinal_translation, calibrated_rotation, calibrated_translation, "
+        "two_view_fundamental, two_view_homography, two_view_rotation, "
+        "two_view_translation)\" in str(exc), exc\n")
     assert imported_after(unknown, VISION) == []
-    assert imported_after(read.format("two_view") + "parse_spec(text)", VISION) == \
+    assert imported_after(read.format("two_view") + "parse_spec(text, initializers="
+                          "INITIALIZERS)", VISION) == \
         list(VISION[:2])
+    assert imported_after(read.format("two_view_calibrated") + "parse_spec(text, "
+                          "initializers=INITIALIZERS)", VISION) == \
+        ["kanagen.runtime.geometry", "kanagen.runtime.calibrated_starts"]
 
 
 def test_a_plugin_registers_its_initializers(monkeypatch, tmp_path):
