@@ -114,13 +114,17 @@ def verify(problem: Problem, x: Point, lin: Linearisation, proj: Projection,
     W = _tangent_basis(x, lin)
     if W.shape[1] == 0:
         return Verdict(True, dec, x.cost, curvature=0.0)
-    if gradient_at is None:
-        gradient_at = _profile_gradient(problem, x)
     lam0 = _multipliers(x, lin)
+    if gradient_at is None:  # the profile's: at x itself, the projector's (x is restored)
+        gradient_at = _profile_gradient(problem, x)
+        here = _gradients(problem, [x.q], lam0, lambda q: lin.gradient)
+    else:
+        here = None
     plus = _gradients(problem, _moved(x, W, _STEP), lam0, gradient_at)
     if plus is None:
         return Verdict(True, dec, x.cost)  # no curvature where it cannot be seen
-    here = _gradients(problem, [x.q], lam0, gradient_at)
+    if here is None:
+        here = _gradients(problem, [x.q], lam0, gradient_at)
     if here is not None:  # the forward-difference screen
         screen = _least_eigen([W.T @ (g - here[0]) / _STEP for g in plus], W)
         if screen is not None and screen[0] >= _SCREEN:

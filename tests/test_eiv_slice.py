@@ -243,6 +243,23 @@ def test_the_curvature_check_at_a_clear_minimum_takes_one_gradient_per_direction
     assert len(calls) == W.shape[1] + 1
     assert central[0] >= verify_module._SCREEN
     assert verdict.curvature == pytest.approx(central[0], rel=1e-2)
+    # by default the gradient at the point is the projector's (the point is restored): one
+    # restoration per tangent direction, the same verdict
+    restorations = []
+    real = verify_module.restore_measures
+
+    def counted_restore(*args, **kwargs):
+        restorations.append(args[1])
+        return real(*args, **kwargs)
+
+    verify_module.restore_measures = counted_restore
+    try:
+        with np.errstate(all="ignore"):
+            default = verify_module.verify(problem, out.point, out.lin, out.proj)
+    finally:
+        verify_module.restore_measures = real
+    assert len(restorations) == W.shape[1]
+    assert default.minimum and default.curvature == pytest.approx(verdict.curvature, rel=1e-6)
 
 
 def test_an_unverified_refinement_is_never_a_success():
