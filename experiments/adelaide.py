@@ -71,17 +71,27 @@ class SceneResult:
 def kanagen_labels(fam, scene: datasets.MultiStructureScene, samples: int = SAMPLES,
                    scale: float = SCALE, local: float = LOCAL, reassign: int = REASSIGN,
                    ceiling: float = CEILING, retries: int = RETRIES,
-                   restarts: int = RESTARTS, seed: int = 0) -> tuple[np.ndarray, int]:
+                   restarts: int = RESTARTS, seed: int = 0,
+                   defaults: bool = False) -> tuple[np.ndarray, int]:
     """Per-match classes from :func:`kanagen.find_structures` (0 = outlier), and the number
-    of structures found."""
+    of structures found. ``defaults``: only the number of structures and the model given
+    (issue 18's floor), the other options at the library's defaults."""
     cx, cy = scene.centre
     width, height = scene.image_size or (2 * cx, 2 * cy)
+    constants = {"cx": cx, "cy": cy, "f0": float(max(width, height))}
+    if defaults:
+        found = kanagen.find_structures(
+            fam, data={"match": scene.matches}, info={"match": 1.0},
+            max_structures=scene.structures, model=MODEL[scene.kind], seed=seed,
+            constants=constants)
+        return labels_from_structures(len(scene.matches), [s.inliers for s in found]), \
+            len(found)
     found = kanagen.find_structures(
         fam, data={"match": scene.matches}, info={"match": 1.0},
         max_structures=scene.structures, model=MODEL[scene.kind], scale=scale,
         samples_per_model=samples, max_samples=samples * 10, local=local, reassign=reassign,
         max_threshold=ceiling * scale, retries=retries, restarts=restarts, seed=seed,
-        constants={"cx": cx, "cy": cy, "f0": float(max(width, height))})
+        constants=constants)
     return labels_from_structures(len(scene.matches), [s.inliers for s in found]), len(found)
 
 
@@ -179,6 +189,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--restarts", type=int, default=RESTARTS,
                         help="extractions per scene (the least truncated error kept)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--defaults", action="store_true",
+                        help="only the number of structures and the model given (the "
+                             "library's defaults for the rest; the options above ignored)")
     parser.add_argument("--json", help="write the per-scene results here")
     args = parser.parse_args(argv)
     fam = kanagen.load("two_view")
@@ -192,7 +205,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             scene = datasets.adelaide_scene(kind, name)
             r = run_scene(fam, scene, samples=args.samples, scale=args.scale,
                           local=args.local, reassign=args.reassign, ceiling=args.ceiling,
-                          retries=args.retries, restarts=args.restarts, seed=args.seed)
+                          retries=args.retries, restarts=args.restarts, seed=args.seed,
+                          defaults=args.defaults)
             results.append(r)
             print(f"{kind} {name}: kanagen {100 * r.kanagen:.1f} % ({r.kanagen_seconds:.1f} s), "
                   f"MAGSAC " + ", ".join(f"{t}: {100 * v:.1f} %" for t, v in r.magsac.items()),
