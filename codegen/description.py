@@ -330,6 +330,8 @@ def family_metadata(desc: Description) -> dict:
     }
     if family.units:  # only when the spec has some (families without generate as before)
         meta["units"] = dict(family.units)
+    if family.assumed:
+        meta["assumed"] = dict(family.assumed)
     return meta
 
 

@@ -37,7 +37,7 @@ if _TYPE_CHECKING:  # the same names, for type checkers and editors
     from .resultsdb import read_results
     from .runtime.coherence import coherence, minimal_sample_size, minimal_solve
     from .runtime.estimator import Estimator
-    from .runtime.family import ModelFamily
+    from .runtime.family import AssumedConstantsWarning, ModelFamily
     from .runtime.fit import fit
     from .runtime.results import DerivedValue, FitResult, ModelState
     from .runtime.robust import RobustEstimate, robust_fit
@@ -59,6 +59,7 @@ _LAZY = {
     "Estimator": ".runtime.estimator",
     "ModelState": ".runtime.results",
     "ModelFamily": ".runtime.family",
+    "AssumedConstantsWarning": ".runtime.family",
     "fit": ".runtime.fit",
     "DerivedValue": ".runtime.results",
     "FitResult": ".runtime.results",
@@ -72,6 +73,7 @@ _SUBMODULES = frozenset({"batching", "codegen", "dataio", "fitjob", "loader", "m
                          "resultsdb", "runtime"})
 
 __all__ = [
+    "AssumedConstantsWarning",
     "BatchSummary",
     "DerivedValue",
     "Estimator",

@@ -355,6 +355,7 @@ def estimate_json(res) -> dict:
         "slacks": dict(res.slacks),
         "pinned": dict(res.pinned),
         "units": dict(res.units),
+        "assumed": dict(res.assumed),  # constants' defaults the fit relied on (not given)
         "components": [*res.params, *res.slacks],  # rows of covariance and info
         "covariance": arr(res.covariance),
         "info": arr(res.info),

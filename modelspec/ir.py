@@ -85,6 +85,9 @@ class Family:
     #: (name, unit) of parameter components, derived quantities, constants and measured
     #: components, as the spec's ``units:`` says (display only: nothing is converted)
     units: tuple[tuple[str, str], ...] = ()
+    #: (name, what its default stands for) of the constants a fit must say it assumed when
+    #: not given (``constants: {cx: {value: 320, assume: ...}}``)
+    assumed: tuple[tuple[str, str], ...] = ()
 
     @property
     def parameter_names(self) -> tuple[str, ...]:

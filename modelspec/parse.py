@@ -33,6 +33,8 @@ _TOP_KEYS = ("name", "description", "constants", "parameter", "define", "channel
              "derived", "null_model", "units")
 #: a unit as people write it: "px", "deg", "m/s^2", "µm", "1/K", "N·m", "%"
 _UNIT = re.compile(r"[A-Za-z0-9µΩ°%²³·/^*(). -]{1,24}")
+#: what a constant's default stands for: printable text without quotes or markup
+_ASSUME = re.compile(r"[^\x00-\x1f\x7f\"'`<>&\\]{1,120}")
 _CHANNEL_KEYS = ("components", "exact", "equations", "description")
 _MODEL_KEYS = ("constraints", "equations", "alternatives", "derived", "initializer",
                "description")
@@ -268,11 +270,13 @@ class _Builder:
             for k, v in self.mapping(top["parameter"], "parameter", "parameter",
                                      empty_ok=False).items()
         )
-        constants = tuple(
-            (declare(k, "constant", "constants", k), self.number(v, f"value of {k}",
-                                                                "constants", k))
-            for k, v in self.mapping(top.get("constants"), "constants", "constants").items()
-        )
+        constants, self.assumed = [], []
+        for k, v in self.mapping(top.get("constants"), "constants", "constants").items():
+            k = declare(k, "constant", "constants", k)
+            if isinstance(v, Mapping):  # {value: 320, assume: "what the default stands for"}
+                v = self.assumption(k, v)
+            constants.append((k, self.number(v, f"value of {k}", "constants", k)))
+        constants = tuple(constants)
         base = {n: symbol(n) for n, _ in parameter + constants}
         channel_specs = self.mapping(top["channels"], "channels", "channels", empty_ok=False)
         components = {c: symbol(c) for spec in channel_specs.values()
@@ -310,6 +314,7 @@ class _Builder:
         return Family(
             name=name,
             units=units,
+            assumed=tuple(self.assumed),
             **slack_fields,
             parameter=parameter,
             constants=constants,
@@ -568,6 +573,21 @@ class _Builder:
                 f"model {model.name!r} is never tried: the lattice search starts at the null "
                 f"model {null_model!r} and no chain of alternatives leads to it ({how}); "
                 f"add it to the alternatives of a model, or remove it", "models", model.name)
+
+    def assumption(self, name: str, spec: Mapping):
+        """A constant given as ``{value: v, assume: text}``: its default ``v`` stands for
+        something of the data (an image's principal point), so a fit that relies on it says
+        so — ``text`` names what to give. Returns ``v``."""
+        self.keys(spec, ("value", "assume"), f"constant {name!r}", "constants", name)
+        if "value" not in spec:
+            raise self.error(f"constant {name!r}: missing its value", "constants", name)
+        text = spec.get("assume")
+        if not isinstance(text, str) or not _ASSUME.fullmatch(text):
+            raise self.error(f"constant {name!r}: assume must be short text (up to 120 "
+                             f"printable characters, no quotes or angle brackets), got "
+                             f"{text!r}", "constants", name)
+        self.assumed.append((name, text))
+        return spec["value"]
 
     def units(self, value, names: list[str]) -> tuple[tuple[str, str], ...]:
         """``units:``: a unit (text shown beside values, nothing converted) per parameter

@@ -241,6 +241,7 @@ class Estimator:
         ``until(history)`` is true, or :meth:`stop` (also one called before this run); returns
         the best model. ``time_budget`` counts while suspended too."""
         started = time.perf_counter()
+        self.fam.warn_assumed(self._constants)  # said where the user's search starts
         budget = self._samples + max_samples
         batch = _BATCH if no_gain is None and until is None else 1
         reason = None
@@ -381,7 +382,8 @@ class Estimator:
                           self.q0.copy(), self.Q0.copy(), np.full((n, n), np.inf),
                           np.zeros(0, int), np.zeros(0, int), np.inf, 0, 0.0, 0, np.inf, True,
                           status="null", units=self.fam.units,
-                          pinned=self.fam.pinned(self._root))
+                          pinned=self.fam.pinned(self._root),
+                          assumed=self.fam.assumed(self._constants))
 
     def _problem_for(self, model: str) -> tuple[Problem, list[np.ndarray], int]:
         """The model's problem, the measure ids per channel, the sampled channel's index."""
@@ -600,7 +602,8 @@ class Estimator:
                            est.fit.derived,
                            "estimated" if est.fit.success else est.fit.message,
                            est.fit.slacks, scored[order], errors[order],
-                           est.fit.equations, est.fit.units, est.fit.pinned)
+                           est.fit.equations, est.fit.units, est.fit.pinned,
+                           self.fam.assumed(self._constants))
         if parent is not None:
             p = self._states.get(parent)
             if p is not None and p.samples and np.isfinite(p.normalized_cost):

@@ -105,6 +105,8 @@ class ModelFamily:
         self.derived_shapes = {k: tuple(v) for k, v in meta["derived"].items()}
         #: the spec's ``units:`` (name -> unit text; display only)
         self.units: dict[str, str] = dict(meta.get("units", {}))
+        #: constants whose default stands for something of the data: name -> what to give
+        self.assumptions: dict[str, str] = dict(meta.get("assumed", {}))
         self.null_model: str = meta["null_model"]
         #: Components added for inequalities (appendix F), last in q; not "the parameter".
         self.slack_names = tuple(meta.get("slack", ()))
@@ -253,6 +255,26 @@ class ModelFamily:
         §6, :mod:`kanagen.codegen.eliminate`): only with ``eliminate_linear=True``."""
         return self._reductions.get(model) if self.eliminate_linear else None
 
+    def assumed(self, constants=None) -> dict[str, float]:
+        """The constants of :attr:`assumptions` that ``constants`` does not give: their
+        defaults, which a fit then assumes (and says so: :meth:`warn_assumed`)."""
+        given = constants or {}
+        defaults = self.constants
+        return {name: defaults[name] for name in self.assumptions if name not in given}
+
+    def warn_assumed(self, constants=None, stacklevel: int = 3) -> dict[str, float]:
+        """:meth:`assumed`, with one warning naming each assumed value and what to give."""
+        assumed = self.assumed(constants)
+        if assumed:
+            import warnings
+
+            what = "; ".join(f"{name} = {value:g} ({self.assumptions[name]})"
+                             for name, value in assumed.items())
+            warnings.warn(f"family {self.name!r}: constants not given, assumed {what}; pass "
+                          f"constants={{...}} to use your data's", AssumedConstantsWarning,
+                          stacklevel=stacklevel)
+        return assumed
+
     def pinned(self, model: str) -> dict[str, float]:
         """The components of q ``model``'s linear constraints fix to a value (a circle's
         ``B = 0``; the slacks of the other models' inequalities): not estimates, so results
@@ -302,6 +324,11 @@ class ModelFamily:
         if self.use_generated_kernels and (p, k) in self.module.KERNELS:
             return self.module.KERNELS[(p, k)]
         return generic_kernels.whiten, generic_kernels.correct
+
+
+class AssumedConstantsWarning(UserWarning):
+    """A fit relies on a constant's default that stands for something of the data (a
+    spec's ``assume:``): the result's ``assumed`` lists them."""
 
 
 def cache_dir() -> Path:

@@ -114,7 +114,9 @@ def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
         raise ValueError("nothing to estimate: no measures (data has no rows) and no prior "
                          "information (Q0)")
     start = problem.q0 if q_start is None else parameter_vector(fam, q_start, "q_start")
-    return fit_problem(fam, model, problem, q_start=start, max_iter=max_iter, xtol=xtol)
+    assumed = fam.warn_assumed(constants)
+    res = fit_problem(fam, model, problem, q_start=start, max_iter=max_iter, xtol=xtol)
+    return replace(res, assumed=assumed) if assumed else res
 
 
 def check_options(max_iter, xtol, eps) -> None:

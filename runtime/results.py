@@ -213,6 +213,10 @@ class ResultProtocol:
                  f"{self.normalized_cost:.6g}",
                  f"  chi2 = {self.chi2:.6g}, nu = {nu}, chi2/nu = {self.reduced_chi2:.4g}, "
                  f"p = {self.chi2_pvalue:.3g}"]
+        if self.assumed:
+            lines.append("  assumed (constants not given): " + ", ".join(
+                f"{name} = {value:g}{' ' + self.units[name] if name in self.units else ''}"
+                for name, value in self.assumed.items()))
         lines += estimate_lines(self.params, self.slacks, np.asarray(self.std), self.derived,
                                 self.units, self.pinned)
         return "\n".join(lines)
@@ -279,6 +283,7 @@ class FitResult(ResultProtocol):
     slacks: dict[str, float] = field(default_factory=dict)  # appendix F's added components
     units: dict[str, str] = field(default_factory=dict)  # the spec's units: (display only)
     pinned: dict[str, float] = field(default_factory=dict)  # components the model fixes
+    assumed: dict[str, float] = field(default_factory=dict)  # constants' defaults relied on
 
     @property
     def equations(self) -> int:
@@ -360,6 +365,7 @@ class ModelState(ResultProtocol):
     equations: int = 0  # Σ pᵢ of the fit on the inliers
     units: dict[str, str] = field(default_factory=dict)  # the spec's units: (display only)
     pinned: dict[str, float] = field(default_factory=dict)  # components the model fixes
+    assumed: dict[str, float] = field(default_factory=dict)  # constants' defaults relied on
 
     @property
     def estimated(self) -> bool:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -83,6 +83,10 @@ class RobustEstimate(ResultProtocol):
     @property
     def pinned(self) -> dict[str, float]:
         return self.fit.pinned
+
+    @property
+    def assumed(self) -> dict[str, float]:
+        return self.fit.assumed
 
     @property
     def cost(self) -> float:
@@ -528,6 +532,7 @@ def robust_fit(fam: ModelFamily, model: str | None = None, data: Mapping | None 
     """
     model = model or fam.null_model
     problem = make_problem(fam, model, {} if data is None else data, info, q0, Q0, constants)
+    assumed = fam.warn_assumed(constants)
     names = [ch.name for ch in problem.channels]
     if channel is None:
         if len(names) != 1:
@@ -563,4 +568,7 @@ def robust_fit(fam: ModelFamily, model: str | None = None, data: Mapping | None 
             break
         if stop is not None and stop(search.history):
             break
-    return search.finish(problem.q0, problem.Q0, window)
+    est = search.finish(problem.q0, problem.Q0, window)
+    if est is not None and assumed:
+        est = replace(est, fit=replace(est.fit, assumed=assumed))
+    return est

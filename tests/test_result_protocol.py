@@ -194,6 +194,7 @@ def test_mean_reduced_chi2_is_one_with_the_right_sigma():
         assert res.success and res.chi2_dof == M - 2
         values.append(res.reduced_chi2)
     mean = float(np.mean(values))
+    print(f"mean reduced chi2 over {len(values)} line fits with the right sigma: {mean:.4f}")
     assert abs(mean - 1.0) < 0.05, mean
     # and L̃²/d is about ½ (d = N + free parameters), as before
     assert float(np.mean([v * (M - 2) / (2 * (M + 2)) for v in values])) == pytest.approx(

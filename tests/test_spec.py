@@ -109,6 +109,11 @@ def _error(text: str) -> SpecError:
         ("name: demo", "name: demo\nunits: {a: '<b>px</b>'}", 2, "must be short text"),
         ("name: demo", "name: demo\nunits: {a: 3}", 2, "must be short text"),
         ("name: demo", "name: demo\nunits: [px]", 2, "units must be a mapping"),
+        ("constants: {f0: 2.0}", "constants: {f0: {value: 2.0, assume: 'it is <b>'}}", 2,
+         "assume must be short text"),
+        ("constants: {f0: 2.0}", "constants: {f0: {assume: scale}}", 2, "missing its value"),
+        ("constants: {f0: 2.0}", "constants: {f0: {value: 2.0, guess: x}}", 2,
+         "unknown key 'guess'"),
     ],
 )
 def test_spec_errors_name_file_and_line(old, new, line, fragment):
@@ -118,6 +123,13 @@ def test_spec_errors_name_file_and_line(old, new, line, fragment):
     assert err.source == "bad.yaml"
     assert err.line == line, str(err)
     assert str(err).startswith(f"bad.yaml:{line}: ")
+
+
+def test_a_constant_may_say_what_its_default_stands_for():
+    fam = parse_spec(GOOD.replace("constants: {f0: 2.0}",
+                                  "constants: {f0: {value: 2.0, assume: 'image width, px'}}"),
+                     "assume.yaml")
+    assert fam.constants == (("f0", 2.0),) and dict(fam.assumed) == {"f0": "image width, px"}
 
 
 def test_units_are_text_beside_values():

@@ -332,3 +332,34 @@ def test_the_motion_in_human_terms(fam, motion):
     assert pinned <= set(res.pinned)
     for name in pinned:
         assert not re.search(rf"^  {name}\s+= ", text, re.M)
+
+
+def test_a_fit_says_which_intrinsics_it_assumed(fam):
+    """Issue 19: the two-view defaults (cx, cy, f0) stand for a 640×480 image; a fit, robust
+    fit or search that relies on them warns once naming each value and what to give, and its
+    result lists them in ``assumed``; given constants: no warning, nothing assumed."""
+    import warnings
+
+    from kanagen.fitjob import finite, result_to_json
+
+    s = two_view_scene("general", n=60, sigma=0.5, seed=4)
+    q = _truth(fam, s)
+    with pytest.warns(kanagen.AssumedConstantsWarning, match=r"assumed cx = 320 \(principal"):
+        res = kanagen.fit(fam, "general", {"match": s.data}, {"match": 4.0}, q0=q)
+    assert res.assumed == {"cx": 320.0, "cy": 240.0, "f0": 640.0}
+    assert "assumed (constants not given): cx = 320 px" in res.summary()
+    assert finite(result_to_json(res))["assumed"] == res.assumed
+    with pytest.warns(kanagen.AssumedConstantsWarning, match="f0 = 640"):
+        robust = kanagen.robust_fit(fam, "general", {"match": s.data}, {"match": 4.0},
+                                    max_samples=20, constants={"cx": 320.0, "cy": 240.0})
+    assert robust is None or robust.assumed == {"f0": 640.0}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        given = kanagen.fit(fam, "general", {"match": s.data}, {"match": 4.0}, q0=q,
+                            constants=s.constants)
+        est = kanagen.Estimator(fam, constants=s.constants, model="translation")
+        est.add_measures("match", s.data[:20], info=4.0)
+        state = est.run(max_samples=10)
+    assert given.assumed == {} and (state is None or state.assumed == {})
+    conic = kanagen.load("conic")  # its f0 is a conditioning scale: nothing to assume
+    assert conic.assumptions == {} and conic.assumed() == {}
