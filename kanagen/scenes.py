@@ -24,7 +24,6 @@ import numpy as np
 from .runtime import geometry as g
 
 MOTIONS = ("none", "zoom", "rotation", "translation", "planar", "general")
-_H_TYPE = ("none", "zoom", "rotation")  # no translation: F is undefined
 
 
 @dataclass(frozen=True)
@@ -155,12 +154,7 @@ def two_view_scene(motion: str, n: int = 200, outliers: float = 0.0, sigma: floa
     -------
     TwoViewScene
     """
-    if motion not in MOTIONS:
-        raise ValueError(f"unknown motion {motion!r} (one of {', '.join(MOTIONS)})")
-    if not 0.0 <= outliers < 1.0:
-        raise ValueError(f"outliers is a fraction in [0, 1), got {outliers}")
-    if n < 1 or sigma < 0:
-        raise ValueError("n must be positive and sigma non-negative")
+    _check_scene(motion, MOTIONS, n, outliers, sigma)
     if not 0.0 <= on_plane <= 1.0 or (on_plane and motion != "general"):
         raise ValueError("on_plane is a fraction in [0, 1], for general scenes only")
     rng = np.random.default_rng(seed)
@@ -186,6 +180,17 @@ def two_view_scene(motion: str, n: int = 200, outliers: float = 0.0, sigma: floa
     K1, K2 = _camera(focal1, size), _camera(focal2, size)
     points = np.r_[_visible(rng, K1, K2, R, t, size, depth, plane, planar_count),
                    _visible(rng, K1, K2, R, t, size, depth, None, n - planar_count)]
+    return _observed(TwoViewScene, motion, rng, K1, K2, R, t, points, plane, outliers, sigma,
+                     size)
+
+
+def _observed(kind, motion: str, rng, K1, K2, R, t, points, plane, outliers: float,
+              sigma: float, size):
+    """The scene ``kind`` (:class:`TwoViewScene` or :class:`CalibratedScene`) of ``points``
+    seen by both cameras: their projections with Gaussian noise ``sigma``, random pairs as
+    the ``outliers`` share, shuffled; ``F`` when the camera moves (``t ≠ 0``), ``H`` when it
+    does not or the scene is planar (``plane``)."""
+    n = len(points)
     clean = np.c_[_project(K1, points), _project(K2, points @ R.T + t)]
     noisy = clean + rng.normal(scale=sigma, size=clean.shape)
     n_out = int(round(outliers * n / (1.0 - outliers)))
@@ -196,13 +201,23 @@ def two_view_scene(motion: str, n: int = 200, outliers: float = 0.0, sigma: floa
     truth = np.r_[np.ones(n, bool), np.zeros(n_out, bool)][order]
     clean_all = np.r_[clean, junk][order]
     F = H = None
-    if motion not in _H_TYPE:
+    if np.any(t):
         F = _unit(np.linalg.inv(K2).T @ g.skew(t) @ R @ np.linalg.inv(K1))
-    if motion in _H_TYPE or motion == "planar":
+    if not np.any(t) or motion == "planar":
         Hc = R if plane is None else R + np.outer(t, plane[0]) / plane[1]
         H = _unit(K2 @ Hc @ np.linalg.inv(K1))
-    return TwoViewScene(motion, data, clean_all, truth, K1, K2, R, t, points, plane, F, H,
-                        (int(size[0]), int(size[1])), float(sigma))
+    return kind(motion, data, clean_all, truth, K1, K2, R, t, points, plane, F, H,
+                (int(size[0]), int(size[1])), float(sigma))
+
+
+def _check_scene(motion: str, motions: tuple[str, ...], n: int, outliers: float,
+                 sigma: float) -> None:
+    if motion not in motions:
+        raise ValueError(f"unknown motion {motion!r} (one of {', '.join(motions)})")
+    if not 0.0 <= outliers < 1.0:
+        raise ValueError(f"outliers is a fraction in [0, 1), got {outliers}")
+    if n < 1 or sigma < 0:
+        raise ValueError("n must be positive and sigma non-negative")
 
 
 def _visible(rng, K1, K2, R, t, size, depth, plane, n: int) -> np.ndarray:
@@ -373,12 +388,7 @@ def calibrated_scene(motion: str, n: int = 200, outliers: float = 0.0, sigma: fl
     ``|tz| ≥ 0.3 ‖t‖``, 3-D points. Translations have norms 1–2, depths ``depth``. Noise,
     outliers and the returned fields as in :func:`two_view_scene`.
     """
-    if motion not in CALIBRATED_MOTIONS:
-        raise ValueError(f"unknown motion {motion!r} (one of {', '.join(CALIBRATED_MOTIONS)})")
-    if not 0.0 <= outliers < 1.0:
-        raise ValueError(f"outliers is a fraction in [0, 1), got {outliers}")
-    if n < 1 or sigma < 0:
-        raise ValueError("n must be positive and sigma non-negative")
+    _check_scene(motion, CALIBRATED_MOTIONS, n, outliers, sigma)
     rng = np.random.default_rng(seed)
     K1, K2 = _calibrated_camera(rng, size), _calibrated_camera(rng, size)
     R, t, plane = np.eye(3), np.zeros(3), None
@@ -400,20 +410,5 @@ def calibrated_scene(motion: str, n: int = 200, outliers: float = 0.0, sigma: fl
             normal = _unit(np.array([0.0, 0.0, 1.0]) + 0.5 * rng.normal(size=3))
             plane = (normal, float(rng.uniform(*depth)))
     points = _visible(rng, K1, K2, R, t, size, depth, plane, n)
-    clean = np.c_[_project(K1, points), _project(K2, points @ R.T + t)]
-    noisy = clean + rng.normal(scale=sigma, size=clean.shape)
-    n_out = int(round(outliers * n / (1.0 - outliers)))
-    junk = np.c_[rng.uniform([0, 0], size, size=(n_out, 2)),
-                 rng.uniform([0, 0], size, size=(n_out, 2))]
-    order = rng.permutation(n + n_out)
-    data = np.r_[noisy, junk][order]
-    truth = np.r_[np.ones(n, bool), np.zeros(n_out, bool)][order]
-    clean_all = np.r_[clean, junk][order]
-    F = H = None
-    if motion not in ("none", "rotation"):
-        F = _unit(np.linalg.inv(K2).T @ g.skew(t) @ R @ np.linalg.inv(K1))
-    if motion in ("none", "rotation", "planar"):
-        Hc = R if plane is None else R + np.outer(t, plane[0]) / plane[1]
-        H = _unit(K2 @ Hc @ np.linalg.inv(K1))
-    return CalibratedScene(motion, data, clean_all, truth, K1, K2, R, t, points, plane, F, H,
-                           (int(size[0]), int(size[1])), float(sigma))
+    return _observed(CalibratedScene, motion, rng, K1, K2, R, t, points, plane, outliers,
+                     sigma, size)

@@ -201,19 +201,6 @@ def _unit_rows(y: np.ndarray) -> np.ndarray:
     return y / np.sqrt(np.sum(y * y, 1))[:, None]
 
 
-def _triad(a1, a2, b1, b2) -> np.ndarray | None:
-    """The rotation with ``R â1 = b̂1`` and ``R (a1 × a2) ∝ b1 × b2``; None if degenerate."""
-    frames = []
-    for u, v in ((a1, a2), (b1, b2)):
-        n = g.cross(u, v)
-        nu, nn = np.sqrt(u @ u), np.sqrt(n @ n)
-        if not (nu > 0 and nn > 0):
-            return None
-        e1, e2 = u / nu, n / nn
-        frames.append(np.column_stack([e1, e2, g.cross(e1, e2)]))
-    return frames[1] @ frames[0].T
-
-
 def kabsch(y1: np.ndarray, y2: np.ndarray) -> np.ndarray | None:
     """The rotation mapping the unit rays ``ŷ1`` closest onto ``ŷ2`` (least squares, det +1);
     None when the rays do not fix it."""
@@ -233,7 +220,7 @@ def calibrated_rotation(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
         return []
     try:
         y1, y2 = rays(X, k)
-        R = _triad(y1[0], y1[1], y2[0], y2[1]) if len(X) == 2 else kabsch(y1, y2)
+        R = g.rotation_from_pairs(y1[0], y1[1], y2[0], y2[1]) if len(X) == 2 else kabsch(y1, y2)
         if R is None:
             return []
         q = g.quaternion_from_rotation(R)

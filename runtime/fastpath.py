@@ -46,13 +46,13 @@ PORTED: dict[str, tuple[str, ...]] = {
     # in the library of a family that names one of them only (TWIN_MODULES)
     "two_view_starts": ("two_view_fundamental", "two_view_homography", "_rays",
                         "_pose_params", "_FOCAL_RANGE", "_TWO_VIEW_Q", "two_view_rotation",
-                        "two_view_translation", "_rotation_from_pairs", "_kabsch",
+                        "two_view_translation", "_kabsch",
                         "_in_focal_range", "_rotation_candidate", "_DEGENERATE"),
     "geometry": ("homogeneous", "cross", "normalising_transform", "_unit", "_normalised",
                  "_epipolar_rows", "fundamental_8point", "fundamental_7point", "_ALPHAS",
                  "_CUBIC_FROM_VALUES", "homography_dlt", "epipoles", "focal_lengths",
                  "essential_poses", "depths", "best_pose", "nearest_essential",
-                 "homography_poses", "quaternion_from_rotation"),
+                 "homography_poses", "rotation_from_pairs", "quaternion_from_rotation"),
 }
 
 #: The modules of :data:`PORTED` that only codegen/c/kanagen_geometry.c ports: a library
@@ -93,9 +93,8 @@ FINGERPRINTS: dict[str, str] = {
     'two_view_starts._pose_params': 'b4aae0a3cb9e',
     'two_view_starts._FOCAL_RANGE': 'f87b8f36bcc4',
     'two_view_starts._TWO_VIEW_Q': '6a4d9d3c3a06',
-    'two_view_starts.two_view_rotation': '4201463169cd',
+    'two_view_starts.two_view_rotation': 'e16ecad83d03',
     'two_view_starts.two_view_translation': '2226bf4bcbf0',
-    'two_view_starts._rotation_from_pairs': '7d452c668bfc',
     'two_view_starts._kabsch': 'bdab072395a2',
     'two_view_starts._in_focal_range': 'ad3b05c687d5',
     'two_view_starts._rotation_candidate': '0929c0d2b305',
@@ -118,6 +117,7 @@ FINGERPRINTS: dict[str, str] = {
     'geometry.best_pose': '7dbb992250cc',
     'geometry.nearest_essential': '898b1d686f05',
     'geometry.homography_poses': 'e6c7f0b6a730',
+    'geometry.rotation_from_pairs': 'd48c00712efd',
     'geometry.quaternion_from_rotation': '270f42cbd8ff',
 }
 

@@ -259,6 +259,21 @@ def homography_poses(H: np.ndarray, y1: np.ndarray | None = None,
     return out
 
 
+def rotation_from_pairs(a1, a2, b1, b2) -> np.ndarray | None:
+    """The rotation with ``R â1 = b̂1`` and ``R (a1 × a2) ∝ b1 × b2`` (the triad method:
+    ``R = B Aᵀ``, ``A = [e1, e2, e1 × e2]``, ``e1 = â1``, ``e2 = unit(a1 × a2)``); None when a
+    pair is parallel."""
+    triads = []
+    for u, v in ((a1, a2), (b1, b2)):
+        n = cross(u, v)
+        nu, nn = np.sqrt(u @ u), np.sqrt(n @ n)
+        if not (nu > 0 and nn > 0):
+            return None
+        e1, e2 = u / nu, n / nn
+        triads.append(np.column_stack([e1, e2, cross(e1, e2)]))
+    return triads[1] @ triads[0].T
+
+
 def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
     """Unit quaternion ``(w, x, y, z)``, ``w >= 0`` (Shepperd's method)."""
     R = np.asarray(R, dtype=float)

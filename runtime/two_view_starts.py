@@ -90,21 +90,6 @@ def two_view_homography(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
         return []
 
 
-def _rotation_from_pairs(a1, a2, b1, b2) -> np.ndarray | None:
-    """The rotation with ``R â1 = b̂1`` and ``R (a1 × a2) ∝ b1 × b2`` (the triad method:
-    ``R = B Aᵀ``, ``A = [e1, e2, e1 × e2]``, ``e1 = â1``, ``e2 = unit(a1 × a2)``); None when a
-    pair is parallel."""
-    triads = []
-    for u, v in ((a1, a2), (b1, b2)):
-        n = g.cross(u, v)
-        nu, nn = np.sqrt(u @ u), np.sqrt(n @ n)
-        if not (nu > 0 and nn > 0):
-            return None
-        e1, e2 = u / nu, n / nn
-        triads.append(np.column_stack([e1, e2, g.cross(e1, e2)]))
-    return triads[1] @ triads[0].T
-
-
 def _kabsch(y1: np.ndarray, y2: np.ndarray) -> np.ndarray | None:
     """The rotation that best maps the unit rays ``ŷ1`` onto ``ŷ2`` (least squares, Kabsch:
     ``Σ ŷ2 ŷ1ᵀ = U S Vᵀ``, ``R = u1 v1ᵀ + u2 v2ᵀ + (u1 × u2)(v1 × v2)ᵀ``, det +1); None when
@@ -189,7 +174,7 @@ def two_view_rotation(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
                 continue
             f = float(np.sqrt(F))
             y1[:, 2], y2[:, 2] = f, f
-            R = _rotation_from_pairs(y1[0], y1[1], y2[0], y2[1])
+            R = g.rotation_from_pairs(y1[0], y1[1], y2[0], y2[1])
             if R is not None:
                 out.append(_rotation_candidate(f, R))
         return out

@@ -752,7 +752,7 @@ static void kg_rotation_candidate(double f, const double *R, double *o)
     for (int i = 6; i < KG_TWO_VIEW_Q; ++i) o[i] = NAN;
 }
 
-/* _rotation_from_pairs: R = B Aᵀ of the triads; 0 when a pair is parallel */
+/* geometry.rotation_from_pairs: R = B Aᵀ of the triads; 0 when a pair is parallel */
 static int kg_rotation_from_pairs(const double *a1, const double *a2, const double *b1,
                                   const double *b2, double *R)
 {
