@@ -546,7 +546,6 @@ def _lattice_table(states, chosen: str | None) -> str:
 
 
 def _state_summary(best, measures: int) -> str:
-    from .fitjob import std
     from .runtime.results import estimate_lines
 
     lines = [f"chosen model {best.model!r}: {len(best.inliers)} inlier(s), "
@@ -556,7 +555,7 @@ def _state_summary(best, measures: int) -> str:
              f"{best.threshold:.4g}, {best.samples} sample(s)"]
     if best.status not in ("estimated", "null"):
         lines.append(f"  refinement: {best.status}")
-    lines += estimate_lines(best.params, best.slacks, std(best.covariance), best.derived,
+    lines += estimate_lines(best.params, best.slacks, best.std, best.derived,
                             best.units, best.pinned)
     return "\n".join(lines)
 

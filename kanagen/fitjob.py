@@ -286,12 +286,6 @@ def run_job(fam: ModelFamily, X: np.ndarray, channel: str, opts: FitOptions, *,
                                 spec=spec, data=data))
 
 
-def std(covariance) -> np.ndarray:
-    """Standard deviations from a covariance: inf stays inf (unobservable)."""
-    with np.errstate(invalid="ignore"):
-        return np.sqrt(np.clip(np.diag(np.asarray(covariance, dtype=float)), 0.0, None))
-
-
 def finite(obj):
     """Plain JSON data: arrays as lists, inf and NaN as null."""
     if isinstance(obj, dict):
