@@ -190,7 +190,7 @@ def main() -> None:
                         help="(a) the classes to run (default: all seven)")
     parser.add_argument("--shares", type=lambda s: [float(x) for x in s.split(",")],
                         default=[0.3, 0.6], help="(b) outlier shares (default 0.3,0.6)")
-    parser.add_argument("--backend", default="compiled",
+    parser.add_argument("--backend", default=None,
                         choices=["numpy", "casadi", "compiled"])
     args = parser.parse_args()
     fam = kanagen.load("two_view_calibrated", backend=args.backend)

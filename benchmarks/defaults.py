@@ -127,7 +127,8 @@ def main() -> None:
                         help="eq. 25 at an assumed half of inliers (adaptive=False)")
     parser.add_argument("--quantile", type=float, default=None,
                         help="the χ² quantile of the default L* (a measurement knob)")
-    parser.add_argument("--backend", default="compiled", choices=["numpy", "compiled"])
+    parser.add_argument("--backend", default=None, choices=["numpy", "compiled"],
+                        help="kanagen's backend (default: kanagen.load's, compiled)")
     args = parser.parse_args()
     if args.quantile is not None:
         from kanagen.runtime import scoring

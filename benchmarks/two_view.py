@@ -12,7 +12,7 @@ figure measured in this run:
   parameters buy: the chosen model against our own unconstrained one (``general`` for F,
   ``planar`` for H) refitted on the same inliers;
 * (c) time per scene beside pycolmap's ``estimate_two_view_geometry`` and OpenCV (F + H),
-  kanagen on its compiled backend by default (``--backend numpy`` for the NumPy runtime).
+  kanagen on its default backend, compiled (``--backend numpy`` for the NumPy runtime).
 
 Run: ``python benchmarks/two_view.py [--trials N] [--backend B]`` (needs the ``bench``
 extra: OpenCV and pycolmap). BLAS threads are set to one: the algebra is on small matrices.
@@ -92,8 +92,8 @@ def main() -> None:
     parser.add_argument("--sigma", type=float, default=0.5)
     parser.add_argument("--scale", type=float, default=None,
                         help="L* (default: the estimator's, from the information 1/σ²)")
-    parser.add_argument("--backend", default="compiled", choices=["numpy", "casadi", "compiled"],
-                        help="kanagen's backend (default: the compiled estimator and scoring)")
+    parser.add_argument("--backend", default=None, choices=["numpy", "casadi", "compiled"],
+                        help="kanagen's backend (default: kanagen.load's, compiled)")
     args = parser.parse_args()
     fam = kanagen.load("two_view", backend=args.backend)
     confusion = {m: dict.fromkeys(MOTIONS, 0) for m in MOTIONS}

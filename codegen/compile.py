@@ -25,6 +25,8 @@ import os
 import shlex
 import shutil
 import subprocess
+import time
+from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
 
@@ -146,9 +148,11 @@ def _tables(module: ModuleType, family: dict) -> dict:
     }
 
 
-def compile_family(module: ModuleType, family: dict, cache: Path) -> Path:
+def compile_family(module: ModuleType, family: dict, cache: Path,
+                   announce: Callable[[str, float | None], None] | None = None) -> Path:
     """The shared library of a generated CasADi module and of the fast path of its family
     (``family``: the NumPy module's ``FAMILY``), compiled once into ``cache``.
+    ``announce(name, seconds)``: called before a compile (``seconds`` None) and after it.
 
     Raises
     ------
@@ -161,6 +165,9 @@ def compile_family(module: ModuleType, family: dict, cache: Path) -> Path:
     if library.exists():
         return library
     command = compiler()
+    started = time.perf_counter()
+    if announce is not None:
+        announce(name, None)
     folder.mkdir(parents=True, exist_ok=True)
     # this process's own source and output: concurrent first compiles share no partial file
     source = folder / f"{name}.{os.getpid()}.c"
@@ -180,6 +187,8 @@ def compile_family(module: ModuleType, family: dict, cache: Path) -> Path:
         raise CompileError(f"the C compiler failed ({shlex.join(cmd)}):\n{tail}")
     partial.replace(library)  # atomic: concurrent loaders never see half a library
     source.unlink(missing_ok=True)
+    if announce is not None:
+        announce(name, time.perf_counter() - started)
     return library
 
 

@@ -475,7 +475,7 @@ def timings(case, rounds: int = 7, batch: float = 0.03) -> dict:
     rows = NumbaSlice(fam, problem, case["model"], "rows")
     famc, problem_c, _ = problem_for(case, "compiled")
     if problem_c.compiled is None:
-        raise SystemExit("the compiled fast path is off (FastPathWarning): no C route")
+        raise SystemExit("the compiled fast path is off: no C route")
     fp, model = problem_c.compiled
 
     def numpy_call():
@@ -532,7 +532,7 @@ def compile_numba(family: str) -> dict:
 def compile_c(family: str) -> dict:
     """(In a subprocess.) ``kanagen.load(family, backend="compiled")`` into $KANAGEN_CACHE."""
     with warnings.catch_warnings():
-        warnings.simplefilter("error")  # a CompileWarning or FastPathWarning must show
+        warnings.simplefilter("error")  # a CompileWarning must show
         t0 = time.perf_counter()
         kanagen.load(family, backend="compiled")
     return {"load": time.perf_counter() - t0}

@@ -75,7 +75,7 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
           channel: str | None = None, workers: int | None = None, scheduler: str | None = None,
           retry_errors: bool = False, progress: Callable[[Outcome], None] | None = None,
           on_start: Callable[[int, int], None] | None = None,
-          options: FitOptions | None = None, backend: str = "numpy",
+          options: FitOptions | None = None, backend: str | None = None,
           limits: Limits = DEFAULT, **fit_options) -> BatchSummary:
     """Estimate every dataset with the same spec and options; results go to ``db``.
 
@@ -95,8 +95,9 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
     on_start : called with (datasets to estimate, datasets skipped) before the first one.
     options : FitOptions, or the same as keywords (``max_samples=500, sigma=0.5, ...``;
         ``scale`` defaults to each model's χ² quantile, ``adaptive`` to True).
-    backend : ``"numpy"``, ``"casadi"`` or ``"compiled"`` (as :func:`kanagen.load`; each
-        worker loads, and for ``"compiled"`` compiles once into the shared cache). The same
+    backend : ``"compiled"``, ``"numpy"`` or ``"casadi"``, default :func:`kanagen.load`'s
+        (each worker loads; a compiled family is compiled once, by this process, into the
+        shared cache). The same
         estimates whatever the backend: not part of what a re-run resumes on.
     limits : what reading the spec may cost (:class:`kanagen.modelspec.Limits`), in the
         parent and on every worker.
@@ -128,6 +129,7 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
     paths = _expand(datasets)
     spec_text, source = _spec_source(spec)
     fam = load(spec, backend=backend, limits=limits)
+    backend = fam.backend  # the workers load what this process could (compiled, cached)
     channel = resolve_channel(fam, channel)
     options.check(fam)
     key = options.key(channel)

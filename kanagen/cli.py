@@ -232,10 +232,11 @@ def fit_options(command):
 
 
 backend_option = click.option(
-    "--backend", type=click.Choice(["numpy", "casadi", "compiled"]), default="numpy",
-    show_default=True,
-    help="What evaluates the equations; compiled: C through CasADi and the C compiler, with "
-         "the compiled estimator (same results, faster).")
+    "--backend", type=click.Choice(["compiled", "numpy", "casadi"]), default=None,
+    help="What evaluates the equations (the same results): compiled (the default, or "
+         "$KANAGEN_BACKEND): C through CasADi and the C compiler, compiled once per spec and "
+         "cached, the NumPy backend with a warning where no C compiler works; numpy: the "
+         "generated NumPy module, no compiler needed.")
 
 
 def _fit_options(scale, scorer, phi, seed, max_samples, fixed_budget, model, local, sigma,

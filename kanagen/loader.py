@@ -24,9 +24,22 @@ if TYPE_CHECKING:
 
 #: The backends :func:`load` accepts.
 LOAD_BACKENDS = ("numpy", "casadi", "compiled")
+#: The environment variable naming the default backend (:func:`default_backend`).
+BACKEND_VARIABLE = "KANAGEN_BACKEND"
 
 
-def load(spec: str | Path | Family, *, backend: str = "numpy",
+def default_backend() -> str:
+    """The backend :func:`load` uses when none is given: ``$KANAGEN_BACKEND`` when set
+    (one of :data:`LOAD_BACKENDS`), else ``"compiled"`` — which falls back to ``"numpy"``
+    with one :class:`~kanagen.codegen.compile.CompileWarning` where no C compiler works."""
+    chosen = os.environ.get(BACKEND_VARIABLE, "").strip() or "compiled"
+    if chosen not in LOAD_BACKENDS:
+        raise ValueError(f"${BACKEND_VARIABLE}={chosen!r} is not a backend (choose from "
+                         f"{', '.join(LOAD_BACKENDS)})")
+    return chosen
+
+
+def load(spec: str | Path | Family, *, backend: str | None = None,
          use_generated_kernels: bool = True, eliminate_linear: bool = False,
          limits: Limits = DEFAULT) -> ModelFamily:
     """Load a model family.
@@ -36,13 +49,15 @@ def load(spec: str | Path | Family, *, backend: str = "numpy",
     spec : path, family name or Family
         A YAML spec file; the name of a shipped family (``"conic"``); or a validated
         :class:`kanagen.modelspec.Family` (e.g. from :func:`kanagen.modelspec.family_from_data`).
-    backend : {"numpy", "casadi", "compiled"}
-        What evaluates the equations: the generated NumPy module; the generated CasADi
-        functions; or those compiled to C (CasADi's code generator and the system C
-        compiler, cached) together with the compiled estimator that :func:`kanagen.fit`
-        then runs (docs/fastpath.md). Same estimates to rounding level. Without a C
-        compiler, "compiled" warns (:class:`~kanagen.codegen.compile.CompileWarning`) and
-        uses "casadi".
+    backend : {"compiled", "numpy", "casadi"}, optional
+        What evaluates the equations: the family compiled to C (CasADi's code generator,
+        the estimator's compiled kernels and the system C compiler: compiled once per
+        machine and spec, cached, a line on stderr while it compiles; docs/fastpath.md);
+        the generated NumPy module; or the generated CasADi functions. Same estimates to
+        rounding level. Default: :func:`default_backend` (``$KANAGEN_BACKEND``, else
+        "compiled"; where no C compiler works, one
+        :class:`~kanagen.codegen.compile.CompileWarning` and "numpy"). "compiled" asked
+        for by name falls back to "casadi" with the same warning.
     use_generated_kernels : bool
         Use the unrolled per-measure algebra of the generated module (default) or the
         generic runtime implementation.
@@ -67,6 +82,8 @@ def load(spec: str | Path | Family, *, backend: str = "numpy",
     >>> kanagen.load("conic", backend="casadi").backend
     'casadi'
     """
+    by_default = backend is None
+    backend = default_backend() if by_default else backend
     if backend not in LOAD_BACKENDS:
         raise ValueError(f"unknown backend {backend!r} (choose from {', '.join(LOAD_BACKENDS)})")
     if _is_family(spec):
@@ -88,23 +105,49 @@ def load(spec: str | Path | Family, *, backend: str = "numpy",
     if backend != "numpy":
         casadi_module = _module_for(family, "casadi") if family is not None else \
             _shipped_by_name(f"{module.FAMILY['name']}_casadi")
-        functions = None
         if backend == "compiled":
-            from .codegen.compile import CompileError, CompileWarning, compile_family, load_compiled
-            from .runtime.fastpath import FastPath
-
-            try:
-                library = compile_family(casadi_module, module.FAMILY, cache_dir())
-                functions = CompiledFunctions(casadi_module, module.FAMILY["derived"],
-                                              load_compiled(casadi_module, library), library,
-                                              module.FAMILY)
-                fastpath = FastPath.load(library, module)
-            except CompileError as exc:
-                warnings.warn(f"cannot compile family {module.FAMILY['name']!r}: {exc}; using "
-                              "the uncompiled CasADi backend", CompileWarning, stacklevel=2)
+            compiled = _compiled(casadi_module, module, by_default)
+            if compiled is None and by_default:
+                return ModelFamily(module, use_generated_kernels, None, eliminate_linear)
+            functions, fastpath = compiled or (None, None)
         if functions is None:
             functions = CasadiFunctions(casadi_module, module.FAMILY["derived"])
     return ModelFamily(module, use_generated_kernels, functions, eliminate_linear, fastpath)
+
+
+def _compiled(casadi_module, module, by_default: bool):
+    """The compiled functions and fast path of a family, or None with one warning (per
+    family and process) when it cannot be compiled; a first compile says so on stderr."""
+    from .codegen.compile import CompileError, CompileWarning, compile_family, load_compiled
+    from .runtime.fastpath import FastPath
+
+    name = module.FAMILY["name"]
+    try:
+        library = compile_family(casadi_module, module.FAMILY, cache_dir(), _announce)
+        functions = CompiledFunctions(casadi_module, module.FAMILY["derived"],
+                                      load_compiled(casadi_module, library), library,
+                                      module.FAMILY)
+        return functions, FastPath.load(library, module)
+    except CompileError as exc:
+        instead = "the NumPy backend (the same estimates, slower)" if by_default else \
+            "the uncompiled CasADi backend"
+        warnings.warn(f"cannot compile family {name!r}: {exc}; using {instead}. Install a C "
+                      f"compiler (cc, gcc or clang; or set CC), or set "
+                      f"{BACKEND_VARIABLE}=numpy to choose the NumPy backend",
+                      CompileWarning, stacklevel=3)
+        return None
+
+
+def _announce(name: str, seconds: float | None) -> None:
+    """A first compile of a family, on stderr: when it starts and how long it took."""
+    import sys
+
+    if seconds is None:
+        sys.stderr.write(f"kanagen: compiling family {name!r} for this machine (once; cached "
+                         f"in {cache_dir()})...\n")
+    else:
+        sys.stderr.write(f"kanagen: compiled family {name!r} in {seconds:.1f} s\n")
+    sys.stderr.flush()
 
 
 def _check_initializers(family) -> None:

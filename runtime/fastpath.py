@@ -1,126 +1,24 @@
-"""The compiled fast path of the robust search: ctypes glue to ``kg_coherence``,
+"""The compiled kernels of the estimator: ctypes glue to ``kg_coherence``, ``kg_project``,
 ``kg_minimal`` and the sampling calls (docs/fastpath.md).
 
-``codegen/c/kanagen_fast.c`` is a mechanical port of the NumPy runtime's measure projection
-(eq. 22–24), square roots and minimal solve (eq. 21), compiled with a family's CasADi C into
-the library of ``kanagen.load(..., backend="compiled")``. :class:`FastPath` packs a problem
-into flat arrays and calls them. (The local fit runs the NumPy iteration: its verified
-trust region has no port.)
-
-The port mirrors the Python functions listed in :data:`PORTED`; their syntax trees
-(docstrings and comments excluded) are fingerprinted in :data:`FINGERPRINTS`. When one of
-them changes, the fast path switches itself off (the NumPy path runs: right results, only
-slower) and tests/test_fastpath.py fails, naming the functions to port again. After porting
-and testing, print the new fingerprints with ``python -m kanagen.runtime.fastpath``.
+``codegen/c/kanagen_fast.c`` is a port of the NumPy runtime's measure projection (eq. 22–24),
+square roots and minimal solve (eq. 21), compiled with a family's CasADi C into the library
+of ``kanagen.load(..., backend="compiled")`` (the default backend). :class:`FastPath` packs a
+problem into flat arrays and calls them: the robust search's scoring and samples, and the
+local fit's restorations of the measures (the iteration around them is Python on every
+backend). tests/test_fastpath.py holds both to the NumPy runtime (to 1e-10, or bit for bit)
+and, with tests/port_fingerprints.py, names the Python functions whose change the C must
+follow; nothing is checked at run time.
 """
 
 from __future__ import annotations
 
-import ast
 import ctypes
-import hashlib
-import importlib
-import inspect
-import textwrap
 import threading
-import warnings
-from functools import cache
 from pathlib import Path
 from types import ModuleType
 
 import numpy as np
-
-#: Python functions (and module constants) that codegen/c/kanagen_fast.c ports, by module.
-PORTED: dict[str, tuple[str, ...]] = {
-    # kg_coherence: the measures projected onto their equations (eq. 22–24)
-    "projector": ("project_measures", "_halving", "quadratic", "_ROUNDING"),
-    "sqrt": ("closest_sqrt", "reduced_sqrt", "reduced_solve", "triangular_solve",
-             "_equilibrium", "_closest_single", "_reduced_single", "_scale", "EPS", "_TINY",
-             "REDUNDANT"),
-    "kernels": ("whiten", "correct"),
-    # kg_minimal: eq. 21
-    "minimal": ("coherence_errors", "minimal_solve_problem", "_solved", "_FREE_STEPS",
-                "_WATCHDOG", "_SLOW"),
-    "inputs": ("inverse_root", "ChannelData.with_corrected"),
-    # codegen/c/kanagen_geometry.c: the closed-form initialisers (FastPath.initializer),
-    # in the library of a family that names one of them only (TWIN_MODULES)
-    "two_view_starts": ("two_view_fundamental", "two_view_homography", "_rays",
-                        "_pose_params", "_FOCAL_RANGE", "_TWO_VIEW_Q", "two_view_rotation",
-                        "two_view_translation", "_kabsch",
-                        "_in_focal_range", "_rotation_candidate", "_DEGENERATE"),
-    "geometry": ("homogeneous", "cross", "normalising_transform", "_unit", "_normalised",
-                 "_epipolar_rows", "fundamental_8point", "fundamental_7point", "_ALPHAS",
-                 "_CUBIC_FROM_VALUES", "homography_dlt", "epipoles", "focal_lengths",
-                 "essential_poses", "depths", "best_pose", "nearest_essential",
-                 "homography_poses", "rotation_from_pairs", "quaternion_from_rotation"),
-}
-
-#: The modules of :data:`PORTED` that only codegen/c/kanagen_geometry.c ports: a library
-#: without the twins (its family names no two-view initializer) neither checks nor imports
-#: them (:func:`changed`).
-TWIN_MODULES = frozenset({"two_view_starts", "geometry"})
-
-#: Fingerprints of :data:`PORTED` when the C port was last brought in line with them.
-FINGERPRINTS: dict[str, str] = {
-    'projector.project_measures': 'c3d1d84ea5b4',
-    'projector._halving': '788448d7ecbd',
-    'projector.quadratic': 'ad2172806540',
-    'projector._ROUNDING': 'b19a1c4efef9',
-    'sqrt.closest_sqrt': 'b4340982303f',
-    'sqrt.reduced_sqrt': '81d2a95ecf3e',
-    'sqrt.reduced_solve': 'caecf64cc8c0',
-    'sqrt.triangular_solve': '01c0fd119e19',
-    'sqrt._equilibrium': 'dd8612e57ac3',
-    'sqrt._closest_single': '12aebbdf103d',
-    'sqrt._reduced_single': 'd5c2329a2e14',
-    'sqrt._scale': 'bdb7682c62c0',
-    'sqrt.EPS': 'cf90b756d02d',
-    'sqrt._TINY': '24623188d5ff',
-    'sqrt.REDUNDANT': 'a11958cb4ea6',
-    'kernels.whiten': 'ffc3e108b3d4',
-    'kernels.correct': '0e183f7e3c8f',
-    'minimal.coherence_errors': 'b6d9e82e820b',
-    'minimal.minimal_solve_problem': '4b123dbff38e',
-    'minimal._solved': 'ac88707f4a75',
-    'minimal._FREE_STEPS': '3e5ab2fb8dd8',
-    'minimal._WATCHDOG': '533d3f19a9e0',
-    'minimal._SLOW': '148df96ae1c0',
-    'inputs.inverse_root': '051a001e58d2',
-    'inputs.ChannelData.with_corrected': 'cc3fdd26454a',
-    'two_view_starts.two_view_fundamental': '27e179692ec5',
-    'two_view_starts.two_view_homography': '8d4b488b7110',
-    'two_view_starts._rays': '415fcf057322',
-    'two_view_starts._pose_params': 'b4aae0a3cb9e',
-    'two_view_starts._FOCAL_RANGE': 'f87b8f36bcc4',
-    'two_view_starts._TWO_VIEW_Q': '6a4d9d3c3a06',
-    'two_view_starts.two_view_rotation': 'e16ecad83d03',
-    'two_view_starts.two_view_translation': '2226bf4bcbf0',
-    'two_view_starts._kabsch': 'bdab072395a2',
-    'two_view_starts._in_focal_range': 'ad3b05c687d5',
-    'two_view_starts._rotation_candidate': '0929c0d2b305',
-    'two_view_starts._DEGENERATE': '2f88dcb41fb8',
-    'geometry.homogeneous': 'e78e47b5ab90',
-    'geometry.cross': 'b585c32c4b02',
-    'geometry.normalising_transform': '85230fff495e',
-    'geometry._unit': '2e0b093c84a9',
-    'geometry._normalised': 'afdd541189c5',
-    'geometry._epipolar_rows': '9ae49e54014e',
-    'geometry.fundamental_8point': '94fd8ba26c68',
-    'geometry.fundamental_7point': '97eb416ca91d',
-    'geometry._ALPHAS': '024e7accb4a5',
-    'geometry._CUBIC_FROM_VALUES': 'c95f60d17ee2',
-    'geometry.homography_dlt': '4892afa7dfd3',
-    'geometry.epipoles': 'e77cc33dbce4',
-    'geometry.focal_lengths': '39c84f8e93d6',
-    'geometry.essential_poses': 'b863be224cb9',
-    'geometry.depths': 'd929c1fd98c6',
-    'geometry.best_pose': '7dbb992250cc',
-    'geometry.nearest_essential': '898b1d686f05',
-    'geometry.homography_poses': 'e6c7f0b6a730',
-    'geometry.rotation_from_pairs': 'd48c00712efd',
-    'geometry.quaternion_from_rotation': '270f42cbd8ff',
-}
-
 
 #: The initialisers with a compiled twin (codegen/c/kanagen_geometry.c: ``kg_<name>``), and
 #: which of the values it writes (in the order of ``_TWO_VIEW_Q``) their candidates name.
@@ -136,68 +34,6 @@ TWINS: dict[str, tuple[tuple[int, str], ...]] = {
 #: ``KG_TWIN_WIDTH`` of codegen/c/kanagen_sample.c (a constant here: the sampler of a family
 #: without twins imports no two-view code).
 TWIN_WIDTH = 12
-
-
-class FastPathWarning(UserWarning):
-    """The compiled fast path is off: the Python it ports has changed since."""
-
-
-def _node(module: ModuleType, name: str) -> ast.AST:
-    """The syntax tree of a function, method, property or module constant, docstring out."""
-    owner, _, attr = name.rpartition(".")
-    if owner:
-        cls = ast.parse(textwrap.dedent(inspect.getsource(getattr(module, owner))))
-        body = cls.body[0].body
-        node = next(n for n in body if getattr(n, "name", None) == attr)
-    elif inspect.isfunction(getattr(module, name)):
-        node = ast.parse(textwrap.dedent(inspect.getsource(getattr(module, name)))).body[0]
-    else:
-        tree = ast.parse(inspect.getsource(module))
-        node = next(n for n in tree.body if isinstance(n, ast.Assign | ast.AnnAssign)
-                    and name in {getattr(t, "id", None) for t in
-                                 (n.targets if isinstance(n, ast.Assign) else [n.target])}
-                    or isinstance(n, ast.Assign) and any(
-                        isinstance(t, ast.Tuple) and name in {e.id for e in t.elts}
-                        for t in n.targets))
-    if isinstance(node, ast.FunctionDef) and node.body and isinstance(node.body[0], ast.Expr) \
-            and isinstance(getattr(node.body[0], "value", None), ast.Constant):
-        node.body = node.body[1:]
-    return node
-
-
-@cache
-def _module_fingerprints(short: str) -> dict[str, str]:
-    """The current fingerprints of the names of :data:`PORTED` in module ``short``."""
-    out = {}
-    module = importlib.import_module(f"kanagen.runtime.{short}")
-    for name in PORTED[short]:
-        dump = ast.dump(_node(module, name), include_attributes=False)
-        out[f"{short}.{name}"] = hashlib.sha256(dump.encode()).hexdigest()[:12]
-    return out
-
-
-def fingerprints(twins: bool = True) -> dict[str, str]:
-    """The current fingerprints of :data:`PORTED`: ``{"module.name": hash}`` (without
-    ``twins``: not those of :data:`TWIN_MODULES`, which are then not imported)."""
-    out = {}
-    for short in PORTED:
-        if twins or short not in TWIN_MODULES:
-            out.update(_module_fingerprints(short))
-    return out
-
-
-def changed(twins: bool = True) -> list[str]:
-    """The ported Python functions that differ from what the C port mirrors (all of them
-    when their source cannot be read, e.g. an installation without .py files); without
-    ``twins`` (a library without kanagen_geometry.c) those of :data:`TWIN_MODULES` are not
-    checked."""
-    try:
-        now = fingerprints(twins)
-    except (OSError, TypeError, AttributeError, StopIteration):
-        return ["<the runtime's source is not available>"]
-    recorded = {k: v for k, v in FINGERPRINTS.items()
-                if twins or k.partition(".")[0] not in TWIN_MODULES}
-    return sorted(k for k in now.keys() | recorded.keys() if now.get(k) != recorded.get(k))
 
 
 class FastPath:
@@ -228,6 +64,9 @@ class FastPath:
         self._coherence = lib.kg_coherence
         self._coherence.argtypes = [ctypes.c_void_p] * 2
         self._coherence.restype = ctypes.c_int
+        self._project = lib.kg_project
+        self._project.argtypes = [ctypes.c_void_p] * 3
+        self._project.restype = ctypes.c_int
         self._minimal = lib.kg_minimal
         self._minimal.argtypes = [ctypes.c_void_p] * 2
         self._minimal.restype = ctypes.c_int
@@ -262,6 +101,10 @@ class FastPath:
                    [ch["components"].index(c) for c in ch["corrected"]])
             for i, (name, ch) in enumerate(meta["channels"].items())}
         self.model_ids = {name: i for i, name in enumerate(meta["models"])}
+        #: equations per model and channel (kg_equations)
+        self._equations = {
+            name: tuple(lib.kg_equations(i, c) for c in range(len(meta["channels"])))
+            for name, i in self.model_ids.items()}
         self._local = threading.local()  # per thread: reused argument buffers
         sizes = (ctypes.c_longlong * 6)()
         lib.kg_sizes(sizes)
@@ -277,16 +120,8 @@ class FastPath:
         return bool(self._twins)
 
     @classmethod
-    def load(cls, library: Path, module: ModuleType) -> FastPath | None:
-        """The fast path of ``library``, or None (with a warning) when the Python it ports
-        has changed since the port (see :data:`FINGERPRINTS`; the two-view closed forms
-        only when the library holds their twins)."""
-        stale = changed(twins=ctypes.CDLL(str(library)).kg_sample_twins() > 0)
-        if stale:
-            warnings.warn("the compiled fast path of the estimator is off: the Python it "
-                          f"ports has changed ({', '.join(stale)}); fits run the NumPy "
-                          "iteration (see docs/fastpath.md)", FastPathWarning, stacklevel=3)
-            return None
+    def load(cls, library: Path, module: ModuleType) -> FastPath:
+        """The fast path of ``library`` (compiled for the family of ``module``)."""
         return cls(library, module)
 
     def coherence(self, model: str, problem, q: np.ndarray, iterations: int, tol: float):
@@ -307,6 +142,50 @@ class FastPath:
             kept.append(out[at + M:at + 2 * M].astype(np.int64))
             at += 2 * M
         return tuple(totals), tuple(kept)
+
+    def project(self, model: str, problem, q: np.ndarray, mt, iterations: int, tol: float):
+        """``kg_project``: :func:`~kanagen.runtime.projector.project_measures` of the
+        validated ``problem`` at ``q`` from the corrected measures ``mt`` — the same
+        ``(mt, violations, ranks, evals)``; None when kg_project refuses the input (not
+        finite). Packed once per problem and thread (a fit restores on one problem)."""
+        packed = getattr(self._local, "project", None)
+        if packed is None or packed[0] is not problem or packed[1] != (model, iterations, tol):
+            n = self.n
+            sizes = []
+            for ch in problem.channels:
+                M, k = ch.X.shape[0], len(ch.index)
+                p = self._equations[model][self.channels[ch.name][0]]
+                sizes.append((M, k, p))
+            size_out = sum(M * (k + 2 + p * (1 + n + k)) for M, k, p in sizes)
+            ws, where = self._packed_at(model, problem, problem.q0, problem.eps, iterations,
+                                        tol, size_out, own=True)
+            mt_in = np.empty(sum(M * k for M, k, _ in sizes) + 1)
+            packed = self._local.project = (problem, (model, iterations, tol), ws, where,
+                                            sizes, mt_in, ctypes.c_void_p(mt_in.ctypes.data))
+        _, _, ws, where, sizes, mt_in, mt_at = packed
+        ws[0][where[0]:where[0] + self.n] = q
+        at = 0
+        for m, (M, k, _) in zip(mt, sizes, strict=True):
+            mt_in[at:at + M * k] = m.ravel()
+            at += M * k
+        if self._project(ws[2], mt_at, ws[3]) != 0:
+            return None
+        out, n = ws[1], self.n
+        mts, violations, ranks, evals, at = [], [], [], [], 0
+        for M, k, p in sizes:
+            mts.append(out[at:at + M * k].reshape(M, k).copy())
+            at += M * k
+            violations.append(out[at:at + M].copy())
+            ranks.append(out[at + M:at + 2 * M].astype(np.int64))
+            at += 2 * M
+            c = out[at:at + M * p].reshape(M, p).copy()
+            at += M * p
+            C = out[at:at + M * p * n].reshape(M, p, n).copy()
+            at += M * p * n
+            D = out[at:at + M * p * k].reshape(M, p, k).copy()
+            at += M * p * k
+            evals.append((c, C, D))
+        return tuple(mts), tuple(violations), tuple(ranks), tuple(evals)
 
     def coherence_input(self, model: str, problem, iterations: int, tol: float):
         """kg_coherence's input for the validated ``problem`` (its start and prior slots
@@ -443,15 +322,3 @@ class FastPath:
         for (_, _, Q, G), (_, q_at, g_at) in zip(channels, where[4:], strict=True):
             inp[q_at:q_at + Q.size] = Q.ravel()
             inp[g_at:g_at + G.size] = G.ravel()
-
-def main() -> None:
-    """Print :data:`FINGERPRINTS` as they should read now (after porting a change)."""
-    print("FINGERPRINTS: dict[str, str] = {")
-    for name, value in fingerprints().items():
-        print(f"    {name!r}: {value!r},")
-    print("}")
-
-
-if __name__ == "__main__":
-    main()
-

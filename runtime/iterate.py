@@ -219,7 +219,9 @@ class _Run:
         # iteration from there fails — the restored start (a sign flip of a rate that
         # lowered the cost at once but led into a valley)
         first = self.descend(*joint)
-        if first.status == CONVERGED or not _on_constraints(x, violation):
+        # an intermediate refinement (verify=False) keeps its first descent unless it failed
+        if first.status == CONVERGED or not _on_constraints(x, violation) or (
+                not self.verify and first.status in (UNVERIFIED, MAX_ITER)):
             return first
         self.radius, self.escapes, self.info_start = self.size0, 0, None
         second = self.descend(x, violation)

@@ -42,7 +42,12 @@ def restore_measures(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...]
 
     A measure the projector's steps leave off its equations is finished by the descent on
     the manifold, from where they left it and from its observed value; the nearer kept."""
-    mt, violations, _, evals = project_measures(problem, q, mt, iterations, RESTORE_TOL)
+    projected = None if problem.compiled is None else \
+        problem.compiled[0].project(problem.compiled[1], problem, q, mt, iterations,
+                                    RESTORE_TOL)  # the same projection in C (kg_project)
+    if projected is None:
+        projected = project_measures(problem, q, mt, iterations, RESTORE_TOL)
+    mt, violations, _, evals = projected
     retry = tuple(np.flatnonzero(~(v <= _UNREACHED)) for v in violations)
     if any(r.size for r in retry):
         mt, violations, evals = list(mt), list(violations), list(evals)

@@ -1,20 +1,20 @@
 """The compiled fast path of the robust search (docs/fastpath.md) against the NumPy runtime:
 the coherence errors (eq. 22–24) and minimal solves (eq. 21) to 1e-10 on problems that
 exercise their paths (several channels, exact components, per-measure information, far
-outliers, two-view scenes), the closest square root, threads, and the fingerprints that keep
-the C port in step with the Python it ports."""
+outliers, two-view scenes), the local fit's restorations (kg_project), the closest square
+root, threads, and the fingerprints that name the Python the C must follow."""
 
 from __future__ import annotations
 
 import warnings
 
 import numpy as np
+import port_fingerprints
 import pytest
 from scenarios import close
 
 import kanagen
 from kanagen.codegen.compile import CompileWarning
-from kanagen.runtime import fastpath
 
 SPEC = """\
 name: twochan
@@ -78,19 +78,6 @@ def _data(seed: int, M1: int, M2: int, noise: float = 0.05):
     obs[:, 1:] += rng.normal(0, noise, (M2, 2))
     return {"pts": pts, "obs": obs}
 
-
-
-
-
-
-
-
-
-
-
-
-
-
 @pytest.mark.parametrize("iterations", [1, 3, None])
 def test_coherence_errors_as_on_the_numpy_runtime(families, iterations):
     """The robust search's scoring (eq. 24, minimal.coherence_errors) through kg_coherence:
@@ -128,6 +115,47 @@ def test_coherence_errors_as_on_the_numpy_runtime(families, iterations):
             far = y > 100.0
             close(x[~far], y[~far])
             close(x[far], y[far], rtol=1e-7)
+
+
+def test_restorations_as_on_the_numpy_runtime(families):
+    """The local fit's restorations (restoration.restore_measures: project_measures from
+    given corrected measures) through kg_project: the same measures, violations and
+    equations at the returned point to 1e-10, on several channels, an exact component,
+    per-measure information, far measures and a two-view scene; and the same fit."""
+    from kanagen.runtime.fit import make_problem
+    from kanagen.runtime.restoration import restore_measures
+    from kanagen.scenes import two_view_scene
+
+    ref, fast = families
+    data = _data(5, 20, 9)
+    data["pts"][::4] += 10.0
+    rng = np.random.default_rng(4)
+    info = {"pts": rng.uniform(0.5, 3.0, 20), "obs": 2.0}
+    scene = two_view_scene("general", n=60, outliers=0.3, sigma=0.5, seed=3)
+    tv = reference("two_view"), compiled("two_view")
+    p = scene.params()
+    q_tv = np.array([p[name] for name in tv[0].parameter_names])
+    cases = [(ref, fast, "sphere", data, info, None, np.array([0.8, 0.4, 0.9, 1.0])),
+             (*tv, "general", {"match": scene.data}, {"match": 4.0}, scene.constants, q_tv)]
+    for a, b, model, values, weights, constants, q in cases:
+        q = q[:a.n]
+        pa, pb = (make_problem(f, model, values, weights, constants=constants)
+                  for f in (a, b))
+        assert pa.compiled is None and pb.compiled is not None
+        start = tuple(ch.m + 0.3 * rng.standard_normal(ch.m.shape) for ch in pa.channels)
+        (xa, va), (xb, vb) = (restore_measures(pr, q, start) for pr in (pa, pb))
+        close(vb, va, scale=1.0)
+        for ma, mb in zip(xa.mt, xb.mt, strict=True):
+            close(mb, ma)
+        for ea, eb in zip(xa.evals, xb.evals, strict=True):
+            close(eb[0], ea[0], scale=1.0)  # the equations at their zero: rounding apart
+            for u, v in zip(ea[1:], eb[1:], strict=True):
+                close(v, u)
+        close(xb.cost, xa.cost)
+    fa = kanagen.fit(ref, "sphere", data=data, info=info)
+    fb = kanagen.fit(fast, "sphere", data=data, info=info)
+    assert fa.status == fb.status and fa.iterations == fb.iterations
+    close(fb.q, fa.q)
 
 
 def test_minimal_solves_as_on_the_numpy_runtime():
@@ -191,26 +219,12 @@ def test_closest_sqrt_of_a_rank_deficient_matrix(seed):
 
 
 def test_the_port_is_current_with_the_python_it_mirrors():
-    stale = fastpath.changed()
+    stale = port_fingerprints.changed()
     assert not stale, (
-        "the Python that codegen/c/kanagen_fast.c ports has changed: "
-        + ", ".join(stale) + ". Port the change to the C (docs/fastpath.md), run "
-        "tests/test_fastpath.py, then paste the output of `python -m "
-        "kanagen.runtime.fastpath` into FINGERPRINTS in runtime/fastpath.py.")
-
-
-def test_a_stale_port_switches_itself_off(monkeypatch):
-    monkeypatch.setitem(fastpath.FINGERPRINTS, "projector.project_measures", "0" * 12)
-    with pytest.warns(fastpath.FastPathWarning, match="projector.project_measures"):
-        fam = compiled("line")
-    assert fam.fastpath is None and fam.backend == "compiled"
-    xy = np.array([[0.0, 1.0], [1.0, 2.9], [2.0, 5.1], [3.0, 7.0]])
-    want = kanagen.fit(reference("line"), "line", data={"point": xy})
-    got = kanagen.fit(fam, "line", data={"point": xy})
-    assert got.success and want.success
-    close(got.q, want.q)
-
-
+        "the Python that codegen/c/ ports has changed: " + ", ".join(stale) + ". Port the "
+        "change to the C (docs/fastpath.md), run tests/test_fastpath.py and "
+        "tests/test_fast_initializers.py, then paste the output of `python "
+        "tests/port_fingerprints.py` into FINGERPRINTS in tests/port_fingerprints.py.")
 
 
 def test_threads_share_a_compiled_family(families):
