@@ -96,6 +96,30 @@ class TwoViewPair:
 
 
 @dataclass(frozen=True)
+class CalibratedPair:
+    """An image pair with the intrinsics of both cameras and no ground truth (the Strecha
+    fountain pair of the CMP essential-matrix set).
+
+    Attributes
+    ----------
+    name : str
+    matches : ndarray (N, 4)
+        Tentative correspondences ``[u, v, u2, v2]`` in pixels (inliers unknown).
+    K1, K2 : ndarray (3, 3)
+        The intrinsic matrices of the two cameras, as the files give them.
+    image_size : (width, height) of the first image.
+    images : (Path, Path)
+    """
+
+    name: str
+    matches: np.ndarray
+    K1: np.ndarray
+    K2: np.ndarray
+    image_size: tuple[int, int]
+    images: tuple[Path, Path]
+
+
+@dataclass(frozen=True)
 class MultiStructureScene:
     """An AdelaideRMF scene: matches, each labelled 0 (gross outlier) or its structure k ≥ 1.
 
@@ -239,6 +263,32 @@ def fundamental_pair(name: str, root: str | Path | None = None) -> TwoViewPair:
     F_AB = _read_matrix(folder / f"{name}_model.txt")
     F = None if not np.any(F_AB) else F_AB.T / np.linalg.norm(F_AB)
     return TwoViewPair(name, matches, truth, imsize, F=F, images=_images(folder, name))
+
+
+def strecha_fountain(root: str | Path | None = None) -> CalibratedPair:
+    """The Strecha fountain pair of the CMP ``essential_matrix`` set: 270 tentative matches
+    and the K of each camera (``fountain1.K``, ``fountain2.K``)."""
+    folder = _folder(_CMP, root) / "essential_matrix"
+    path = _exists(folder / "fountain_pts.txt")
+    rows = np.loadtxt(path, skiprows=1, ndmin=2)  # a count, then x1 y1 x2 y2 per row
+    if rows.shape[1] != 4 or not np.all(np.isfinite(rows)):
+        raise ValueError(f"{path}: expected rows of 4 finite numbers, got {rows.shape}")
+    images = (_exists(folder / "fountain1.jpg"), _exists(folder / "fountain2.jpg"))
+    return CalibratedPair("fountain", rows, _read_matrix(folder / "fountain1.K"),
+                          _read_matrix(folder / "fountain2.K"), _jpeg_size(images[0]), images)
+
+
+def _jpeg_size(path: Path) -> tuple[int, int]:
+    """(width, height) of a JPEG from its frame header (no image library needed)."""
+    data = path.read_bytes()
+    i = 2
+    while i + 9 <= len(data) and data[i] == 0xFF:
+        marker, length = data[i + 1], int.from_bytes(data[i + 2:i + 4], "big")
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            return (int.from_bytes(data[i + 7:i + 9], "big"),
+                    int.from_bytes(data[i + 5:i + 7], "big"))
+        i += 2 + length
+    raise ValueError(f"{path}: no JPEG frame header")
 
 
 def oxford_graf(root: str | Path | None = None) -> TwoViewPair:

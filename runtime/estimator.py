@@ -502,6 +502,7 @@ class Estimator:
             self._skipped[model] = parent
             self._queue_alternatives(model)
             return
+        self._into_parent(parent, estimate)
         self._shape[model] = (max(search.ranks[search.channel], 1),
                               self.fam.free_dof(model, self._constants))
         self._corrected[model] = estimate.fit.measures
@@ -533,6 +534,37 @@ class Estimator:
         if lattice.hopeless(state, search.best_score, 0, False) or search.best_score >= floor:
             return  # its samples found no structure near the parent's, or beat it already
         search.consider(state.q, floor)
+
+    def _into_parent(self, parent: str | None, estimate) -> None:
+        """A child's estimate that lies in its parent's model (a conic that is an ellipse)
+        and explains the data better than the parent's own: the parent's search missed that
+        structure (its samples stopped on part of it). The estimate is refined in the parent's
+        model (its final rounds) and replaces the parent's state when it is more relevant —
+        the lattice then keeps the specific model for what both explain (the same model
+        whatever the seed)."""
+        state = self._searched(parent)
+        if state is None or not estimate.relevance > state.relevance:
+            return
+        problem, ids, channel = self._problem_for(parent)
+        q = self.fam.with_slacks(estimate.q, problem.k, parent)
+        with np.errstate(all="ignore"):
+            c0 = problem.c0(q, problem.k)[0]
+        scale = 1.0 + float(np.max(np.abs(q), initial=0.0))
+        if not (np.all(np.isfinite(q)) and float(np.max(np.abs(c0), initial=0.0)) <=
+                1e-8 * scale and self.fam.relations_hold(parent, q, self._constants)):
+            return
+        search = ModelSearch(self.fam, parent, problem, channel, q, self._rng, self.scale,
+                             self.scorer, initializer=self.initializers.get(parent),
+                             max_threshold=self.max_threshold)
+        search.seed_estimate(q)
+        refined = search.finish(self.q0, self.Q0, self.window)
+        if refined is None or not np.all(np.isfinite(refined.q)):
+            return
+        again = self._state(parent, state.parent, refined, ids)
+        if again.relevance > state.relevance and again.accepted >= state.accepted:
+            self._states[parent] = replace(again, samples=state.samples)
+            self._corrected[parent] = refined.fit.measures
+            self._done_relevance = None
 
     def _hopeless(self, parent: str | None, search: ModelSearch) -> bool:
         """Can the model searched not replace its parent, by a wide margin

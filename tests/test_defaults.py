@@ -145,3 +145,22 @@ def test_cli_progress_total_follows_the_plan(lattice):
     assert len(set(totals)) > 1
     assert all(t <= 2000 for t in totals) and totals[-1] == est.samples
     assert planned_total(est, 10, est.samples) == est.samples  # never below what is drawn
+
+
+@pytest.mark.parametrize("seed", [0, 7, 9])
+def test_a_conic_that_is_an_ellipse_goes_to_the_ellipse(lattice, seed):
+    """Seed stability (issue 18): on this scene the ellipse's own samples stopped on part of
+    the arc for seeds 7 and 9 (cost 216 on 192 inliers) while the conic's found the whole
+    ellipse (98.5 on 211) and was chosen. Its estimate lies in the ellipse model: refined
+    there it replaces the ellipse's state, and every seed chooses the ellipse with the same
+    estimate."""
+    from scenes import LATTICE_MODEL
+
+    j = list(LATTICE_MODEL).index("ellipse")
+    xy, _ = arc("ellipse", 7000 + 97 * j, n=200, outliers=0.3)
+    est = kanagen.Estimator(lattice, seed=seed)
+    est.add_measures("point", xy, info=1.0)
+    best = est.run(max_samples=5000)
+    assert best.model == "ellipse"
+    assert best.cost == pytest.approx(98.4766, rel=1e-4)
+    assert best.inliers.size == 201
