@@ -4,7 +4,10 @@ noise and outliers (for tests, examples and benchmarks of the ``two_view`` famil
 Motion classes, named as the family's models: ``none`` (the same camera), ``zoom`` (the
 focal length changes), ``rotation`` (about the optical centre), ``translation`` (pure, same
 camera), ``planar`` (any motion, a planar scene), ``general`` (any motion and focal
-lengths, a 3-D scene). Camera 1 sits at the origin; ``X2 = R X1 + t``.
+lengths, a 3-D scene), and the report's retinal motions (Fig. 16), the same camera:
+``retinal_translation`` (``R = I``, ``t`` parallel to the image plane: rectified stereo) and
+``retinal_displacement`` (5–20° about the optical axis and such a ``t``). Camera 1 sits at
+the origin; ``X2 = R X1 + t``.
 
 Examples
 --------
@@ -23,7 +26,8 @@ import numpy as np
 
 from .runtime import geometry as g
 
-MOTIONS = ("none", "zoom", "rotation", "translation", "planar", "general")
+MOTIONS = ("none", "zoom", "rotation", "translation", "planar", "general",
+           "retinal_translation", "retinal_displacement")
 
 
 @dataclass(frozen=True)
@@ -63,14 +67,17 @@ class TwoViewScene:
         """The true parameter of the two_view family (with :attr:`constants`), as the model
         of the scene's motion class writes it (pinned components at their nominal values).
         The plane comes in units of ``‖t‖``. Where focal lengths are not observable they
-        are pinned at ``f0`` (``none``, ``translation``, ``planar``; the first one under
-        ``zoom``), and the direction and plane are those of the nominal calibration."""
+        are pinned at ``f0`` (``none``, ``translation``, ``planar``, the retinal motions;
+        the first one under ``zoom``), and the direction and plane are those of the nominal
+        calibration."""
         f0 = self.constants["f0"]
         f1, f2 = self.K1[0, 0] / f0, self.K2[0, 0] / f0
         R, t, w = self.R, self.t, np.zeros(3)
         norm = np.linalg.norm(t)
         if self.motion in ("none", "zoom"):
             f1, f2 = 1.0, f2 / f1  # only the ratio is observable
+        elif self.motion in ("retinal_translation", "retinal_displacement"):
+            f1 = f2 = 1.0  # the focal length cancels: the same F at the nominal one
         elif self.motion in ("translation", "planar"):
             # re-expressed at the nominal focal length: same F / H in pixels
             A1, A2 = np.diag([f1, f1, 1.0]), np.diag([f2, f2, 1.0])
@@ -112,6 +119,20 @@ def _project(K: np.ndarray, X: np.ndarray) -> np.ndarray:
 
 def _inside(x: np.ndarray, size, margin: float = 0.0) -> np.ndarray:
     return np.all((x >= margin) & (x <= np.array(size) - margin), axis=1)
+
+
+def _retinal(rng, motion: str, norm: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``(R, t)`` of a retinal motion: ``t`` of norm ``norm`` (None: drawn in 1–2 after its
+    direction) in the image plane, in a random direction; ``R`` 5–20° about the optical
+    axis (either sense) for a displacement, else the identity."""
+    phi = rng.uniform(0.0, 2 * np.pi)
+    t = np.array([np.cos(phi), np.sin(phi), 0.0]) * (rng.uniform(1.0, 2.0) if norm is None
+                                                     else norm)
+    R = np.eye(3)
+    if motion == "retinal_displacement":
+        R = g.rotation_about([0.0, 0.0, 1.0],
+                             rng.choice([-1, 1]) * np.radians(rng.uniform(5.0, 20.0)))
+    return R, t
 
 
 def _rotation(rng, low_deg: float, high_deg: float) -> np.ndarray:
@@ -168,6 +189,8 @@ def two_view_scene(motion: str, n: int = 200, outliers: float = 0.0, sigma: floa
         R = _rotation(rng, 5.0, 20.0)
     elif motion == "translation":
         t = _unit(rng.normal(size=3)) * rng.uniform(1.0, 2.0)
+    elif motion in ("retinal_translation", "retinal_displacement"):
+        R, t = _retinal(rng, motion)
     elif motion in ("planar", "general"):
         R = _rotation(rng, 3.0, 15.0)
         t = _unit(rng.normal(size=3)) * rng.uniform(1.0, 2.0)
@@ -403,11 +426,7 @@ def calibrated_scene(motion: str, n: int = 200, outliers: float = 0.0, sigma: fl
     if motion == "rotation":
         R = _rotation(rng, 5.0, 20.0)
     elif motion in ("retinal_translation", "retinal_displacement"):
-        phi = rng.uniform(0.0, 2 * np.pi)
-        t = np.array([np.cos(phi), np.sin(phi), 0.0]) * norm
-        if motion == "retinal_displacement":
-            R = g.rotation_about([0.0, 0.0, 1.0],
-                                 rng.choice([-1, 1]) * np.radians(rng.uniform(5.0, 20.0)))
+        R, t = _retinal(rng, motion, norm)
     elif motion == "translation":
         t = _off_axis(rng, 0.3) * norm
     elif motion in ("planar", "general"):

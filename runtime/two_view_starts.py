@@ -215,7 +215,40 @@ def two_view_translation(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
     return [{"tx": t[0], "ty": t[1], "tz": t[2]}]
 
 
+def _as_calibrated(k: Mapping[str, float]) -> dict[str, float]:
+    """The nominal camera of the family (focal length ``f0``, principal point ``(cx, cy)``)
+    as the calibrated closed forms read intrinsics: under the retinal motions the focal
+    length is pinned at ``f0``, so the rays are the calibrated ones."""
+    f0, cx, cy = k["f0"], k["cx"], k["cy"]
+    return {"fx1": f0, "fy1": f0, "cx1": cx, "cy1": cy,
+            "fx2": f0, "fy2": f0, "cx2": cx, "cy2": cy}
+
+
+def two_view_retinal_translation(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
+    """A translation parallel to the retinal plane (``R = I``, ``tz = 0``, focal lengths
+    pinned): the calibrated closed form of the nominal camera
+    (:func:`~kanagen.runtime.calibrated_starts.calibrated_retinal_translation`)."""
+    from .calibrated_starts import calibrated_retinal_translation
+
+    return calibrated_retinal_translation(X, _as_calibrated(k))
+
+
+def two_view_retinal_displacement(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
+    """A rotation about the optical axis with a translation parallel to the retinal plane
+    (focal lengths pinned): the calibrated closed form of the nominal camera
+    (:func:`~kanagen.runtime.calibrated_starts.calibrated_retinal_displacement`)."""
+    from .calibrated_starts import calibrated_retinal_displacement
+
+    return calibrated_retinal_displacement(X, _as_calibrated(k))
+
+
 for _entry in (
+        Initializer("two_view_retinal_translation", two_view_retinal_translation,
+                    _TWO_VIEW_Q, ("cx", "cy", "f0"), 4,
+                    two_view_retinal_translation.__doc__.splitlines()[0]),
+        Initializer("two_view_retinal_displacement", two_view_retinal_displacement,
+                    _TWO_VIEW_Q, ("cx", "cy", "f0"), 4,
+                    two_view_retinal_displacement.__doc__.splitlines()[0]),
         Initializer("two_view_fundamental", two_view_fundamental, _TWO_VIEW_Q,
                     ("cx", "cy", "f0"), 4, two_view_fundamental.__doc__.splitlines()[0]),
         Initializer("two_view_homography", two_view_homography, _TWO_VIEW_Q,

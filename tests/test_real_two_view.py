@@ -73,19 +73,20 @@ def test_lattice_names_a_planar_scene(fam):
     assert est.run(max_samples=3000).model == "planar"
 
 
-def test_lattice_names_the_rectified_pair_a_translation(fam):
+def test_lattice_names_the_rectified_pair_a_retinal_translation(fam):
     """Middlebury Motorcycle: ground-truth correspondences from the disparity (σ = 0.3 px
-    added) are a pure horizontal translation; the lattice must say so, and its F is the
+    added) are a translation parallel to the image plane (the report's "pure retinal
+    translation", Fig. 16); the lattice at its defaults must say so, and its F is the
     rectified pair's (v2 = v) to within a tenth of a pixel."""
     need("middlebury_motorcycle_skimage")
     stereo = datasets.middlebury_motorcycle()
     truth = stereo.truth(step=60)
     matches = truth + np.random.default_rng(0).normal(0.0, 0.3, truth.shape)
-    est = kanagen.Estimator(fam, scale=9.0, seed=0, adaptive=True,
+    est = kanagen.Estimator(fam, seed=0,
                             constants={"cx": stereo.cx, "cy": stereo.cy, "f0": stereo.focal})
     est.add_measures("match", matches, info=1 / 0.3**2)
     best = est.run(max_samples=3000)
-    assert best.model == "translation"
+    assert best.model == "retinal_translation"
     assert abs(best.derived["translation_direction"].value[0]) > 0.999
     assert rms(sampson_errors(best.derived["F"].value, truth)) < 0.1
 

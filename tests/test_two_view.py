@@ -14,8 +14,9 @@ from kanagen.runtime.fit import make_problem
 from kanagen.runtime.minimal import coherence_errors, manifold_ranks
 from kanagen.scenes import MOTIONS, sampson_rms, transfer_rms, two_view_scene
 
-F_TYPE = ("translation", "general")
-FREE = {"none": 0, "zoom": 1, "rotation": 4, "translation": 2, "planar": 8, "general": 7}
+F_TYPE = ("translation", "general", "retinal_translation", "retinal_displacement")
+FREE = {"none": 0, "zoom": 1, "rotation": 4, "translation": 2, "planar": 8, "general": 7,
+        "retinal_translation": 1, "retinal_displacement": 2}
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +35,7 @@ def _close_up_to_sign(A, B, atol):
 
 
 def test_family_shape(fam):
-    assert list(fam.models) == list(MOTIONS)
+    assert set(fam.models) == set(MOTIONS)
     assert fam.null_model == "none"
     assert fam.channel("match").components == ("u", "v", "u2", "v2")
     k = fam.constant_vector()
@@ -42,11 +43,14 @@ def test_family_shape(fam):
         jac = fam.c0(model, fam.q0, k)[1]
         assert fam.n - np.linalg.matrix_rank(jac) == free, model
     edges = {m: {a for a, _ in fam.model(m).alternatives} for m in fam.models}
-    assert edges == {"none": {"zoom", "rotation", "translation"}, "zoom": {"planar"},
-                     "rotation": {"planar"}, "translation": {"general"},
+    assert edges == {"none": {"zoom", "rotation", "retinal_translation", "translation"},
+                     "zoom": {"planar"}, "rotation": {"planar"},
+                     "retinal_translation": {"translation", "retinal_displacement"},
+                     "retinal_displacement": {"general"}, "translation": {"general"},
                      "planar": {"general"}, "general": set()}
     assert {m: kanagen.minimal_sample_size(fam, m, "match") for m in fam.models} == {
-        "none": 0, "zoom": 1, "rotation": 2, "translation": 2, "planar": 4, "general": 7}
+        "none": 0, "zoom": 1, "rotation": 2, "translation": 2, "planar": 4, "general": 7,
+        "retinal_translation": 1, "retinal_displacement": 2}
     assert {"F"} <= set(fam.model("general").derived) and "H" not in fam.model("general").derived
     assert {"H"} <= set(fam.model("planar").derived) and "F" not in fam.model("planar").derived
 
