@@ -125,10 +125,10 @@ def table_row(matches: np.ndarray, constants: Mapping[str, float], sigma: float 
 def format_table(rows: Sequence[tuple[str, dict]]) -> str:
     """The table: (effective displacement, :func:`table_row` output or an aggregate of the
     same keys) per line."""
-    lines = [f"{'effective':<22}{'estimated':<14}{'residual (px)':>14}"
+    lines = [f"{'effective':<22}{'estimated':<22}{'residual (px)':>14}"
              f"{'general (px)':>14}{'inliers':>12}"]
     for label, row in rows:
-        lines.append(f"{label:<22}{row['model']:<14}{row['residual']:>14.3f}"
+        lines.append(f"{label:<22}{row['model']:<22}{row['residual']:>14.3f}"
                      f"{row['residual_general']:>14.3f}{row['inliers']:>7}/{row['matches']:<4}")
     return "\n".join(lines)
 
