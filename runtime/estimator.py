@@ -92,6 +92,10 @@ class Estimator:
     max_threshold : float, optional
         A ceiling on the outlier threshold of the error histogram (error units, at least
         ``scale``); default none.
+    ceiling : float, optional
+        The same ceiling in units of each model's ``L*`` (when ``max_threshold`` is not
+        given; at least 1): structures close to one another leave no minimum in the error
+        histogram between them. Default none (:func:`kanagen.find_structures`: 2).
 
     Examples
     --------
@@ -111,7 +115,7 @@ class Estimator:
                  min_samples: int = 20, window: float = 0.35,
                  q0=None, Q0=None, constants=None, model: str | None = None,
                  initializers: dict | None = None, local: float = 0.0,
-                 max_threshold: float | None = None):
+                 max_threshold: float | None = None, ceiling: float | None = None):
         check_search_options(scale=scale, seed=seed, samples_per_model=samples_per_model,
                        confidence=confidence, inlier_ratio=inlier_ratio,
                        min_samples=min_samples, window=window)
@@ -138,6 +142,9 @@ class Estimator:
             raise ValueError(f"max_threshold must be at least scale (L* = {scale}), got "
                              f"{max_threshold}")
         self.max_threshold = max_threshold
+        if ceiling is not None and not (isinstance(ceiling, int | float) and ceiling >= 1.0):
+            raise ValueError(f"ceiling is in units of L*, at least 1, got {ceiling!r}")
+        self.ceiling = None if ceiling is None else float(ceiling)
         if model is not None:
             fam.model(model)
         elif len(fam.models) > 1 and not any(fam.model(m).alternatives for m in fam.models):
@@ -464,7 +471,8 @@ class Estimator:
                                  self.scale, self.scorer, pool=pool, parent_free=parent_free,
                                  base=base, initializer=self.initializers.get(model),
                                  local=self.local if pool is None else 0.0,
-                                 max_threshold=self.max_threshold, ranks=ranks)
+                                 max_threshold=self.max_threshold, ranks=ranks,
+                                 ceiling=self.ceiling)
             if search.exhausted:
                 self._skipped[model] = parent
                 self._queue_alternatives(model)
@@ -559,7 +567,7 @@ class Estimator:
             return
         search = ModelSearch(self.fam, parent, problem, channel, q, self._rng, self.scale,
                              self.scorer, initializer=self.initializers.get(parent),
-                             max_threshold=self.max_threshold)
+                             max_threshold=self.max_threshold, ceiling=self.ceiling)
         search.seed_estimate(q)
         refined = search.finish(self.q0, self.Q0, self.window)
         if refined is None or not np.all(np.isfinite(refined.q)):

@@ -151,6 +151,9 @@ class ModelSearch:
         share of the measures. 0: uniform samples only.
     max_threshold : float, optional
         A ceiling on the outlier threshold (error units, at least ``scale``).
+    ceiling : float, optional
+        The same ceiling in units of the search's ``L*`` (when ``max_threshold`` is None):
+        it follows each model's default ``L*``.
     ranks : tuple of int, optional
         Equations per measure of each channel at ``start``
         (:func:`~kanagen.runtime.minimal.manifold_ranks`, computed when not given).
@@ -166,10 +169,9 @@ class ModelSearch:
                  sample_size: int | None = None, parent_free: int | None = None,
                  base: np.ndarray | None = None, initializer: InitializerFn | None = None,
                  local: float = 0.0, max_threshold: float | None = None,
-                 ranks: tuple[int, ...] | None = None):
+                 ranks: tuple[int, ...] | None = None, ceiling: float | None = None):
         if not 0.0 <= local <= 1.0:
             raise ValueError(f"local must be a fraction in [0, 1], got {local}")
-        self.max_threshold = max_threshold
         self.fam = fam
         self.model = model
         self.problem = problem
@@ -184,6 +186,9 @@ class ModelSearch:
         self.ranks = manifold_ranks(problem, self.start) if ranks is None else ranks
         #: L*: the one given, else the χ² quantile of the measures' equations
         self.scale = float(scale) if scale is not None else default_scale(self.equations)
+        if max_threshold is None and ceiling is not None:
+            max_threshold = max(float(ceiling), 1.0) * self.scale
+        self.max_threshold = max_threshold
         size = problem.channels[channel].size
         self.pool = np.arange(size) if pool is None else np.asarray(pool, dtype=int)
         self.sample_size = sample_size or self._minimal(parent_free)

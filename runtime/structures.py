@@ -18,13 +18,14 @@ from .results import ModelState
 from .scoring import scorer as get_scorer
 
 _RESTART_SEEDS = 1000  # seeds of restart r: seed + 1000 r, then one per search
+_CEILING = 2.0  # a structure's outlier threshold at most, in units of its L* (default)
 
 
 def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None,
                     max_structures: int = 5, model: str | None = None,
                     min_inliers: int | None = None, max_samples: int = 2000,
-                    reassign: int = 5, local: float = 0.0, retries: int = 0,
-                    restarts: int = 1, **options) -> list[ModelState]:
+                    reassign: int = 5, local: float = 0.5, retries: int = 2,
+                    restarts: int = 3, **options) -> list[ModelState]:
     """Several structures in the same data (report §4, clustered data): find one, take its
     inliers out, search again, until nothing relevant is left or ``max_structures``; then
     (``reassign`` rounds) give each measure to the structure with the least coherence
@@ -48,23 +49,28 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
         Rounds of assignment and refit at most (0: the greedy result as found).
     local : float in [0, 1]
         Share of local samples (a measure and its nearest neighbours, see
-        :class:`~kanagen.runtime.robust.ModelSearch`); default 0 (uniform). Structures of
-        clustered data are spatially coherent and a small one is out of reach of uniform
-        samples: 0.5 there (``experiments/adelaide.py``).
+        :class:`~kanagen.runtime.robust.ModelSearch`); default 0.5: structures of clustered
+        data are spatially coherent and a small one is out of reach of uniform samples
+        (0: uniform samples only).
     retries : int
         A search that finds nothing relevant is repeated with fresh samples up to this many
         times before the extraction stops (worth it when ``max_structures`` is the known
-        number of structures); default 0.
+        number of structures); default 2.
     restarts : int
         Independent extractions (fresh samples); the one kept explains the measures best:
         least ``Σᵢ min(eᵢ, τ)`` over all measures, ``eᵢ`` the error to the closest
-        structure and ``τ`` the ceiling ``max_threshold`` (else ``2 L*``) — the truncated
-        error of MSAC (Torr & Zisserman 2000) summed over the structures. Default 1.
+        structure and ``τ`` the ceiling ``max_threshold`` (else ``ceiling × L*``) — the
+        truncated error of MSAC (Torr & Zisserman 2000) summed over the structures.
+        Default 3 (three times the time of one extraction).
     options : the :class:`Estimator` options (``scale``, ``scorer``, ``phi``, ``seed``,
-        ``channel``, ``constants``, ``max_threshold``, ...). ``scale`` (``L*``) defaults to
-        each structure's model's χ² quantile, as the :class:`Estimator`'s. Structures close
-        to one another make no minimum in the error histogram between them:
-        ``max_threshold`` (e.g. twice ``L*``) keeps one from taking its neighbours.
+        ``channel``, ``constants``, ``max_threshold``, ``ceiling``...). ``scale`` (``L*``)
+        defaults to each structure's model's χ² quantile, as the :class:`Estimator`'s.
+        Structures close to one another make no minimum in the error histogram between
+        them: the outlier threshold is capped at ``ceiling`` times each model's ``L*``
+        (default 2 here) or at ``max_threshold`` (error units) when given.
+
+    The defaults are the configuration measured best on AdelaideRMF
+    (``experiments/adelaide.py --defaults``, docs/real_data.md).
 
     Returns
     -------
@@ -85,6 +91,8 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
         raise ValueError(f"restarts must be >= 1, got {restarts}")
     info = dict(info or {})
     seed = options.pop("seed", 0)
+    if options.get("max_threshold") is None:
+        options.setdefault("ceiling", _CEILING)
     best, best_energy = [], np.inf
     for r in range(restarts):
         found, needed, scales = _extract(
@@ -151,9 +159,10 @@ def _extract(fam: ModelFamily, data: Mapping, info: Mapping, max_structures: int
 def _energy(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelState],
             scales: list[float], options: Mapping) -> float:
     """``Σᵢ min(eᵢ, τ)``: each measure's error to its closest structure, truncated at the
-    ceiling ``τ`` (an outlier costs ``τ``): ``max_threshold``, else twice the largest L*
-    of the structures."""
-    ceiling = options.get("max_threshold") or 2.0 * max(scales, default=1.0)
+    ceiling ``τ`` (an outlier costs ``τ``): ``max_threshold``, else ``ceiling`` (default 2)
+    times the largest L* of the structures."""
+    ceiling = _ceiling(options, max(scales, default=1.0)) or \
+        _CEILING * max(scales, default=1.0)
     size = sum(len(np.asarray(rows)) for rows in data.values())
     closest = np.full(size, np.inf)
     for state in found:
@@ -212,7 +221,7 @@ def _assign(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelSta
                 cost=fit.cost, dof=fit.dof, equations=fit.equations, derived=fit.derived,
                 slacks=fit.slacks, status="estimated" if fit.success else fit.message,
                 threshold=outlier_threshold(all_errors, scale, window,
-                                            options.get("max_threshold")),
+                                            _ceiling(options, scale)),
                 relevance=score(all_errors, scale), inliers=rows))
             kept_needed.append(need)
             kept_scales.append(scale)
@@ -223,6 +232,13 @@ def _assign(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelSta
     everything = np.arange(bounds[-1])
     return [replace(s, inliers=np.sort(s.inliers),
                     outliers=np.setdiff1d(everything, s.inliers)) for s in found], scales
+
+
+def _ceiling(options: Mapping, scale: float) -> float | None:
+    """A structure's threshold cap: ``max_threshold``, else ``ceiling`` × its L*."""
+    if options.get("max_threshold") is not None:
+        return options["max_threshold"]
+    return None if options.get("ceiling") is None else options["ceiling"] * scale
 
 
 def _owners(count: int, size: int, inliers: list[np.ndarray]) -> np.ndarray:

@@ -113,6 +113,23 @@ def test_ceiling_reaches_every_threshold(line):
         kanagen.Estimator(line, scale=4.0, max_threshold=2.0)
 
 
+def test_the_default_ceiling_follows_each_models_scale(line):
+    """find_structures caps each structure's threshold at twice its model's L* (the
+    default χ² quantile here, 10.83 for a line's one equation); an Estimator only when
+    asked (``ceiling``, in units of L*, at least 1)."""
+    from kanagen.runtime.scoring import default_scale
+
+    xy, _ = crossing_lines()
+    found = kanagen.find_structures(line, data={"point": xy}, model="line", max_structures=2,
+                                    restarts=1)
+    assert found and all(s.threshold <= 2.0 * default_scale(1) + 1e-9 for s in found)
+    est = kanagen.Estimator(line, model="line", ceiling=1.0)
+    est.add_measures("point", xy)
+    assert est.run(max_samples=200).threshold == pytest.approx(default_scale(1))
+    with pytest.raises(ValueError, match="ceiling"):
+        kanagen.Estimator(line, ceiling=0.5)
+
+
 def three_lines(seed: int = 5):
     """Three lines of 30 points (σ = 0.3) among 300 uniform outliers (200 × 300 box)."""
     rng = np.random.default_rng(seed)
@@ -153,7 +170,8 @@ def test_restarts_keep_the_extraction_of_least_truncated_error(line):
     xy = three_lines()
     options = dict(data={"point": xy}, model="line", max_structures=3, scale=4.0,
                    samples_per_model=3, min_inliers=20, retries=3, max_threshold=8.0)
-    singles = [kanagen.find_structures(line, seed=7 + 1000 * r, **options) for r in range(3)]
+    singles = [kanagen.find_structures(line, seed=7 + 1000 * r, restarts=1, **options)
+               for r in range(3)]
     energies = [energy(line, f, xy, 8.0) for f in singles]
     kept = kanagen.find_structures(line, seed=7, restarts=3, **options)
     assert energy(line, kept, xy, 8.0) == pytest.approx(min(energies))
