@@ -61,7 +61,7 @@ def _equation_count(fam: ModelFamily, model: str, channel: str, k: np.ndarray) -
 def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
         info: Mapping | None = None, q0=None, Q0=None, constants=None, *, q_start=None,
         exact: Mapping | None = None, max_iter: int = 100, xtol: float = 1e-10,
-        eps: float = EPS) -> FitResult:
+        eps: float = EPS, correct_bias: bool | str = False) -> FitResult:
     """Estimate the parameter of one model and correct the measures (report §2–3).
 
     Parameters
@@ -90,6 +90,12 @@ def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
         corrected with the information of the free components.
     max_iter, xtol, eps
         Iteration cap, step tolerance, square-root pivot threshold.
+    correct_bias : bool or "relative"
+        Remove the second-order bias of the ML estimate (Kanatani's hyperaccurate
+        correction, :mod:`kanagen.runtime.hyper`): the noise from ``info`` as given
+        (True), or from the fit's reduced χ² when ``info`` is only relative
+        (``"relative"``). The result's ``bias`` holds what was removed; its covariance is
+        the ML one.
 
     Returns
     -------
@@ -108,6 +114,9 @@ def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
                          f"as {data_hint(fam)}")
     model = model or fam.null_model
     check_options(max_iter, xtol, eps)
+    if correct_bias not in (False, True, "relative"):
+        raise ValueError(f"correct_bias must be False, True or 'relative', got "
+                         f"{correct_bias!r}")
     problem = make_problem(fam, model, {} if data is None else data, info, q0, Q0, constants,
                            eps, exact)
     if not any(ch.size for ch in problem.channels) and not np.any(problem.Q0):
@@ -116,6 +125,10 @@ def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
     start = problem.q0 if q_start is None else parameter_vector(fam, q_start, "q_start")
     assumed = fam.warn_assumed(constants)
     res = fit_problem(fam, model, problem, q_start=start, max_iter=max_iter, xtol=xtol)
+    if correct_bias:
+        from .hyper import corrected
+
+        res = corrected(fam, model, problem, res, relative=correct_bias == "relative")
     return replace(res, assumed=assumed) if assumed else res
 
 

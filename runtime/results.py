@@ -284,6 +284,8 @@ class FitResult(ResultProtocol):
     units: dict[str, str] = field(default_factory=dict)  # the spec's units: (display only)
     pinned: dict[str, float] = field(default_factory=dict)  # components the model fixes
     assumed: dict[str, float] = field(default_factory=dict)  # constants' defaults relied on
+    #: the second-order bias removed (``correct_bias``: runtime/hyper.py), else None
+    bias: np.ndarray | None = None
 
     @property
     def equations(self) -> int:
