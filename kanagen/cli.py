@@ -221,6 +221,9 @@ def fit_options(command):
                      help="Set a constant of SPEC (repeatable)."),
         click.option("--max-iter", type=int, default=100, show_default=True,
                      help="Iterations of the local estimator (--local only)."),
+        click.option("--correct-bias", is_flag=True,
+                     help="Remove the second-order bias of the estimate (Kanatani's "
+                          "hyperaccurate correction; --local only)."),
         click.option("--start", "starts", multiple=True, metavar="NAME=VALUE,...",
                      help="Starting values of parameters, e.g. --start b0=1,b1=2 (repeatable; "
                           "the others keep SPEC's). With --local, where the iteration starts; "
@@ -240,7 +243,7 @@ backend_option = click.option(
 
 
 def _fit_options(scale, scorer, phi, seed, max_samples, fixed_budget, model, local, sigma,
-                 consts, max_iter, starts):
+                 consts, max_iter, starts, correct_bias=False):
     """The validated FitOptions of :func:`fit_options`' values; bad input exits 2."""
     from .fitjob import FitOptions
 
@@ -249,7 +252,7 @@ def _fit_options(scale, scorer, phi, seed, max_samples, fixed_budget, model, loc
                           max_samples=max_samples, model=model, local=local, sigma=sigma,
                           constants=_parse_constants(consts), max_iter=max_iter,
                           start=_parse_pairs(",".join(starts).split(","), "--start"),
-                          adaptive=not fixed_budget)
+                          adaptive=not fixed_budget, correct_bias=correct_bias)
     except ValueError as exc:
         _fail(str(exc))
 

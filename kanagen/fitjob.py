@@ -57,6 +57,8 @@ class FitOptions:
     start : mapping or pairs
         Starting values of parameters by name (the others keep the spec's): where the local
         fit starts, or the null model's estimate before the robust search's first sample.
+    correct_bias : bool
+        The local fit's hyperaccurate correction (``kanagen.fit(..., correct_bias=True)``).
 
     Examples
     --------
@@ -80,6 +82,7 @@ class FitOptions:
     max_iter: int = 100
     start: tuple[tuple[str, float], ...] = field(default=())
     adaptive: bool = True
+    correct_bias: bool = False
 
     def __post_init__(self):
         def put(name, value):
@@ -100,6 +103,9 @@ class FitOptions:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
             put(name, int(value))
         put("local", bool(self.local))
+        put("correct_bias", bool(self.correct_bias))
+        if self.correct_bias and not self.local:
+            raise ValueError("correct_bias applies to the local fit (--local) only")
         for name in ("constants", "start"):
             put(name, _pairs(getattr(self, name), name))
 
@@ -119,6 +125,8 @@ class FitOptions:
         out = asdict(self)
         out["constants"] = dict(self.constants)
         out["start"] = dict(self.start)
+        if not self.correct_bias:  # the keys of results databases written before it
+            del out["correct_bias"]
         return out
 
     def key(self, channel: str) -> str:
@@ -246,7 +254,7 @@ def local_record(fam: ModelFamily, X: np.ndarray, channel: str, opts: FitOptions
     info = {channel: _info(opts)}
     constants = dict(opts.constants)
     res = fit(fam, opts.model, data={channel: X}, info=info, constants=constants,
-              q0=opts.q0(), max_iter=opts.max_iter)
+              q0=opts.q0(), max_iter=opts.max_iter, correct_bias=opts.correct_bias)
     record = result_to_json(res)
     errors = np.full(len(X), np.nan)
     if np.all(np.isfinite(res.q)):

@@ -186,6 +186,24 @@ def test_local_fit_prints_the_estimate_and_writes_json(run, tmp_path):
     assert res["derived"]["discriminant"]["value"] > 0  # an ellipse
 
 
+def test_local_fit_corrects_its_bias_on_request(run, tmp_path):
+    """--correct-bias: the local fit's hyperaccurate correction (runtime/hyper.py), said in
+    its message; a robust search refuses it (the local fit only)."""
+    args = ("fit", ROOT / "examples/conic.yaml", ROOT / "examples/data/ellipse_arc.csv",
+            "--model", "conic", "--sigma", "1")
+    out_json = tmp_path / "res.json"
+    plain = tmp_path / "plain.json"
+    out = run(*args, "--local", "--correct-bias", "--json", out_json)
+    assert out.exit_code == 0, out.output
+    assert "bias-corrected (hyperaccurate)" in out.output
+    assert run(*args, "--local", "--json", plain).exit_code == 0
+    a = np.array(list(json.loads(out_json.read_text())["params"].values()))
+    b = np.array(list(json.loads(plain.read_text())["params"].values()))
+    assert 0 < np.linalg.norm(a - b) < 1e-2 and np.linalg.norm(a) == pytest.approx(1.0)
+    out = run(*args, "--correct-bias")
+    assert out.exit_code == 2 and "--local" in out.output
+
+
 def test_local_fit_reports_bad_data_without_traceback(run, tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("x,z\n1,2\n")
