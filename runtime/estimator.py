@@ -514,7 +514,7 @@ class Estimator:
             self._skipped[model] = parent
             self._queue_alternatives(model)
             return
-        self._into_parent(parent, estimate)
+        self._into_parent(parent, search, estimate)
         self._shape[model] = (max(search.ranks[search.channel], 1),
                               self.fam.free_dof(model, self._constants))
         self._corrected[model] = estimate.fit.measures
@@ -547,15 +547,18 @@ class Estimator:
             return  # its samples found no structure near the parent's, or beat it already
         search.consider(state.q, floor)
 
-    def _into_parent(self, parent: str | None, estimate) -> None:
+    def _into_parent(self, parent: str | None, search: ModelSearch, estimate) -> None:
         """A child's estimate that lies in its parent's model (a conic that is an ellipse)
         and explains the data better than the parent's own: the parent's search missed that
         structure (its samples stopped on part of it). The estimate is refined in the parent's
         model (its final rounds) and replaces the parent's state when it is more relevant —
         the lattice then keeps the specific model for what both explain (the same model
-        whatever the seed)."""
+        whatever the seed). Along edges of the same equations per measure only (an F's
+        parameter may satisfy a plane's constraints, its matches not the plane's
+        equations)."""
         state = self._searched(parent)
-        if state is None or not estimate.relevance > state.relevance:
+        if state is None or not estimate.relevance > state.relevance or \
+                self._across(parent, search.ranks[search.channel]):
             return
         problem, ids, channel = self._problem_for(parent)
         q = self.fam.with_slacks(estimate.q, problem.k, parent)
