@@ -168,10 +168,14 @@ def compile_family(module: ModuleType, family: dict, cache: Path,
     started = time.perf_counter()
     if announce is not None:
         announce(name, None)
-    folder.mkdir(parents=True, exist_ok=True)
     # this process's own source and output: concurrent first compiles share no partial file
     source = folder / f"{name}.{os.getpid()}.c"
-    source.write_text(c_source(module, family), encoding="utf-8")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        source.write_text(c_source(module, family), encoding="utf-8")
+    except OSError as exc:
+        raise CompileError(f"cannot write the compiled family into {folder}: {exc} (set "
+                           f"KANAGEN_CACHE to a writable folder)") from None
     partial = folder / f"{name}.{os.getpid()}.so.tmp"
     for tuning in (TUNING, ()):
         cmd = [*command, *CFLAGS, *tuning, str(source), "-o", str(partial), "-lm"]

@@ -217,7 +217,12 @@ def _module_for(family: Family, backend: str):
     text = render_spec(family, [backend])[target]
     path = folder / target
     if not path.exists() or path.read_text(encoding="utf-8") != text:
-        folder.mkdir(parents=True, exist_ok=True)
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OSError(f"cannot write the generated module of {family.name!r} into "
+                          f"{folder}: {exc} (set KANAGEN_CACHE to a writable folder)") \
+                from None
         # a temporary file of this process's own, then an atomic rename: concurrent first
         # loads never share a partial file, and a loader never sees half a module
         fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{stem}.", suffix=".tmp")

@@ -85,3 +85,18 @@ def test_without_a_compiler_one_warning_and_the_numpy_backend(monkeypatch):
     # asked for by name, "compiled" keeps its documented fallback (CasADi)
     with pytest.warns(CompileWarning, match="uncompiled CasADi backend"):
         assert kanagen.load_text(spec, "nocompiler.yaml", backend="compiled").backend == "casadi"
+
+
+def test_an_unwritable_cache_falls_back_with_a_warning(monkeypatch, tmp_path):
+    """The cache folder cannot be made (a file stands in its way): the same warning and
+    the NumPy backend, no traceback."""
+    monkeypatch.delenv(BACKEND_VARIABLE, raising=False)
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("")
+    monkeypatch.setenv("KANAGEN_CACHE", str(blocker / "cache"))
+    with pytest.warns(CompileWarning, match="KANAGEN_CACHE to a writable folder"):
+        fam = kanagen.load("line")  # shipped: only the compiled library needs the cache
+    assert fam.backend == "numpy"
+    # a spec of one's own needs the cache for its generated module: a clear error
+    with pytest.raises(OSError, match="KANAGEN_CACHE"):
+        kanagen.load_text(SPEC.replace("defaultline", "nocache"), "nocache.yaml")
