@@ -19,7 +19,9 @@ So ``b̂`` comes from ``2 Σ_i k_i`` fits of noise-free data with one measure mo
 standard deviation along one direction (each from ``q̂``: a few iterations), and the
 corrected estimate is ``q̂ − b̂`` moved along the tangent space of the parameter's
 constraints and back onto them. Its residual bias is ``O(σ³)``; its covariance is the ML
-one to first order.
+one to first order. A derived quantity ``g(q)`` has a bias of its own (the curvature of
+``g`` adds ``½ tr(∇²g Σ)``): it is corrected by the same second differences of ``g``,
+``ĝ − b̂_g``, not evaluated at ``q̂ − b̂``.
 
 Where it vanishes: an estimate linear in the measures (an explicit model linear in its
 parameter, the abscissas exact) has ``Φ'' = 0``: the correction is zero to rounding.
@@ -43,11 +45,19 @@ _REFIT_STEPS = 4
 
 
 def bias(fam, model: str, problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...],
-         sigma2: float = 1.0) -> np.ndarray:
+         sigma2: float = 1.0, derived: bool = False):
     """``b̂``: the second-order bias of the ML estimate of ``problem`` (its information) at
     the noise-free configuration ``(q, mt)`` (the estimate and its corrected measures),
     with the information scaled by ``1/sigma2``. Measures known exactly (``exact=``) carry
-    no noise."""
+    no noise. ``derived``: also the bias of each derived quantity of the family
+    (``{name: array}``, the same second differences of the quantity — not its Jacobian
+    times ``b̂``: a nonlinear function of the estimate has a bias of its own), returned as
+    ``(b̂, biases)``."""
+    values = (lambda x: {name: np.asarray(v, dtype=float)
+                         for name, (v, _) in fam.derived(x, problem.k).items()}) \
+        if derived else None
+    at = values(q) if derived else {}
+    derived_total = {name: np.zeros_like(v) for name, v in at.items()}
     clean = tuple(replace(ch, X=ch.with_corrected(m), m=m.copy())
                   for ch, m in zip(problem.channels, mt, strict=True))
     base = replace(problem, channels=clean)
@@ -73,7 +83,11 @@ def bias(fam, model: str, problem: Problem, q: np.ndarray, mt: tuple[np.ndarray,
                     channels[c] = replace(ch, X=X, m=m)
                     moved.append(_refit(replace(base, channels=tuple(channels)), q))
                 total += 0.5 * (moved[0] + moved[1] - 2.0 * q)
-    return total
+                if derived:
+                    plus, minus = values(moved[0]), values(moved[1])
+                    for name in derived_total:
+                        derived_total[name] += 0.5 * (plus[name] + minus[name] - 2 * at[name])
+    return (total, derived_total) if derived else total
 
 
 def _refit(problem: Problem, q: np.ndarray) -> np.ndarray:
@@ -102,7 +116,7 @@ def corrected(fam, model: str, problem: Problem, result, relative: bool = False)
     mt = tuple(np.asarray(result.measures[ch.name], dtype=float)[:, ch.index]
                for ch in problem.channels)
     with np.errstate(all="ignore"):
-        b = bias(fam, model, problem, result.q, mt, sigma2)
+        b, b_derived = bias(fam, model, problem, result.q, mt, sigma2, derived=True)
         c0, C0 = problem.c0(result.q, problem.k)
         step = b
         if c0.size:  # along the constraints' tangent space, then back onto them
@@ -118,8 +132,14 @@ def corrected(fam, model: str, problem: Problem, result, relative: bool = False)
 
     measures = {ch.name: ch.with_corrected(m) for ch, m in zip(problem.channels, x.mt,
                                                                  strict=True)}
+    # each derived quantity less its own bias (at the corrected q, its covariance)
+    derived = {name: replace(value, value=np.asarray(result.derived[name].value) -
+                             b_derived[name].reshape(np.shape(result.derived[name].value)))
+               if name in result.derived and name in b_derived and
+               np.all(np.isfinite(b_derived[name])) else value
+               for name, value in derived_values(fam, q, result.covariance, problem.k,
+                                                 model).items()}
     return replace(result, q=q.copy(), params=fam.params_dict(q), measures=measures,
-                   cost=x.cost, constraint_violation=x.delta,
-                   derived=derived_values(fam, q, result.covariance, problem.k, model),
+                   cost=x.cost, constraint_violation=x.delta, derived=derived,
                    slacks=fam.slack_dict(q), bias=b,
                    message=result.message + "; bias-corrected (hyperaccurate)")

@@ -108,3 +108,19 @@ def test_a_noisy_circle_loses_its_radius_bias(circle):
     hyper = kanagen.fit(circle, "circle", data={"point": xy}, info={"point": 4.0},
                         q0=[0.0, 0.0, 9.0], correct_bias=True)
     assert ml.params["r"] - hyper.params["r"] == pytest.approx(0.25 / 20.0, rel=0.1)
+
+
+def test_a_derived_quantity_loses_its_own_bias(circle):
+    """A derived quantity is corrected by its own second differences: the circle's area
+    πr² has the bias 2πr·b_r + π·var(r) (the curvature's share, which a value at the
+    corrected radius would miss)."""
+    spec = CIRCLE + "derived:\n  area: pi*r**2\n"
+    fam = kanagen.load_text(spec, "circ_area.yaml")
+    xy = _ring(10.0, 200)
+    problem = make_problem(fam, "circle", {"point": xy}, {"point": 4.0})
+    b, derived = bias(fam, "circle", problem, np.array([0.0, 0.0, 10.0]), (xy,),
+                      derived=True)
+    var_r = 0.25 / 200  # the radius's variance of a full circle: σ²/N
+    want = 2 * np.pi * 10.0 * b[2] + np.pi * var_r
+    assert float(derived["area"]) == pytest.approx(want, rel=0.005)
+    assert float(derived["area"]) > 2 * np.pi * 10.0 * b[2]  # the curvature's share
