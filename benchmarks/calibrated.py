@@ -60,11 +60,13 @@ def ours_pose(est, best):
     """``(R, t)`` of the general model of the search (None if it has none)."""
     state = best if best is not None and best.model == "general" else \
         next((s for s in est.states() if s.model == "general"), None)
-    if state is None:
-        return None
-    p = state.params
-    R = g.rotation_from_quaternion([p["qw"], p["qx"], p["qy"], p["qz"]])
-    return R, np.array([p["tx"], p["ty"], p["tz"]])
+    return None if state is None else _pose(state.params)
+
+
+def _pose(p):
+    """``(R, t)`` of the general model's parameters."""
+    return (g.rotation_from_quaternion([p["qw"], p["qx"], p["qy"], p["qz"]]),
+            np.array([p["tx"], p["ty"], p["tz"]]))
 
 
 def _camera_dict(K, size):
@@ -93,6 +95,15 @@ def with_opencv(scene):
         return None, time.perf_counter() - t0
     _, R, t, _ = cv2.recoverPose(E[:3], n1, n2, np.eye(3), mask=mask)
     return (R, t.ravel()), time.perf_counter() - t0
+
+
+def true_inliers_pose(fam, scene):
+    """The general model fitted on the scene's true inliers alone, started at the truth:
+    what the search would give with a perfect classification of the matches."""
+    fit = kanagen.fit(fam, "general", data={"match": scene.data[scene.inliers]},
+                      info={"match": 1.0 / scene.sigma**2}, constants=scene.constants,
+                      q_start=scene.params())
+    return _pose(fit.params)
 
 
 def errors(pose, scene) -> tuple[float, float]:
@@ -137,6 +148,7 @@ def classes(fam, args) -> None:
 def accuracy(fam, args) -> None:
     methods = ["kanagen"] + (["PoseLib"] if poselib is not None else []) \
         + (["OpenCV"] if cv2 is not None else [])
+    oracle = "ML@truth"  # a reference, not a peer: kanagen.fit on the true inliers alone
     print(f"(b) general calibrated motion: median errors against the truth (degrees), "
           f"{args.trials} scenes per outlier share; methods: {', '.join(methods)}")
     print(f"{'outliers':>8}{'method':>10}{'rot med':>10}{'dir med':>10}{'rot mean':>10}"
@@ -151,6 +163,7 @@ def accuracy(fam, args) -> None:
                                      seed=seed)
             est, best, s = ours(fam, scene, seed)
             err["kanagen"].append(errors(ours_pose(est, best), scene))
+            err.setdefault(oracle, []).append(errors(true_inliers_pose(fam, scene), scene))
             times["kanagen"].append(s)
             if poselib is not None:
                 pose, s = with_poselib(scene)
@@ -161,12 +174,12 @@ def accuracy(fam, args) -> None:
                 err["OpenCV"].append(errors(pose, scene))
                 times["OpenCV"].append(s)
         med = {}
-        for m in methods:
+        for m in methods + [oracle]:
             e = np.array(err[m])
             med[m] = np.median(e, axis=0)
+            seconds = f"{np.median(times[m][-args.trials:]):>10.4f}" if m in times else ""
             print(f"{share:>8.0%}{m:>10}{med[m][0]:>10.4f}{med[m][1]:>10.4f}"
-                  f"{np.mean(e[:, 0]):>10.4f}{np.mean(e[:, 1]):>10.4f}"
-                  f"{np.median(times[m][-args.trials:]):>10.4f}", flush=True)
+                  f"{np.mean(e[:, 0]):>10.4f}{np.mean(e[:, 1]):>10.4f}{seconds}", flush=True)
         for m in methods[1:]:
             floors.append((share, m, med["kanagen"], med[m]))
     for share, m, mine, theirs in floors:

@@ -6,6 +6,7 @@ final threshold-and-refine rounds of :meth:`~kanagen.runtime.robust.ModelSearch.
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from collections.abc import Callable
 
@@ -13,6 +14,7 @@ import numpy as np
 
 from .family import ModelFamily
 from .fit import fit_problem
+from .influence import Influence
 from .iterate import MAX_ITER
 from .minimal import coherence_errors
 from .projector import Problem
@@ -20,6 +22,8 @@ from .results import FitResult
 
 _REFINE_ROUNDS = 6  # threshold-and-refine rounds at most (they stop when the inliers do)
 _ROUND_ITER = 20  # iterations of a refinement round whose inliers may still change
+_PRUNE = 10  # deletions at most that the deletion test makes in a finished fit
+_PAIRS = 8  # measures of largest drops whose pairs it tries when no one measure stands out
 #: a refinement that only its inliers' number can make matter (ModelSearch.finish's
 #: short_of) runs in laps of this many iterations, and stops after a lap that lowered its
 #: cost by less than _PROGRESS of itself
@@ -190,7 +194,77 @@ class Refinement:
         else:
             result = fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=q,
                                  q0=q0, Q0=Q0, max_iter=max_iter)
+            if np.all(np.isfinite(result.q)):
+                errors = coherence_errors(self.problem, result.q)
+                threshold = self.split(errors, window)[0]
+        if short(rows) or result is None or not np.all(np.isfinite(result.q)):
+            return result, rows, errors, threshold
+        pruned = self._pruned(result, rows, errors, threshold, q0, Q0, max_iter)
+        if pruned is None:
+            return result, rows, errors, threshold
+        result, rows, errors = pruned
+        for _ in range(_REFINE_ROUNDS):  # measures may cross the threshold: rounds again
+            threshold, new = self.split(errors, window)
+            if all(np.array_equal(a, b) for a, b in zip(new, rows, strict=True)):
+                break
+            fit = fit_problem(self.fam, self.model, self.problem.subset(new),
+                              q_start=result.q, q0=q0, Q0=Q0, max_iter=max_iter)
+            if not np.all(np.isfinite(fit.q)):
+                break
+            result, rows, errors = fit, new, coherence_errors(self.problem, fit.q)
+        threshold = self.split(errors, window)[0]
         return result, rows, errors, threshold
+
+    def _pruned(self, fit: FitResult, rows, errors, threshold: float, q0, Q0,
+                max_iter: int):
+        """Measures that hold ``fit`` away from the rest taken out of its inliers ``rows``:
+        ``(fit, rows, errors)`` without them, or None when none is.
+
+        An outlier can pull a fit onto itself, its own error small, the inliers' errors all
+        larger (a match near the epipoles, a point far along a line): thresholds do not see
+        it. Its deletion drop (:class:`~kanagen.runtime.influence.Influence`) does: the
+        measure of largest drop, when the drop exceeds the threshold — else the pair of
+        largest joint drop among the :data:`_PAIRS` largest, when it exceeds twice the
+        threshold (two outliers pulling together mask each other) — is left out and the fit
+        made again from ``fit``; the new fit is kept when it lowers the truncated cost of
+        all measures, ``Σ min(eᵢ, threshold)`` (MSAC's score, a left-out measure at most the
+        threshold), and the test goes on (at most :data:`_PRUNE` deletions)."""
+        def truncated(errs) -> float:
+            e = np.concatenate(errs)
+            return float(np.sum(np.minimum(np.where(np.isnan(e), np.inf, e), threshold)))
+
+        total = truncated(errors)
+        changed = False
+        for _ in range(_PRUNE):
+            influence = Influence(self.problem.subset(rows), fit)
+            drops = np.concatenate(influence.drops())
+            drops = np.where(np.isnan(drops), -np.inf, drops)
+            if drops.size <= self.min_rows + 2:
+                break
+            ends = np.cumsum([0] + [r.size for r in rows])
+            place = functools.partial(_place, ends)
+            out = [int(np.argmax(drops))]
+            if not drops[out[0]] > threshold:
+                best, out = 2.0 * threshold, None
+                for a, b in itertools.combinations(np.argsort(-drops)[:_PAIRS], 2):
+                    d = influence.joint([place(a), place(b)])
+                    if d > best:
+                        best, out = d, [int(a), int(b)]
+                if out is None:
+                    break
+            gone = [place(j) for j in out]
+            trial_rows = tuple(np.delete(r, [i for c, i in gone if c == k])
+                               for k, r in enumerate(rows))
+            trial = fit_problem(self.fam, self.model, self.problem.subset(trial_rows),
+                                q_start=fit.q, q0=q0, Q0=Q0, max_iter=max_iter)
+            if not np.all(np.isfinite(trial.q)):
+                break
+            trial_errors = coherence_errors(self.problem, trial.q)
+            t = truncated(trial_errors)
+            if not t < total:
+                break
+            fit, rows, errors, total, changed = trial, trial_rows, trial_errors, t, True
+        return (fit, rows, errors) if changed else None
 
     def _race(self, starts, rows, q0, Q0, max_iter: int, laps: bool = False) -> FitResult:
         """The fit of least cost on ``rows`` from several starts: each runs
@@ -224,3 +298,10 @@ class Refinement:
                 return more if more.cost <= fit.cost else fit
             fit = more
         return fit
+
+
+def _place(ends: np.ndarray, j: int) -> tuple[int, int]:
+    """``(channel, index in it)`` of measure ``j`` of measures numbered channel after
+    channel (``ends``: the cumulated channel sizes from 0)."""
+    c = int(np.searchsorted(ends, j, side="right")) - 1
+    return c, int(j - ends[c])

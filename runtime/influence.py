@@ -1,0 +1,84 @@
+"""How much each measure holds a fit: the fall of the cost when it is left out (deletion
+diagnostics; Cook 1977, Belsley, Kuh & Welsch 1980), to first order.
+
+At a fit ``q̂`` with its corrected measures, measure ``i`` enters the linearised problem
+(report eq. 38–43) by its whitened equations: the residual ``r̄ᵢ`` (``pᵢ`` values, its share
+of the cost ``‖r̄ᵢ‖²``) and the Jacobian ``C̄ᵢ = ∂r̄ᵢ/∂q``. With ``Σ`` the covariance of
+``q̂`` on the tangent space of the constraints, its leverage is ``Hᵢ = C̄ᵢ Σ C̄ᵢᵀ`` and,
+refitting without it, the cost falls by
+
+    Δᵢ = r̄ᵢᵀ (I − Hᵢ)⁻¹ r̄ᵢ
+
+— exactly for a linear least-squares problem (the PRESS identity), to first order here. An
+outlier that has pulled the fit onto itself has a small error ``‖r̄ᵢ‖²`` and a leverage near
+one: its ``Δᵢ`` is large where its error is not.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .projector import Problem, evaluate, linearise
+from .results import FitResult
+
+
+class Influence:
+    """A fit's measures as the linearised problem at the fit sees them (their whitened
+    residuals and Jacobians, the covariance of ``q``): the deletion drop of each measure, or
+    of a few together (``r̄_Sᵀ (I − C̄_S Σ C̄_Sᵀ)⁻¹ r̄_S``: outliers that pull a fit together
+    mask one another one by one)."""
+
+    def __init__(self, problem: Problem, fit: FitResult):
+        mt = tuple(np.asarray(fit.measures[ch.name])[:, ch.index] for ch in problem.channels)
+        with np.errstate(all="ignore"):
+            lin = linearise(problem, evaluate(problem, fit.q, mt))
+        self.S = np.asarray(fit.covariance, dtype=float)
+        self.blind = not np.isfinite(self.S).all()
+        self.parts = [None if w is None else (w[0], w[1], np.maximum(rank, 1))
+                      for w, rank in zip(lin.whitened, lin.ranks, strict=True)]
+        self.sizes = [ch.size for ch in problem.channels]
+
+    def drops(self) -> tuple[np.ndarray, ...]:
+        """Per channel, ``Δᵢ / pᵢ`` of each measure (see :func:`deletion_drops`)."""
+        out = []
+        for size, part in zip(self.sizes, self.parts, strict=True):
+            if part is None:
+                out.append(np.zeros(size))
+                continue
+            if self.blind:
+                out.append(np.full(size, np.nan))
+                continue
+            Cbar, rbar, rank = part  # (M, p, n), (M, p), (M,)
+            with np.errstate(all="ignore"):
+                K = np.eye(Cbar.shape[1]) - np.einsum("mpi,ij,mqj->mpq", Cbar, self.S, Cbar)
+                out.append(_quadratic_or_inf(K, rbar) / rank)
+        return tuple(out)
+
+    def joint(self, measures) -> float:
+        """The deletion drop of ``measures`` (``(channel, index)`` pairs) together, per
+        equation kept."""
+        if self.blind:
+            return float("nan")
+        A = np.concatenate([self.parts[c][0][i] for c, i in measures])  # (P, n)
+        r = np.concatenate([self.parts[c][1][i] for c, i in measures])
+        p = sum(int(self.parts[c][2][i]) for c, i in measures)
+        with np.errstate(all="ignore"):
+            K = np.eye(A.shape[0]) - A @ self.S @ A.T
+            return float(_quadratic_or_inf(K[None], r[None])[0]) / p * len(measures)
+
+
+def _quadratic_or_inf(K: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """``rᵀ K⁻¹ r`` per row of a stack, ``inf`` where ``K`` (``I`` less a leverage) is
+    singular: the measures alone hold a direction of the parameter."""
+    singular = ~(np.linalg.det(K) > 1e-12)
+    K = np.where(singular[:, None, None], np.eye(K.shape[1]), K)
+    z = np.linalg.solve(K, r[..., None])[..., 0]
+    return np.where(singular, np.inf, np.einsum("mp,mp->m", r, z))
+
+
+def deletion_drops(problem: Problem, fit: FitResult) -> tuple[np.ndarray, ...]:
+    """Per channel, ``Δᵢ / pᵢ`` of each measure of ``problem`` (the problem ``fit`` was made
+    on): the fall of the cost ``Σ ‖m̃ − m‖²_Q`` when the fit is made without it, per
+    equation kept — the units of its error (eq. 24) — ``inf`` where the rest would not
+    determine the parameter, ``nan`` where the fit has no covariance."""
+    return Influence(problem, fit).drops()
