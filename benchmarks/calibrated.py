@@ -156,14 +156,14 @@ def accuracy(fam, args) -> None:
     times = {m: [] for m in methods}
     floors = []
     for share in args.shares:
-        err = {m: [] for m in methods}
+        err = {m: [] for m in methods + [oracle]}
         for k in range(args.trials):
             seed = 50_000 + 1000 * round(10 * share) + k
             scene = calibrated_scene("general", n=200, outliers=share, sigma=args.sigma,
                                      seed=seed)
             est, best, s = ours(fam, scene, seed)
             err["kanagen"].append(errors(ours_pose(est, best), scene))
-            err.setdefault(oracle, []).append(errors(true_inliers_pose(fam, scene), scene))
+            err[oracle].append(errors(true_inliers_pose(fam, scene), scene))
             times["kanagen"].append(s)
             if poselib is not None:
                 pose, s = with_poselib(scene)

@@ -182,7 +182,7 @@ class Refinement:
             q = result.q
             errors = coherence_errors(self.problem, q)
             threshold, new = self.split(errors, window)
-            if all(np.array_equal(a, b) for a, b in zip(new, rows, strict=True)):
+            if _same(new, rows):
                 result = self._go_on(result, self.problem.subset(rows), q0, Q0, per_round,
                                      max_iter, short(rows))
                 if result.q is not q and np.all(np.isfinite(result.q)):
@@ -205,7 +205,7 @@ class Refinement:
         result, rows, errors = pruned
         for _ in range(_REFINE_ROUNDS):  # measures may cross the threshold: rounds again
             threshold, new = self.split(errors, window)
-            if all(np.array_equal(a, b) for a, b in zip(new, rows, strict=True)):
+            if _same(new, rows):
                 break
             fit = fit_problem(self.fam, self.model, self.problem.subset(new),
                               q_start=result.q, q0=q0, Q0=Q0, max_iter=max_iter)
@@ -235,8 +235,9 @@ class Refinement:
 
         total = truncated(errors)
         changed = False
+        sample = self.problem.subset(rows)
         for _ in range(_PRUNE):
-            influence = Influence(self.problem.subset(rows), fit)
+            influence = Influence(sample, fit)
             drops = np.concatenate(influence.drops())
             drops = np.where(np.isnan(drops), -np.inf, drops)
             if drops.size <= self.min_rows + 2:
@@ -255,8 +256,9 @@ class Refinement:
             gone = [place(j) for j in out]
             trial_rows = tuple(np.delete(r, [i for c, i in gone if c == k])
                                for k, r in enumerate(rows))
-            trial = fit_problem(self.fam, self.model, self.problem.subset(trial_rows),
-                                q_start=fit.q, q0=q0, Q0=Q0, max_iter=max_iter)
+            trial_sample = self.problem.subset(trial_rows)
+            trial = fit_problem(self.fam, self.model, trial_sample, q_start=fit.q, q0=q0,
+                                Q0=Q0, max_iter=max_iter)
             if not np.all(np.isfinite(trial.q)):
                 break
             trial_errors = coherence_errors(self.problem, trial.q)
@@ -264,6 +266,7 @@ class Refinement:
             if not t < total:
                 break
             fit, rows, errors, total, changed = trial, trial_rows, trial_errors, t, True
+            sample = trial_sample
         return (fit, rows, errors) if changed else None
 
     def _race(self, starts, rows, q0, Q0, max_iter: int, laps: bool = False) -> FitResult:
@@ -298,6 +301,11 @@ class Refinement:
                 return more if more.cost <= fit.cost else fit
             fit = more
         return fit
+
+
+def _same(a, b) -> bool:
+    """The same measures per channel (index arrays)."""
+    return all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
 
 
 def _place(ends: np.ndarray, j: int) -> tuple[int, int]:
