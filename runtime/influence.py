@@ -54,6 +54,20 @@ class Influence:
                 out.append(_quadratic_or_inf(K, rbar) / rank)
         return tuple(out)
 
+    def leverages(self) -> tuple[np.ndarray, ...]:
+        """Per channel, each measure's leverage ``tr(Hᵢ) / pᵢ`` (``Hᵢ = C̄ᵢ Σ C̄ᵢᵀ``): the
+        share of its own fitted value it holds; they sum to the parameter's degrees of
+        freedom. ``nan`` where the fit has no covariance."""
+        out = []
+        for size, part in zip(self.sizes, self.parts, strict=True):
+            if part is None or self.blind:
+                out.append(np.zeros(size) if part is None else np.full(size, np.nan))
+                continue
+            Cbar, _, rank = part
+            with np.errstate(all="ignore"):
+                out.append(np.einsum("mpi,ij,mpj->m", Cbar, self.S, Cbar) / rank)
+        return tuple(out)
+
     def joint(self, measures) -> float:
         """The deletion drop of ``measures`` (``(channel, index)`` pairs) together, per
         equation kept."""

@@ -24,6 +24,7 @@ _REFINE_ROUNDS = 6  # threshold-and-refine rounds at most (they stop when the in
 _ROUND_ITER = 20  # iterations of a refinement round whose inliers may still change
 _PRUNE = 10  # deletions at most that the deletion test makes in a finished fit
 _PAIRS = 8  # measures of largest drops whose pairs it tries when no one measure stands out
+_LEVERAGE = 3.0  # a measure of leverage above this many times the mean is cross-checked
 #: a refinement that only its inliers' number can make matter (ModelSearch.finish's
 #: short_of) runs in laps of this many iterations, and stops after a lap that lowered its
 #: cost by less than _PROGRESS of itself
@@ -202,9 +203,11 @@ class Refinement:
         pruned = self._pruned(result, rows, errors, threshold, q0, Q0, max_iter)
         if pruned is None:
             return result, rows, errors, threshold
+        out = tuple(np.setdiff1d(r, p) for r, p in zip(rows, pruned[1], strict=True))
         result, rows, errors = pruned
         for _ in range(_REFINE_ROUNDS):  # measures may cross the threshold: rounds again
-            threshold, new = self.split(errors, window)
+            threshold, new = self.split(errors, window)  # (those taken out stay out)
+            new = tuple(np.setdiff1d(r, o) for r, o in zip(new, out, strict=True))
             if _same(new, rows):
                 break
             fit = fit_problem(self.fam, self.model, self.problem.subset(new),
@@ -253,9 +256,7 @@ class Refinement:
                         best, out = d, [int(a), int(b)]
                 if out is None:
                     break
-            gone = [place(j) for j in out]
-            trial_rows = tuple(np.delete(r, [i for c, i in gone if c == k])
-                               for k, r in enumerate(rows))
+            trial_rows = _without(rows, out)
             trial_sample = self.problem.subset(trial_rows)
             trial = fit_problem(self.fam, self.model, trial_sample, q_start=fit.q, q0=q0,
                                 Q0=Q0, max_iter=max_iter)
@@ -267,7 +268,49 @@ class Refinement:
                 break
             fit, rows, errors, total, changed = trial, trial_rows, trial_errors, t, True
             sample = trial_sample
+        checked = self._cross_checked(fit, sample, rows, threshold, q0, Q0, max_iter)
+        if checked is not None:
+            return checked
         return (fit, rows, errors) if changed else None
+
+    def _cross_checked(self, fit: FitResult, sample: Problem, rows, threshold: float, q0,
+                       Q0, max_iter: int):
+        """The measures of high leverage judged by the fit of the others: ``(fit, rows,
+        errors)`` without those the others do not explain, or None when they all pass.
+
+        An outlier of high leverage (a random match: its parallax much larger than the
+        scene's) moves the fit until its own error is small, and its deletion drop stays
+        small too — first order misses how far the fit moved, and two such outliers mask each
+        other. The others tell: every measure whose leverage exceeds :data:`_LEVERAGE` times
+        the mean (at most a tenth of the inliers) is left out together, the fit is made on
+        the rest, and those whose error there exceeds the threshold — the outlier test on
+        the model of the others, as cross-validation makes it — stay out."""
+        levels = np.concatenate(Influence(sample, fit).leverages())
+        n = levels.size
+        if not np.all(np.isfinite(levels)) or n <= self.min_rows + 2:
+            return None
+        order = np.argsort(-levels)[:max(1, min(n // 10, n - self.min_rows - 2))]
+        suspects = order[levels[order] > _LEVERAGE * levels.mean()]
+        if suspects.size == 0:
+            return None
+        rest = _without(rows, suspects)
+        others = fit_problem(self.fam, self.model, self.problem.subset(rest), q_start=fit.q,
+                             q0=q0, Q0=Q0, max_iter=max_iter)
+        if not np.all(np.isfinite(others.q)):
+            return None
+        errors = coherence_errors(self.problem, others.q)
+        theirs = np.concatenate([e[r] for e, r in zip(errors, rows, strict=True)])
+        out = [j for j in suspects if not theirs[j] <= threshold]  # nan: out
+        if not out:
+            return None
+        if len(out) < suspects.size:
+            rest = _without(rows, out)
+            others = fit_problem(self.fam, self.model, self.problem.subset(rest),
+                                 q_start=others.q, q0=q0, Q0=Q0, max_iter=max_iter)
+            if not np.all(np.isfinite(others.q)):
+                return None
+            errors = coherence_errors(self.problem, others.q)
+        return others, rest, errors
 
     def _race(self, starts, rows, q0, Q0, max_iter: int, laps: bool = False) -> FitResult:
         """The fit of least cost on ``rows`` from several starts: each runs
@@ -306,6 +349,14 @@ class Refinement:
 def _same(a, b) -> bool:
     """The same measures per channel (index arrays)."""
     return all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
+
+
+def _without(rows, positions) -> tuple[np.ndarray, ...]:
+    """``rows`` (index arrays per channel) less the measures at ``positions`` (numbered
+    channel after channel)."""
+    ends = np.cumsum([0] + [r.size for r in rows])
+    gone = [_place(ends, j) for j in positions]
+    return tuple(np.delete(r, [i for c, i in gone if c == k]) for k, r in enumerate(rows))
 
 
 def _place(ends: np.ndarray, j: int) -> tuple[int, int]:

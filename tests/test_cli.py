@@ -281,7 +281,10 @@ def test_ctrl_c_during_fit_reports_the_best_so_far_and_exits_130(tmp_path):
     proc = subprocess.Popen(
         [sys.executable, "-m", "kanagen", "fit", str(LATTICE), str(path), "--scale", "4",
          "--max-samples", "10000000", "--json", str(json_out)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        # Ctrl-C's default handling, even when the tests run as a background job (which
+        # starts with SIGINT ignored, and its children inherit that)
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.default_int_handler))
     try:
         time.sleep(3)  # well into the search (or still loading: 130 all the same)
         assert proc.poll() is None, proc.communicate()
