@@ -25,6 +25,7 @@ _ROUND_ITER = 20  # iterations of a refinement round whose inliers may still cha
 _PRUNE = 10  # deletions at most that the deletion test makes in a finished fit
 _PAIRS = 8  # measures of largest drops whose pairs it tries when no one measure stands out
 _LEVERAGE = 3.0  # a measure of leverage above this many times the mean is cross-checked
+_FEW = 0.1  # ... when the mean leverage is at most this (ten measures a parameter or more)
 #: a refinement that only its inliers' number can make matter (ModelSearch.finish's
 #: short_of) runs in laps of this many iterations, and stops after a lap that lowered its
 #: cost by less than _PROGRESS of itself
@@ -283,11 +284,18 @@ class Refinement:
         small too — first order misses how far the fit moved, and two such outliers mask each
         other. The others tell: every measure whose leverage exceeds :data:`_LEVERAGE` times
         the mean (at most a tenth of the inliers) is left out together, the fit is made on
-        the rest, and those whose error there exceeds the threshold — the outlier test on
-        the model of the others, as cross-validation makes it — stay out."""
+        the rest, and those whose error there exceeds ``L*`` (the threshold when lower) —
+        the outlier test on the model of the others, as cross-validation makes it — stay
+        out. ``L*``, not the histogram's cut: where outliers crowd the histogram the cut
+        rises above the inliers' own spread, and an outlier of high leverage sits just
+        under it. Only with ten measures a parameter or more (mean leverage at most
+        :data:`_FEW`): with fewer, every measure holds much of the fit, leverage singles
+        out no one, and a tenth of them left out moves the fit of the others by itself (a
+        small structure of AdelaideRMF's F scenes lost that way)."""
         levels = np.concatenate(Influence(sample, fit).leverages())
         n = levels.size
-        if not np.all(np.isfinite(levels)) or n <= self.min_rows + 2:
+        if not np.all(np.isfinite(levels)) or n <= self.min_rows + 2 or \
+                levels.mean() > _FEW:
             return None
         order = np.argsort(-levels)[:max(1, min(n // 10, n - self.min_rows - 2))]
         suspects = order[levels[order] > _LEVERAGE * levels.mean()]
@@ -300,7 +308,8 @@ class Refinement:
             return None
         errors = coherence_errors(self.problem, others.q)
         theirs = np.concatenate([e[r] for e, r in zip(errors, rows, strict=True)])
-        out = [j for j in suspects if not theirs[j] <= threshold]  # nan: out
+        level = min(threshold, self.scale)  # their χ² test at L*, not the histogram's cut
+        out = [j for j in suspects if not theirs[j] <= level]  # nan: out
         if not out:
             return None
         if len(out) < suspects.size:
