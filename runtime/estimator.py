@@ -127,6 +127,8 @@ class Estimator:
         self.scale = None if scale is None else float(scale)
         #: the L* of each model searched so far (the one given, or the model's default)
         self.scales: dict[str, float] = {}
+        #: the measures of a full minimal sample of each model searched so far
+        self.sample_sizes: dict[str, int] = {}
         self.scorer = scorer
         self.phi = phi
         self.seed = seed
@@ -478,6 +480,7 @@ class Estimator:
                 self._queue_alternatives(model)
                 continue
             self.scales[model] = search.scale
+            self.sample_sizes[model] = search.sample_size + search.base_size
             budget = self._budget(search, parent_state)
             cap = self._share(budget) if self.fam.free_dof(model, self._constants) > 0 \
                 else budget

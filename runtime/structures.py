@@ -258,4 +258,7 @@ def _rows_of(info, rows: np.ndarray, size: int):
 
 
 def _minimal(est: Estimator, state: ModelState) -> int:
-    return max(1, est.fam.free_dof(state.model, est._constants))
+    """The measures of a minimal sample of the state's model (4 matches for a homography,
+    whose 8 degrees of freedom 2 equations a match fix)."""
+    return est.sample_sizes.get(state.model) or max(1, est.fam.free_dof(state.model,
+                                                                        est._constants))

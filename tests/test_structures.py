@@ -181,3 +181,20 @@ def test_restarts_keep_the_extraction_of_least_truncated_error(line):
         kanagen.find_structures(line, data={"point": xy}, restarts=0)
     with pytest.raises(ValueError, match="retries"):
         kanagen.find_structures(line, data={"point": xy}, retries=-1)
+
+
+def test_a_structure_needs_twice_the_minimal_sample_in_measures():
+    """The default ``min_inliers`` is twice a minimal sample counted in measures: 4 matches
+    fix a homography's 8 degrees of freedom (2 equations a match), so a plane needs more
+    than 8 inliers, not 16 (which lost the third plane of AdelaideRMF's napierb, 36 matches
+    of which 14 were left after the first two)."""
+    from kanagen.runtime.structures import _minimal
+    from kanagen.scenes import two_view_scene
+
+    fam = kanagen.load("two_view")
+    scene = two_view_scene("planar", n=60, outliers=0.2, sigma=0.5, seed=3)
+    est = kanagen.Estimator(fam, model="planar", seed=0, constants=scene.constants)
+    est.add_measures("match", scene.data, info=4.0)
+    best = est.run(max_samples=200)
+    assert best.model == "planar"
+    assert est.sample_sizes["planar"] == 4 and _minimal(est, best) == 4
