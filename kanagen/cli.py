@@ -223,7 +223,8 @@ def fit_options(command):
                      help="Iterations of the local estimator (--local only)."),
         click.option("--correct-bias", is_flag=True,
                      help="Remove the second-order bias of the estimate (Kanatani's "
-                          "hyperaccurate correction; --local only)."),
+                          "hyperaccurate correction): of the local fit, or of the chosen "
+                          "model refitted on its inliers."),
         click.option("--start", "starts", multiple=True, metavar="NAME=VALUE,...",
                      help="Starting values of parameters, e.g. --start b0=1,b1=2 (repeatable; "
                           "the others keep SPEC's). With --local, where the iteration starts; "
@@ -475,15 +476,16 @@ def _report_robust(est, fam, channel, X, json_out, to_err, opts, *, spec,
                    data) -> tuple[bool, bool]:
     """Run the search, print the lattice and the chosen model; (a model was found, the
     search was interrupted by Ctrl-C)."""
-    from .fitjob import robust_record
+    from .fitjob import corrected_choice, robust_record
 
     interrupted = False
     try:
         samples = _search(est, opts.max_samples)
     except KeyboardInterrupt:  # anytime: report the best model so far
         samples, interrupted = len(est.history), True
+    corrected = corrected_choice(est, fam, opts, channel, X) if opts.correct_bias else None
     record = robust_record(est, fam, opts, channel=channel, X=X, samples=samples, spec=spec,
-                           data=data, interrupted=interrupted)
+                           data=data, interrupted=interrupted, corrected=corrected)
     measures = len(X)
     click.echo(f"family {fam.name!r}, channel {channel!r}: {measures} measures, "
                f"L* = {_scale_text(record, opts)}, scorer {opts.scorer}, {samples} sample(s): "
@@ -491,6 +493,8 @@ def _report_robust(est, fam, channel, X, json_out, to_err, opts, *, spec,
     click.echo(_lattice_table(est.states(), record["model"]), err=to_err)
     if record["found"]:
         click.echo(_state_summary(est.best(), measures), err=to_err)
+        if corrected is not None:
+            click.echo(_corrected_summary(corrected), err=to_err)
     else:
         click.echo("no model found: no sample gave an estimate", err=to_err)
     _write_json(record, json_out)
@@ -561,6 +565,16 @@ def _state_summary(best, measures: int) -> str:
         lines.append(f"  refinement: {best.status}")
     lines += estimate_lines(best.params, best.slacks, best.std, best.derived,
                             best.units, best.pinned)
+    return "\n".join(lines)
+
+
+def _corrected_summary(res) -> str:
+    """The chosen model refitted on its inliers less its bias (--correct-bias)."""
+    from .runtime.results import estimate_lines
+
+    lines = [f"bias-corrected on its inliers (hyperaccurate): {res.message}"]
+    lines += estimate_lines(res.params, res.slacks, res.std, res.derived, res.units,
+                            res.pinned)
     return "\n".join(lines)
 
 

@@ -58,7 +58,8 @@ class FitOptions:
         Starting values of parameters by name (the others keep the spec's): where the local
         fit starts, or the null model's estimate before the robust search's first sample.
     correct_bias : bool
-        The local fit's hyperaccurate correction (``kanagen.fit(..., correct_bias=True)``).
+        The hyperaccurate correction (``kanagen.fit(..., correct_bias=True)``) of the local
+        fit, or of the chosen model of a search refitted on its inliers.
 
     Examples
     --------
@@ -104,8 +105,6 @@ class FitOptions:
             put(name, int(value))
         put("local", bool(self.local))
         put("correct_bias", bool(self.correct_bias))
-        if self.correct_bias and not self.local:
-            raise ValueError("correct_bias applies to the local fit (--local) only")
         for name in ("constants", "start"):
             put(name, _pairs(getattr(self, name), name))
 
@@ -220,11 +219,27 @@ def search(est: Estimator, max_samples: int,
     return est.samples - before
 
 
+def corrected_choice(est: Estimator, fam: ModelFamily, opts: FitOptions, channel: str,
+                     X: np.ndarray):
+    """``--correct-bias`` after a search: the chosen model refitted on its inliers from its
+    estimate, less its second-order bias (a FitResult; None without a chosen model)."""
+    from .runtime.fit import fit
+
+    best = est.best()
+    if best is None or not best.samples or not np.all(np.isfinite(best.q)):
+        return None
+    rows = np.asarray(best.inliers, dtype=int)
+    return fit(fam, best.model, data={channel: X[rows]}, info={channel: _info(opts)},
+               constants=dict(opts.constants), q_start=best.q, max_iter=opts.max_iter,
+               correct_bias=True)
+
+
 def robust_record(est: Estimator, fam: ModelFamily, opts: FitOptions, *, channel: str,
                   X: np.ndarray, samples: int, spec: str, data: str,
-                  interrupted: bool = False) -> dict:
+                  interrupted: bool = False, corrected=None) -> dict:
     """The JSON record of a robust search (``kanagen fit --json``); ``"found"`` says whether
-    a model was found."""
+    a model was found. ``corrected``: the chosen model's :func:`corrected_choice`, whose
+    estimate the record then carries, with the ``bias`` removed."""
     best = est.best()
     found = best is not None and best.samples > 0 and bool(np.all(np.isfinite(best.q)))
     status = f"interrupted ({est.status})" if interrupted else est.status
@@ -242,6 +257,9 @@ def robust_record(est: Estimator, fam: ModelFamily, opts: FitOptions, *, channel
                    "start": dict(opts.start),
                    "total_samples": samples, "status": est.status, "stop_reason": status,
                    "found": found})
+    if found and corrected is not None:
+        record.update(estimate_json(corrected))
+        record.update({"bias": np.asarray(corrected.bias), "model_status": corrected.message})
     return record
 
 
@@ -290,8 +308,9 @@ def run_job(fam: ModelFamily, X: np.ndarray, channel: str, opts: FitOptions, *,
         return finite(local_record(fam, X, channel, opts, spec=spec, data=data)[1])
     est = make_estimator(fam, X, channel, opts)
     samples = search(est, opts.max_samples)
+    corrected = corrected_choice(est, fam, opts, channel, X) if opts.correct_bias else None
     return finite(robust_record(est, fam, opts, channel=channel, X=X, samples=samples,
-                                spec=spec, data=data))
+                                spec=spec, data=data, corrected=corrected))
 
 
 def finite(obj):

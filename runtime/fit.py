@@ -114,9 +114,7 @@ def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
                          f"as {data_hint(fam)}")
     model = model or fam.null_model
     check_options(max_iter, xtol, eps)
-    if correct_bias not in (False, True, "relative"):
-        raise ValueError(f"correct_bias must be False, True or 'relative', got "
-                         f"{correct_bias!r}")
+    check_correct_bias(correct_bias)
     problem = make_problem(fam, model, {} if data is None else data, info, q0, Q0, constants,
                            eps, exact)
     if not any(ch.size for ch in problem.channels) and not np.any(problem.Q0):
@@ -130,6 +128,13 @@ def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
 
         res = corrected(fam, model, problem, res, relative=correct_bias == "relative")
     return replace(res, assumed=assumed) if assumed else res
+
+
+def check_correct_bias(correct_bias) -> None:
+    """``correct_bias`` is False, True or ``"relative"``."""
+    if correct_bias is not False and correct_bias is not True and correct_bias != "relative":
+        raise ValueError(f"correct_bias must be False, True or 'relative', got "
+                         f"{correct_bias!r}")
 
 
 def check_options(max_iter, xtol, eps) -> None:

@@ -19,7 +19,7 @@ import numpy as np
 
 from .family import ModelFamily
 from .fastsample import draws_as_numpy, sampler_for
-from .fit import fit_problem, make_problem
+from .fit import check_correct_bias, fit_problem, make_problem
 from .initializers import InitializerFn, equivalent, model_initializers, start_from
 from .inputs import check_search_options
 from .iterate import CONVERGED, UNVERIFIED
@@ -506,7 +506,8 @@ def robust_fit(fam: ModelFamily, model: str | None = None, data: Mapping | None 
                min_samples: int = 20, no_gain: int | None = None,
                time_budget: float | None = None, stop: Callable | None = None,
                window: float = 0.35, q0=None, Q0=None, constants=None,
-               initializers: dict | None = None) -> RobustEstimate | None:
+               initializers: dict | None = None,
+               correct_bias: bool | str = False) -> RobustEstimate | None:
     """Robust estimate of one model: random minimal samples, threshold, refinement.
 
     ``scale``: ``L*``; default: the χ² quantile of the measures' equations
@@ -520,6 +521,8 @@ def robust_fit(fam: ModelFamily, model: str | None = None, data: Mapping | None 
     list of (samples, best score)).
     ``initializers``: ``{model: name or callable or None}`` over the spec's closed-form
     initializer (see :class:`~kanagen.Estimator`).
+    ``correct_bias``: the refined estimate on the inliers less its second-order bias, as
+    :func:`kanagen.fit`'s (True, or ``"relative"``: the noise from the reduced χ²).
 
     Examples
     --------
@@ -536,6 +539,7 @@ def robust_fit(fam: ModelFamily, model: str | None = None, data: Mapping | None 
     (2.0, 10.83)
     """
     model = model or fam.null_model
+    check_correct_bias(correct_bias)
     problem = make_problem(fam, model, {} if data is None else data, info, q0, Q0, constants)
     assumed = fam.warn_assumed(constants)
     names = [ch.name for ch in problem.channels]
@@ -574,6 +578,12 @@ def robust_fit(fam: ModelFamily, model: str | None = None, data: Mapping | None 
         if stop is not None and stop(search.history):
             break
     est = search.finish(problem.q0, problem.Q0, window)
+    if est is not None and correct_bias:  # the ML fit on the inliers, then its bias
+        from .hyper import corrected
+
+        rows = tuple(np.asarray(est.inliers[ch.name], dtype=int) for ch in problem.channels)
+        est = replace(est, fit=corrected(fam, model, problem.subset(rows), est.fit,
+                                         relative=correct_bias == "relative"))
     if est is not None and assumed:
         est = replace(est, fit=replace(est.fit, assumed=assumed))
     return est

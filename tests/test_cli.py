@@ -186,9 +186,10 @@ def test_local_fit_prints_the_estimate_and_writes_json(run, tmp_path):
     assert res["derived"]["discriminant"]["value"] > 0  # an ellipse
 
 
-def test_local_fit_corrects_its_bias_on_request(run, tmp_path):
+def test_fits_correct_their_bias_on_request(run, tmp_path):
     """--correct-bias: the local fit's hyperaccurate correction (runtime/hyper.py), said in
-    its message; a robust search refuses it (the local fit only)."""
+    its message; after a robust search, the chosen model refitted on its inliers less its
+    bias (the record's estimate, with the bias removed; the lattice as found)."""
     args = ("fit", ROOT / "examples/conic.yaml", ROOT / "examples/data/ellipse_arc.csv",
             "--model", "conic", "--sigma", "1")
     out_json = tmp_path / "res.json"
@@ -200,8 +201,16 @@ def test_local_fit_corrects_its_bias_on_request(run, tmp_path):
     a = np.array(list(json.loads(out_json.read_text())["params"].values()))
     b = np.array(list(json.loads(plain.read_text())["params"].values()))
     assert 0 < np.linalg.norm(a - b) < 1e-2 and np.linalg.norm(a) == pytest.approx(1.0)
-    out = run(*args, "--correct-bias")
-    assert out.exit_code == 2 and "--local" in out.output
+    robust, robust_plain = tmp_path / "robust.json", tmp_path / "robust_plain.json"
+    out = run(*args, "--correct-bias", "--json", robust)
+    assert out.exit_code == 0, out.output
+    assert "bias-corrected on its inliers (hyperaccurate)" in out.output
+    assert run(*args, "--json", robust_plain).exit_code == 0
+    hyper, ml = json.loads(robust.read_text()), json.loads(robust_plain.read_text())
+    assert hyper["model"] == ml["model"] == "conic" and hyper["inliers"] == ml["inliers"]
+    assert len(hyper["bias"]) == len(ml["params"]) and "bias" not in ml
+    a, b = (np.array(list(r["params"].values())) for r in (hyper, ml))
+    assert 0 < np.linalg.norm(a - b) < 1e-2 and np.linalg.norm(a) == pytest.approx(1.0)
 
 
 def test_local_fit_reports_bad_data_without_traceback(run, tmp_path):

@@ -124,3 +124,23 @@ def test_a_derived_quantity_loses_its_own_bias(circle):
     want = 2 * np.pi * 10.0 * b[2] + np.pi * var_r
     assert float(derived["area"]) == pytest.approx(want, rel=0.005)
     assert float(derived["area"]) > 2 * np.pi * 10.0 * b[2]  # the curvature's share
+
+
+def test_the_robust_search_corrects_its_refinement_on_the_inliers(circle):
+    """``robust_fit(..., correct_bias=True)``: the fit on the inliers less its bias, the same
+    as ``kanagen.fit`` with the correction on those inliers; the outliers play no part."""
+    rng = np.random.default_rng(9)
+    xy = np.r_[_ring(10.0, 100) + rng.normal(0.0, 0.5, (100, 2)),
+               rng.uniform(-30.0, 30.0, (30, 2))]
+    options = dict(data={"point": xy}, info={"point": 4.0}, q0=[0.0, 0.0, 9.0],
+                   max_samples=200)
+    ml = kanagen.robust_fit(circle, "circle", **options)
+    hyper = kanagen.robust_fit(circle, "circle", correct_bias=True, **options)
+    inliers = np.asarray(ml.inliers["point"])
+    assert np.array_equal(inliers, hyper.inliers["point"]) and ml.fit.bias is None
+    alone = kanagen.fit(circle, "circle", data={"point": xy[inliers]}, info={"point": 4.0},
+                        q_start=ml.q, correct_bias=True)
+    np.testing.assert_allclose(hyper.q, alone.q, rtol=1e-7, atol=1e-9)
+    assert ml.params["r"] - hyper.params["r"] == pytest.approx(0.25 / 20.0, rel=0.1)
+    with pytest.raises(ValueError, match="correct_bias"):
+        kanagen.robust_fit(circle, "circle", correct_bias="yes", **options)
