@@ -251,8 +251,8 @@ def test_a_partial_parent_hands_its_estimate_to_the_child(family, monkeypatch):
 
     monkeypatch.setattr(robust.ModelSearch, "consider", spy)
     # the fixed budget: the adaptive one draws the child's samples until one finds it
-    est = kanagen.Estimator(family, scale=9.0, seed=4, constants=scene.constants,
-                            adaptive=False)
+    est = kanagen.Estimator(family, scale=9.0, seed=6, constants=scene.constants,
+                            adaptive=False)  # a seed whose samples miss (6, 7, 9, 10 of 0-11)
     est.add_measures("match", scene.data, info=4.0)
     best = est.run(max_samples=10_000)
     parent = next(s for s in est.states() if s.model == "translation")
