@@ -26,6 +26,7 @@ _PRUNE = 10  # deletions at most that the deletion test makes in a finished fit
 _PAIRS = 8  # measures of largest drops whose pairs it tries when no one measure stands out
 _LEVERAGE = 3.0  # a measure of leverage above this many times the mean is cross-checked
 _FEW = 0.1  # ... when the mean leverage is at most this (ten measures a parameter or more)
+_TIE = 1e-9  # fits whose costs differ by less than this (relative) are equally good
 #: a refinement that only its inliers' number can make matter (ModelSearch.finish's
 #: short_of) runs in laps of this many iterations, and stops after a lap that lowered its
 #: cost by less than _PROGRESS of itself
@@ -332,7 +333,13 @@ class Refinement:
             lap = min(lap, _LAP)
         fits = [fit_problem(self.fam, self.model, sample, q_start=start, q0=q0, Q0=Q0,
                             max_iter=lap) for start in starts]
-        best = min(fits, key=lambda f: f.cost if np.isfinite(f.cost) else np.inf)
+        costs = [f.cost if np.isfinite(f.cost) else np.inf for f in fits]
+        least = min(costs)
+        # a tie (an estimate and an equivalent one: t and −t of an essential matrix) goes to
+        # the closed forms on the inliers, which decide what the equations cannot (the sign
+        # of t by cheirality over all of them), before the estimate the rounds came with
+        order = list(range(1, len(fits))) + [0]
+        best = fits[next(i for i in order if costs[i] <= least + _TIE * abs(least))]
         return self._go_on(best, sample, q0, Q0, lap, max_iter, laps)
 
     def _go_on(self, fit: FitResult, sample: Problem, q0, Q0, done: int,
