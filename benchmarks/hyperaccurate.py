@@ -68,10 +68,9 @@ def draws(sigma: float, trials: int, shape: tuple[int, ...], seed: int,
 
 
 def _pair_means(E: np.ndarray, antithetic: bool) -> np.ndarray:
-    """The independent units of the mean: the pairs' means when antithetic."""
-    if not antithetic:
-        return E
-    return 0.5 * (E[0:len(E) - len(E) % 2:2] + E[1::2][:len(E) // 2])
+    """The independent units of the mean: the pairs' means when antithetic (``E`` holds
+    whole pairs: :func:`_complete`)."""
+    return 0.5 * (E[0::2] + E[1::2]) if antithetic else E
 
 
 def summarise(name: str, sigma: float, ml: np.ndarray, hyper: np.ndarray, at_truth: float,

@@ -40,32 +40,31 @@ class Influence:
 
     def drops(self) -> tuple[np.ndarray, ...]:
         """Per channel, ``Δᵢ / pᵢ`` of each measure (see :func:`deletion_drops`)."""
-        out = []
-        for size, part in zip(self.sizes, self.parts, strict=True):
-            if part is None:
-                out.append(np.zeros(size))
-                continue
-            if self.blind:
-                out.append(np.full(size, np.nan))
-                continue
-            Cbar, rbar, rank = part  # (M, p, n), (M, p), (M,)
-            with np.errstate(all="ignore"):
-                K = np.eye(Cbar.shape[1]) - np.einsum("mpi,ij,mqj->mpq", Cbar, self.S, Cbar)
-                out.append(_quadratic_or_inf(K, rbar) / rank)
-        return tuple(out)
+        def drop(Cbar, rbar, rank):  # (M, p, n), (M, p), (M,)
+            K = np.eye(Cbar.shape[1]) - np.einsum("mpi,ij,mqj->mpq", Cbar, self.S, Cbar)
+            return _quadratic_or_inf(K, rbar) / rank
+
+        return self._per_measure(drop)
 
     def leverages(self) -> tuple[np.ndarray, ...]:
         """Per channel, each measure's leverage ``tr(Hᵢ) / pᵢ`` (``Hᵢ = C̄ᵢ Σ C̄ᵢᵀ``): the
         share of its own fitted value it holds; they sum to the parameter's degrees of
         freedom. ``nan`` where the fit has no covariance."""
+        return self._per_measure(
+            lambda Cbar, _, rank: np.einsum("mpi,ij,mpj->m", Cbar, self.S, Cbar) / rank)
+
+    def _per_measure(self, value) -> tuple[np.ndarray, ...]:
+        """Per channel, ``value(C̄, r̄, p)`` of its measures: 0 for a channel with no
+        equations in the linearised problem, ``nan`` where the fit has no covariance."""
         out = []
         for size, part in zip(self.sizes, self.parts, strict=True):
-            if part is None or self.blind:
-                out.append(np.zeros(size) if part is None else np.full(size, np.nan))
-                continue
-            Cbar, _, rank = part
-            with np.errstate(all="ignore"):
-                out.append(np.einsum("mpi,ij,mpj->m", Cbar, self.S, Cbar) / rank)
+            if part is None:
+                out.append(np.zeros(size))
+            elif self.blind:
+                out.append(np.full(size, np.nan))
+            else:
+                with np.errstate(all="ignore"):
+                    out.append(value(*part))
         return tuple(out)
 
     def joint(self, measures) -> float:

@@ -202,11 +202,16 @@ class Refinement:
                 threshold = self.split(errors, window)[0]
         if short(rows) or result is None or not np.all(np.isfinite(result.q)):
             return result, rows, errors, threshold
+        before = rows
         pruned = self._pruned(result, rows, errors, threshold, q0, Q0, max_iter)
-        if pruned is None:
+        if pruned is not None:
+            result, rows, errors = pruned
+        checked = self._cross_checked(result, rows, threshold, q0, Q0, max_iter)
+        if checked is not None:
+            result, rows, errors = checked
+        if rows is before:  # nothing taken out
             return result, rows, errors, threshold
-        out = tuple(np.setdiff1d(r, p) for r, p in zip(rows, pruned[1], strict=True))
-        result, rows, errors = pruned
+        out = tuple(np.setdiff1d(r, p) for r, p in zip(before, rows, strict=True))
         for _ in range(_REFINE_ROUNDS):  # measures may cross the threshold: rounds again
             threshold, new = self.split(errors, window)  # (those taken out stay out)
             new = tuple(np.setdiff1d(r, o) for r, o in zip(new, out, strict=True))
@@ -270,13 +275,9 @@ class Refinement:
                 break
             fit, rows, errors, total, changed = trial, trial_rows, trial_errors, t, True
             sample = trial_sample
-        checked = self._cross_checked(fit, sample, rows, threshold, q0, Q0, max_iter)
-        if checked is not None:
-            return checked
         return (fit, rows, errors) if changed else None
 
-    def _cross_checked(self, fit: FitResult, sample: Problem, rows, threshold: float, q0,
-                       Q0, max_iter: int):
+    def _cross_checked(self, fit: FitResult, rows, threshold: float, q0, Q0, max_iter: int):
         """The measures of high leverage judged by the fit of the others: ``(fit, rows,
         errors)`` without those the others do not explain, or None when they all pass.
 
@@ -293,7 +294,7 @@ class Refinement:
         :data:`_FEW`): with fewer, every measure holds much of the fit, leverage singles
         out no one, and a tenth of them left out moves the fit of the others by itself (a
         small structure of AdelaideRMF's F scenes lost that way)."""
-        levels = np.concatenate(Influence(sample, fit).leverages())
+        levels = np.concatenate(Influence(self.problem.subset(rows), fit).leverages())
         n = levels.size
         if not np.all(np.isfinite(levels)) or n <= self.min_rows + 2 or \
                 levels.mean() > _FEW:
