@@ -27,12 +27,17 @@ Inequalities (appendix F): once an iterate satisfies the model's inequality rela
 trial point that breaks them is refused; a strict relation whose slack diverges stops the
 iteration at the boundary (status 4).
 
+Starts (ours). The projector's step from the observed measures (ODRPACK's first step) is
+tried first; when the descent from there fails, the restored start with every step inside
+the trust region, then the restored start as the first.
+
 The end (:mod:`.verify`): wherever the iteration stops, the point is checked — stationary
 (the Newton decrement of the projector's step small against the cost), no negative
 curvature of the Lagrangian on the constraints' tangent space (finite differences of the
-exact gradient), every parameter seen by the data. A saddle or a maximum (report footnote 5)
-is left along its negative-curvature direction and the iteration goes on; only a verified
-minimum is status 0.
+exact gradient), every parameter seen by the data, no slope along a direction the step no
+longer sees. A saddle or a maximum (report footnote 5) is left along its negative-curvature
+direction and the iteration goes on; only a verified minimum is status 0. An iteration that
+runs off along a lost direction (five rounds in a row, the parameter growing) stops there.
 
 Status codes (``FitResult.status``):
 0 converged — a verified local minimum;
@@ -43,8 +48,9 @@ Status codes (``FitResult.status``):
   relation's slack diverges (``c = 1/s² → 0``, below 1e-8 of its start): no minimum inside
   the open set the model allows; returns the first iterate that close to the boundary;
 5 saddle — negative curvature that no step along it could use;
-6 plateau — the equations no longer depend on some parameter (a flat direction: the
-  minimum is not attained, or the model is not identifiable from these measures);
+6 plateau — the equations no longer depend on some parameter, or on some direction along
+  which the cost still falls (the minimum is not attained, or the model is not identifiable
+  from these measures);
 7 infeasible — the measures or the constraints could not be brought onto their equations;
 8 stationary, not verified — the end of an intermediate refinement run without the checks
   (``verify=False``: a robust search's local optimisation, which keeps only its estimate).
@@ -71,7 +77,15 @@ from .projector import (
 )
 from .restoration import nearer_points, restore_measures
 from .sqrt import closest_sqrt, reduced_solve, reduced_sqrt, triangular_solve
-from .verify import Verdict, cost_rounding, escape, feasible, stationary, verify
+from .verify import (
+    Verdict,
+    cost_rounding,
+    escape,
+    feasible,
+    lost_direction,
+    stationary,
+    verify,
+)
 
 CONVERGED, MAX_ITER, STALLED, FAILED, BOUNDARY, SADDLE, PLATEAU, INFEASIBLE, UNVERIFIED = \
     range(9)
@@ -97,6 +111,10 @@ _COST_NOISE = 1e-13  # the relative rounding of a cost summed over many measures
 _MAX_REFUSALS = 40  # trial points refused in one iteration, at most
 _LINE_STEPS = 3  # halvings of the projector's step before damping
 _JOINT = 1e3  # the joint start's step, at most, in first trust radii
+_LOST_ROUNDS = 5  # iterations in a row with a lost direction that still falls: a run-off
+_SLOW = 1e-6  # a fall of the cost below this share of it: a slow crawl
+_LOOK = 10  # iterations between two looks for nearer branches during a crawl
+_GROWING = 1.0  # ... while the parameter grows at each (in the scaling of the start)
 _JOINT_STEPS = 4  # joint steps (linearised at the unrestored measures) of the start, at most
 
 
@@ -188,6 +206,7 @@ class _Run:
         self.verify = verify
         self.escapes = 0
         self.info_start = None  # diagonal of the information at the start (plateaus)
+        self.strict = False
 
     def run(self, q_start: np.ndarray) -> Outcome:
         problem = self.problem
@@ -213,27 +232,43 @@ class _Run:
         if proj0 is None:
             return self.descend(x, violation)
         joint = self.joint_start(x, violation, proj0, root)
-        if joint[0] is x:
-            return self.descend(x, violation)
-        # two starts: the joint step's point (lower, or on the equations), then — when the
-        # iteration from there fails — the restored start (a sign flip of a rate that
-        # lowered the cost at once but led into a valley)
-        first = self.descend(*joint)
-        # an intermediate refinement (verify=False) keeps its first descent unless it failed
-        if first.status == CONVERGED or not _on_constraints(x, violation) or (
-                not self.verify and first.status in (UNVERIFIED, MAX_ITER)):
-            return first
-        self.radius, self.escapes, self.info_start = self.size0, 0, None
-        second = self.descend(x, violation)
-        better = second if (second.status == CONVERGED or
-                            second.point.cost < first.point.cost) else first
-        return replace(better, iterations=first.iterations + second.iterations)
+        # the starts, each tried when the descents before failed: the joint step's point
+        # (lower, or on the equations); the joint step damped to the first trust radius
+        # (ODRPACK's first steps: a full step can jump into another valley that the
+        # profile cost, lower there, cannot tell from the right one); the restored start
+        # with every step within the trust region (a rate whose sign flips at once, then
+        # runs off to where the model degenerates); the restored start as the first
+        plan = [(joint, False)]
+        if _on_constraints(x, violation):
+            if self.verify:
+                damped = self.damped_joint(lin0, root)
+                if damped is not None:
+                    plan.append((damped, False))
+                plan.append(((x, violation), True))
+            if joint[0] is not x:
+                plan.append(((x, violation), False))
+        best, iterations = None, 0
+        for point, strict in plan:
+            if best is not None:
+                # an intermediate refinement (verify=False) keeps a descent unless it failed
+                if best.status == CONVERGED or (
+                        not self.verify and best.status in (UNVERIFIED, MAX_ITER)):
+                    break
+                self.radius, self.escapes, self.info_start = self.size0, 0, None
+            self.strict = strict
+            out = self.descend(*point)
+            self.strict = False
+            iterations += out.iterations
+            if best is None or out.status == CONVERGED or out.point.cost < best.point.cost:
+                best = out
+        return replace(best, iterations=iterations)
 
     def descend(self, x: Point, violation: float) -> Outcome:
         """The iteration from the point ``x`` (restored, or off its equations)."""
         problem = self.problem
         q_start = self.q_start
-        since_progress = 0
+        since_progress = since_lost = next_look = 0
+        last_size = np.inf
         lin = proj = None
         for it in range(1, self.max_iter + 1):
             lin, proj = _project(problem, x)
@@ -242,6 +277,15 @@ class _Run:
             if self.info_start is None:
                 self.info_start = np.abs(np.diagonal(lin.info)).copy()
             x_feasible = feasible(violation, x.cost)
+            # a run-off towards a degenerate limit of the model: the equations lose a
+            # direction along which the cost still falls, and the parameter grows along it
+            # round after round (one passing through such a region comes back)
+            size = float(np.linalg.norm(self.scale * x.q))
+            lost = lost_direction(problem, x, lin) if x_feasible and self.verify and \
+                size > _GROWING * last_size else ""
+            since_lost, last_size = (since_lost + 1 if lost else 0), size
+            if since_lost >= _LOST_ROUNDS:
+                return self.outcome(x, it, PLATEAU, lost, lin, proj)
             model = lagrangian(problem, lin, proj)
             if x_feasible and (stationary(problem, *model) or _at_rounding(x.q, model[1].q)) \
                     and negligible(problem, x.q, model[1].q, x.mt, model[1].mt, self.xtol):
@@ -264,6 +308,16 @@ class _Run:
             progress = not _on_constraints(x, violation) or fall > 1e-14 * x.cost
             since_progress = 0 if progress else since_progress + 1
             x, violation = trial, trial_violation
+            slow = progress and fall <= _SLOW * x.cost and _on_constraints(x, violation)
+            if slow and self.verify and self.escapes < _ESCAPES and it >= next_look:
+                # a slow crawl (Gauss–Newton's linear rate at a large residual): is a
+                # measure on a farther branch than it need be?
+                next_look = it + _LOOK
+                moved = self.nearer(x, closest_sqrt(lin.info, problem.eps))
+                if moved is not None:
+                    self.escapes += 1
+                    x, violation = moved
+                    continue
             if since_progress >= _STAGNATION:  # rounding noise about the point
                 end = self.end(x, None, None, it)
                 if end is not None:
@@ -271,7 +325,8 @@ class _Run:
                 x, violation = self.x, self.violation
                 since_progress = 0
         lin, proj = _project(problem, x)
-        if self.verify and lin is not None and feasible(violation, x.cost):
+        if self.verify and lin is not None and feasible(violation, x.cost) and \
+                self.nearer(x, closest_sqrt(lin.info, problem.eps)) is None:
             verdict = verify(problem, x, lin, proj, self.info_start,
                              model=lagrangian(problem, lin, proj))
             if verdict.minimum:
@@ -305,6 +360,15 @@ class _Run:
                 break
         return best
 
+    def damped_joint(self, lin0: Linearisation, root) -> tuple[Point, float] | None:
+        """The projector's step from the raw start damped to the first trust radius,
+        restored; None when it cannot be restored onto the equations."""
+        weights = self.weights(self.q_start)
+        damped = solve(self.problem, lin0, _damping_for(self.problem, lin0, self.size0, weights),
+                       weights)
+        trial = restored(self.problem, damped.q, damped.mt, root)
+        return trial if trial[0].finite and _on_constraints(*trial) else None
+
     def end(self, x: Point, lin, proj, it: int):
         """Verify ``x``; return the outcome, or None after an escape from a saddle (the
         iteration goes on from ``self.x``)."""
@@ -320,14 +384,11 @@ class _Run:
         if not feasible(violation, x.cost):
             return self.outcome(x, it, INFEASIBLE, "", lin, proj)
         if self.escapes < _ESCAPES:  # a measure nearer on another branch: go on from there
-            nearer = nearer_points(problem, x)
-            if nearer is not None:
-                moved = restored(problem, x.q, nearer.mt, root, retract=False)
-                if moved[0].finite and _on_constraints(*moved) and moved[0].cost < x.cost - (
-                        _COST_NOISE * x.cost + cost_rounding(problem)):
-                    self.escapes += 1
-                    self.x, self.violation = moved
-                    return None
+            moved = self.nearer(x, root)
+            if moved is not None:
+                self.escapes += 1
+                self.x, self.violation = moved
+                return None
         model = lagrangian(problem, lin, proj)
         verdict = verify(problem, x, lin, proj, self.info_start, model=model,
                          at_rounding=_at_rounding(x.q, model[1].q))
@@ -346,6 +407,19 @@ class _Run:
                 self.radius = max(self.radius, float(np.linalg.norm(moved[0].q - x.q)))
                 return None
         return self.outcome(x, it, SADDLE, verdict.describe(), lin, proj, verdict)
+
+    def nearer(self, x: Point, root) -> tuple[Point, float] | None:
+        """``x`` with its measures at nearer points of their equations (another branch),
+        restored, when that lowers the cost; else None."""
+        problem = self.problem
+        nearer = nearer_points(problem, x)
+        if nearer is None:
+            return None
+        moved = restored(problem, x.q, nearer.mt, root, retract=False)
+        if moved[0].finite and _on_constraints(*moved) and moved[0].cost < x.cost - (
+                _COST_NOISE * x.cost + cost_rounding(problem)):
+            return moved
+        return None
 
     def retract(self, q: np.ndarray, mt, root=None) -> tuple[Point, float]:
         return restored(self.problem, q, mt, root)
@@ -376,8 +450,8 @@ class _Run:
         # the projector's step, then — when it was within the radius — shortened
         line_steps = 0 if length > self.radius else _LINE_STEPS
         for attempt in range(_MAX_REFUSALS):
-            line = attempt <= line_steps
-            beyond = attempt == 0 and length > self.radius
+            line = attempt <= line_steps and not (self.strict and length > self.radius)
+            beyond = attempt == 0 and length > self.radius and not self.strict
             if line:
                 target_q = x.q + alpha * full
                 target_mt = tuple(a + alpha * (b - a) for a, b in zip(x.mt, proj.mt,

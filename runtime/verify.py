@@ -1,7 +1,7 @@
 """Is the end of an iteration a minimum? (SPEC §2: a success is a local minimum of ``L̃²``.)
 
 At a point whose measures are projected onto their equations (report eq. 22), the cost is the
-profile ``F(q)`` and the projector's right-hand side its exact gradient. Three checks:
+profile ``F(q)`` and the projector's right-hand side its exact gradient. The checks:
 
 * **Stationary**: the Newton decrement ``½ sᵀ Q̃ s`` of the projector's step ``s`` — the fall
   of the cost a Gauss–Newton step predicts, on the constraints' tangent space — is negligible
@@ -17,6 +17,11 @@ profile ``F(q)`` and the projector's right-hand side its exact gradient. Three c
 * **Every parameter still seen**: a component whose information has fallen by twelve orders
   of magnitude since the start no longer enters the equations (an exponential vanished on
   every measure): the iteration stands on a plateau, not at a minimum.
+* **No slope where the step is blind**: a direction whose scaled information is at the
+  level where the projector's square root floors its pivots is outside the step, and so
+  outside the decrement; the gradient along it must be at its rounding level. Where it is
+  not, the cost still falls towards a degenerate limit of the model (a circle growing
+  towards the best line: the equations see its radius and centre only in one combination).
 """
 
 from __future__ import annotations
@@ -42,6 +47,8 @@ _NEGATIVE = 1e-5  # curvature (relative to the information) below -this is negat
 _STEP = 1e-3  # central-difference step, in standard deviations of the parameter
 _VANISHED = 1e-12  # information fallen by this factor since the start: a plateau
 _SCREEN = 0.05  # least forward-difference curvature above which no central check is needed
+_LOST = 1e-12  # least eigenvalue of the scaled information, relative: a direction lost
+_SLOPE = 1e3  # the gradient along it, in rounding levels of its terms, above which it falls
 
 
 @dataclass(frozen=True)
@@ -106,7 +113,7 @@ def verify(problem: Problem, x: Point, lin: Linearisation, proj: Projection,
     dec = decrement(step_lin, step_proj)
     if not (at_rounding or stationary(problem, step_lin, step_proj)):
         return Verdict(False, dec, x.cost)
-    plateau = _plateau(problem, x, lin, info_start)
+    plateau = _plateau(problem, x, lin, info_start) or lost_direction(problem, x, lin)
     if plateau:
         return Verdict(True, dec, x.cost, plateau=plateau)
     if x.cost <= 10.0 * cost_rounding(problem):
@@ -215,16 +222,7 @@ def _tangent_basis(x: Point, lin: Linearisation) -> np.ndarray:
     """Columns spanning the tangent space of ``c0 = 0`` on the components the data or the
     constraints see, orthonormal in the information (directions without information left
     out: the plateau check looks at those)."""
-    n = x.q.size
-    seen = _seen(lin.info, x.C0, x.q)
-    E = np.eye(n)[:, seen]
-    if x.C0.shape[0]:
-        C = x.C0 @ E
-        _, S, Vt = np.linalg.svd(C)
-        rank = int(np.count_nonzero(S > 1e-10 * S[0])) if S.size and S[0] > 0 else 0
-        Z = E @ Vt[rank:].T
-    else:
-        Z = E
+    Z = _tangent_space(x.C0, _seen(lin.info, x.C0, x.q))
     if Z.shape[1] == 0:
         return Z
     G = Z.T @ lin.info @ Z
@@ -232,6 +230,17 @@ def _tangent_basis(x: Point, lin: Linearisation) -> np.ndarray:
     w, U = np.linalg.eigh(G)
     keep = w > 1e-14 * max(float(w.max(initial=0.0)), np.finfo(float).tiny)
     return Z @ (U[:, keep] / np.sqrt(w[keep]))
+
+
+def _tangent_space(C0: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """Columns spanning the null space of ``C0`` on the components ``seen`` (the others
+    held)."""
+    E = np.eye(seen.size)[:, seen]
+    if not C0.shape[0]:
+        return E
+    _, S, Vt = np.linalg.svd(C0 @ E)
+    rank = int(np.count_nonzero(S > 1e-10 * S[0])) if S.size and S[0] > 0 else 0
+    return E @ Vt[rank:].T
 
 
 def _plateau(problem: Problem, x: Point, lin: Linearisation,
@@ -252,6 +261,57 @@ def _plateau(problem: Problem, x: Point, lin: Linearisation,
         return ""
     which = [problem.names[i] if problem.names else f"q[{i}]" for i in np.flatnonzero(gone)]
     return "the equations no longer depend on " + ", ".join(which)
+
+
+def lost_direction(problem: Problem, x: Point, lin: Linearisation) -> str:
+    """A direction of the parameter the equations no longer see, along which the cost still
+    falls: the iteration runs off towards a degenerate limit of the model (a circle whose
+    radius grows without bound towards the best line), where no minimum is attained — as a
+    sentence, or ``""``.
+
+    On the constraints' tangent space, the information scaled to a unit diagonal (units do
+    not enter) has its least eigenvalue at the level where the projector's square root
+    floors its pivots (``_LOST`` of the largest: the step, and so the decrement, no longer
+    see that direction), and the gradient along the direction is well above the rounding
+    of its terms: a first-order point has no slope there. A cost constant along such a
+    direction (a motion's translation on the matches of a pure rotation) has none."""
+    end = _weakest(lin.info, x)
+    if end is None or end[0] > _LOST:
+        return ""
+    u = end[1]
+    slope = float(lin.gradient @ u)
+    terms = 0.0
+    for w in lin.whitened:
+        if w is not None:
+            Cbar, rbar, _ = w
+            terms += float(np.sum(np.abs(rbar) * (np.abs(Cbar) @ np.abs(u))))
+    if not abs(slope) > _SLOPE * np.finfo(float).eps * terms:
+        return ""
+    u = -np.sign(slope) * u / np.max(np.abs(u))
+    names = problem.names or tuple(f"q[{i}]" for i in range(u.size))
+    parts = [f"{'-' if c < 0 else '+'} {abs(c):.2g} {name}".replace(" 1 ", " ")
+             for c, name in zip(u, names, strict=True) if abs(c) >= 1e-3]
+    combination = " ".join(parts).removeprefix("+ ")
+    return (f"the equations no longer see the direction {combination} of the parameter, "
+            f"along which the cost still falls (the estimate runs off towards a degenerate "
+            f"limit of the model; no minimum is attained)")
+
+
+def _weakest(info: np.ndarray, x: Point) -> tuple[float, np.ndarray] | None:
+    """The least eigenvalue of ``info`` on the tangent space of ``c0 = 0``, scaled to a unit
+    diagonal, relative to the largest, and its direction in q (None without a direction)."""
+    Z = _tangent_space(x.C0, np.diagonal(info) > 0)
+    if Z.shape[1] < 1:
+        return None
+    M = Z.T @ info @ Z
+    M = 0.5 * (M + M.T)
+    d = np.sqrt(np.abs(np.diagonal(M)))
+    if not np.all(np.isfinite(M)) or not np.all(d > 0):
+        return None
+    w, U = np.linalg.eigh(M / np.outer(d, d))
+    if not w[-1] > 0:
+        return None
+    return float(w[0] / w[-1]), Z @ (U[:, 0] / d)
 
 
 def escape(problem: Problem, x: Point, lin: Linearisation, verdict: Verdict,
