@@ -112,8 +112,10 @@ _MAX_REFUSALS = 40  # trial points refused in one iteration, at most
 _LINE_STEPS = 3  # halvings of the projector's step before damping
 _JOINT = 1e3  # the joint start's step, at most, in first trust radii
 _LOST_ROUNDS = 5  # iterations in a row with a lost direction that still falls: a run-off
-_SLOW = 1e-6  # a fall of the cost below this share of it: a slow crawl
+_SLOW = 1e-6  # a fall of the cost below this share of it: a slow step
 _LOOK = 10  # iterations between two looks for nearer branches during a crawl
+_LINEAR = 0.1  # a fall above this share of the previous one: a linear rate
+_CRAWL = 3  # such falls in a row make a crawl
 _GROWING = 1.0  # ... while the parameter grows at each (in the scaling of the start)
 _JOINT_STEPS = 4  # joint steps (linearised at the unrestored measures) of the start, at most
 
@@ -238,23 +240,25 @@ class _Run:
         # profile cost, lower there, cannot tell from the right one); the restored start
         # with every step within the trust region (a rate whose sign flips at once, then
         # runs off to where the model degenerates); the restored start as the first
-        plan = [(joint, False)]
+        restored_start = (x, violation)
+        plan = [(lambda: joint, False)]
         if _on_constraints(x, violation):
             if self.verify:
-                damped = self.damped_joint(lin0, root)
-                if damped is not None:
-                    plan.append((damped, False))
-                plan.append(((x, violation), True))
+                plan.append((lambda: self.damped_joint(lin0, root), False))
+                plan.append((lambda: restored_start, True))
             if joint[0] is not x:
-                plan.append(((x, violation), False))
+                plan.append((lambda: restored_start, False))
         best, iterations = None, 0
-        for point, strict in plan:
+        for start, strict in plan:
             if best is not None:
                 # an intermediate refinement (verify=False) keeps a descent unless it failed
                 if best.status == CONVERGED or (
                         not self.verify and best.status in (UNVERIFIED, MAX_ITER)):
                     break
                 self.radius, self.escapes, self.info_start = self.size0, 0, None
+            point = start()  # built only when needed (the damped step costs a bisection)
+            if point is None:
+                continue
             self.strict = strict
             out = self.descend(*point)
             self.strict = False
@@ -267,7 +271,8 @@ class _Run:
         """The iteration from the point ``x`` (restored, or off its equations)."""
         problem = self.problem
         q_start = self.q_start
-        since_progress = since_lost = next_look = 0
+        since_progress = since_lost = next_look = crawl = 0
+        last_fall = np.inf
         last_size = np.inf
         lin = proj = None
         for it in range(1, self.max_iter + 1):
@@ -308,10 +313,14 @@ class _Run:
             progress = not _on_constraints(x, violation) or fall > 1e-14 * x.cost
             since_progress = 0 if progress else since_progress + 1
             x, violation = trial, trial_violation
-            slow = progress and fall <= _SLOW * x.cost and _on_constraints(x, violation)
-            if slow and self.verify and self.escapes < _ESCAPES and it >= next_look:
-                # a slow crawl (Gauss–Newton's linear rate at a large residual): is a
-                # measure on a farther branch than it need be?
+            # a crawl: small falls shrinking at a linear rate (Gauss–Newton at a large
+            # residual), not Newton's quadratic one
+            crawl = crawl + 1 if (progress and fall <= _SLOW * x.cost and
+                                  fall > _LINEAR * last_fall) else 0
+            last_fall = fall
+            if crawl >= _CRAWL and self.verify and self.escapes < _ESCAPES and \
+                    it >= next_look and _on_constraints(x, violation):
+                # is a measure on a farther branch than it need be?
                 next_look = it + _LOOK
                 moved = self.nearer(x, closest_sqrt(lin.info, problem.eps))
                 if moved is not None:
