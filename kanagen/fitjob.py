@@ -226,12 +226,17 @@ def corrected_choice(est: Estimator, fam: ModelFamily, opts: FitOptions, channel
     from .runtime.fit import fit
 
     best = est.best()
-    if best is None or not best.samples or not np.all(np.isfinite(best.q)):
+    if not _found(best):
         return None
     rows = np.asarray(best.inliers, dtype=int)
     return fit(fam, best.model, data={channel: X[rows]}, info={channel: _info(opts)},
                constants=dict(opts.constants), q_start=best.q, max_iter=opts.max_iter,
                correct_bias=True)
+
+
+def _found(best) -> bool:
+    """A search chose a model: a state grown from samples, with a finite estimate."""
+    return best is not None and best.samples > 0 and bool(np.all(np.isfinite(best.q)))
 
 
 def robust_record(est: Estimator, fam: ModelFamily, opts: FitOptions, *, channel: str,
@@ -241,7 +246,7 @@ def robust_record(est: Estimator, fam: ModelFamily, opts: FitOptions, *, channel
     a model was found. ``corrected``: the chosen model's :func:`corrected_choice`, whose
     estimate the record then carries, with the ``bias`` removed."""
     best = est.best()
-    found = best is not None and best.samples > 0 and bool(np.all(np.isfinite(best.q)))
+    found = _found(best)
     status = f"interrupted ({est.status})" if interrupted else est.status
     if not interrupted and samples >= opts.max_samples and est.status != "done":
         status = f"stopped at --max-samples {opts.max_samples} ({est.status})"

@@ -373,9 +373,7 @@ class _Run:
     def damped_joint(self, lin0: Linearisation, root) -> tuple[Point, float] | None:
         """The projector's step from the raw start damped to the first trust radius,
         restored; None when it cannot be restored onto the equations."""
-        weights = self.weights(self.q_start)
-        damped = solve(self.problem, lin0, _damping_for(self.problem, lin0, self.size0, weights),
-                       weights)
+        damped = _damped(self.problem, lin0, self.size0, self.weights(self.q_start))
         trial = restored(self.problem, damped.q, damped.mt, root)
         return trial if trial[0].finite and _on_constraints(*trial) else None
 
@@ -467,8 +465,7 @@ class _Run:
                 target_mt = tuple(a + alpha * (b - a) for a, b in zip(x.mt, proj.mt,
                                                                       strict=True))
             else:
-                damped = solve(problem, lin, _damping_for(problem, lin, self.radius, weights),
-                               weights)
+                damped = _damped(problem, lin, self.radius, weights)
                 target_q, target_mt = damped.q, damped.mt
             s = target_q - x.q
             size = float(np.sqrt(s @ (weights * s)))
@@ -626,6 +623,13 @@ def _predicted_fall(problem: Problem, lin: Linearisation, x: Point, s: np.ndarra
     if lam0.size:
         fall -= float(lam0 @ problem.c0(target_q, problem.k)[0]) - float(lam0 @ x.c0)
     return fall
+
+
+def _damped(problem: Problem, lin: Linearisation, radius: float,
+            weights: np.ndarray) -> Projection:
+    """The projector's point with the parameter's step damped to ``radius``
+    (Levenberg–Marquardt, ``‖Δq‖_w`` just within it)."""
+    return solve(problem, lin, _damping_for(problem, lin, radius, weights), weights)
 
 
 def _damping_for(problem: Problem, lin: Linearisation, radius: float,

@@ -223,10 +223,8 @@ def _assign(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelSta
             if rows.size <= need:
                 continue  # a structure the others explain better is dropped
             prob = problem(state.model)
-            per_channel = tuple(rows[(rows >= a) & (rows < b)] - a
-                                for a, b in zip(bounds[:-1], bounds[1:], strict=True))
-            fit = fit_problem(fam, state.model, prob.subset(per_channel), q_start=state.q,
-                              q0=prob.q0, Q0=prob.Q0)
+            fit = fit_problem(fam, state.model, prob.subset(_per_channel(rows, bounds)),
+                              q_start=state.q, q0=prob.q0, Q0=prob.Q0)
             if not np.all(np.isfinite(fit.q)):
                 kept.append(state)
                 kept_needed.append(need)
@@ -290,10 +288,8 @@ def _own_noise(fam: ModelFamily, state: ModelState, problem, scale: float,
         if not tight < threshold or rows.size <= need:
             break
         threshold = tight
-        fit = fit_problem(fam, state.model, problem.subset(tuple(
-            rows[(rows >= a) & (rows < b)] - a for a, b in zip(bounds[:-1], bounds[1:],
-                                                                strict=True))),
-            q_start=state.q)
+        fit = fit_problem(fam, state.model, problem.subset(_per_channel(rows, bounds)),
+                          q_start=state.q)
         if not np.all(np.isfinite(fit.q)):
             inliers = rows
             break
@@ -302,6 +298,13 @@ def _own_noise(fam: ModelFamily, state: ModelState, problem, scale: float,
         inliers = np.flatnonzero(errors < threshold)
     return replace(state, threshold=threshold, inliers=inliers,
                    outliers=np.setdiff1d(np.arange(errors.size), inliers))
+
+
+def _per_channel(rows: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Rows of the measures of all channels in turn, split into each channel's own
+    (``bounds``: the channels' first rows, then the total)."""
+    return tuple(rows[(rows >= a) & (rows < b)] - a
+                 for a, b in zip(bounds[:-1], bounds[1:], strict=True))
 
 
 def _ceiling(options: Mapping, scale: float) -> float | None:

@@ -253,10 +253,8 @@ def _plateau(problem: Problem, x: Point, lin: Linearisation,
     before = np.abs(info_start)
     gone = (before > 0) & (now <= _VANISHED * before)
     if x.C0.shape[0]:  # a component the constraints pin is no plateau
-        _, S, Vt = np.linalg.svd(x.C0)
-        rank = int(np.count_nonzero(S > 1e-10 * S[0])) if S.size and S[0] > 0 else 0
-        free = np.linalg.norm(Vt[rank:], axis=0) > 1e-6
-        gone &= free
+        free = _tangent_space(x.C0, np.ones(x.q.size, dtype=bool))
+        gone &= np.linalg.norm(free, axis=1) > 1e-6
     if not gone.any():
         return ""
     which = [problem.names[i] if problem.names else f"q[{i}]" for i in np.flatnonzero(gone)]
@@ -289,8 +287,11 @@ def lost_direction(problem: Problem, x: Point, lin: Linearisation) -> str:
         return ""
     u = -np.sign(slope) * u / np.max(np.abs(u))
     names = problem.names or tuple(f"q[{i}]" for i in range(u.size))
-    parts = [f"{'-' if c < 0 else '+'} {abs(c):.2g} {name}".replace(" 1 ", " ")
-             for c, name in zip(u, names, strict=True) if abs(c) >= 1e-3]
+    parts = []
+    for c, name in zip(u, names, strict=True):
+        if abs(c) >= 1e-3:
+            size = f"{abs(c):.2g}"
+            parts.append(f"{'-' if c < 0 else '+'} {'' if size == '1' else size + ' '}{name}")
     combination = " ".join(parts).removeprefix("+ ")
     return (f"the equations no longer see the direction {combination} of the parameter, "
             f"along which the cost still falls (the estimate runs off towards a degenerate "
