@@ -26,6 +26,7 @@ _PRUNE = 10  # deletions at most that the deletion test makes in a finished fit
 _PAIRS = 8  # measures of largest drops whose pairs it tries when no one measure stands out
 _LEVERAGE = 3.0  # a measure of leverage above this many times the mean is cross-checked
 _FEW = 0.1  # ... when the mean leverage is at most this (ten measures a parameter or more)
+_CHECKS = 4  # cross-checks at most: one outlier's pull can hide another's leverage
 _TIE = 1e-9  # fits whose costs differ by less than this (relative) are equally good
 #: a refinement that only its inliers' number can make matter (ModelSearch.finish's
 #: short_of) runs in laps of this many iterations, and stops after a lap that lowered its
@@ -206,22 +207,27 @@ class Refinement:
         pruned = self._pruned(result, rows, errors, threshold, q0, Q0, max_iter)
         if pruned is not None:
             result, rows, errors = pruned
-        checked = self._cross_checked(result, rows, threshold, q0, Q0, max_iter)
-        if checked is not None:
-            result, rows, errors = checked
-        if rows is before:  # nothing taken out
-            return result, rows, errors, threshold
-        out = tuple(np.setdiff1d(r, p) for r, p in zip(before, rows, strict=True))
-        for _ in range(_REFINE_ROUNDS):  # measures may cross the threshold: rounds again
-            threshold, new = self.split(errors, window)  # (those taken out stay out)
-            new = tuple(np.setdiff1d(r, o) for r, o in zip(new, out, strict=True))
-            if _same(new, rows):
+        out = _less(before, rows)
+        for check in range(_CHECKS):
+            checked = self._cross_checked(result, rows, threshold, q0, Q0, max_iter)
+            if checked is not None:
+                out = tuple(np.union1d(o, d) for o, d in
+                            zip(out, _less(rows, checked[1]), strict=True))
+                result, rows, errors = checked
+            elif rows is before:  # nothing taken out
+                return result, rows, errors, threshold
+            elif check > 0:
                 break
-            fit = fit_problem(self.fam, self.model, self.problem.subset(new),
-                              q_start=result.q, q0=q0, Q0=Q0, max_iter=max_iter)
-            if not np.all(np.isfinite(fit.q)):
-                break
-            result, rows, errors = fit, new, coherence_errors(self.problem, fit.q)
+            for _ in range(_REFINE_ROUNDS):  # measures may cross the threshold: rounds again
+                threshold, new = self.split(errors, window)  # (those taken out stay out)
+                new = _less(new, out)
+                if _same(new, rows):
+                    break
+                fit = fit_problem(self.fam, self.model, self.problem.subset(new),
+                                  q_start=result.q, q0=q0, Q0=Q0, max_iter=max_iter)
+                if not np.all(np.isfinite(fit.q)):
+                    break
+                result, rows, errors = fit, new, coherence_errors(self.problem, fit.q)
         threshold = self.split(errors, window)[0]
         return result, rows, errors, threshold
 
@@ -293,7 +299,12 @@ class Refinement:
         under it. Only with ten measures a parameter or more (mean leverage at most
         :data:`_FEW`): with fewer, every measure holds much of the fit, leverage singles
         out no one, and a tenth of them left out moves the fit of the others by itself (a
-        small structure of AdelaideRMF's F scenes lost that way)."""
+        small structure of AdelaideRMF's F scenes lost that way).
+
+        :meth:`rounds` repeats it, with the settling rounds between, until it takes nothing
+        out (at most :data:`_CHECKS` times): one outlier's pull can hide another's
+        leverage (calibrated scene 56004 at 60 % outliers: with two random matches of
+        leverage 0.74 and 0.82 out, a third had 0.92; direction error 0.58° → 0.32°)."""
         levels = np.concatenate(Influence(self.problem.subset(rows), fit).leverages())
         n = levels.size
         if not np.all(np.isfinite(levels)) or n <= self.min_rows + 2 or \
@@ -361,6 +372,11 @@ class Refinement:
                 return more if more.cost <= fit.cost else fit
             fit = more
         return fit
+
+
+def _less(a, b) -> tuple[np.ndarray, ...]:
+    """The measures of ``a`` not in ``b``, per channel (index arrays)."""
+    return tuple(np.setdiff1d(x, y) for x, y in zip(a, b, strict=True))
 
 
 def _same(a, b) -> bool:

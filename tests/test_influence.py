@@ -107,3 +107,20 @@ def test_an_outlier_of_high_leverage_is_judged_by_the_fit_of_the_others():
     inliers = np.asarray(best.inliers)
     assert 231 not in set(inliers.tolist())
     assert np.array_equal(np.sort(inliers), np.flatnonzero(scene.inliers))
+
+
+def test_outliers_of_high_leverage_hidden_behind_others_are_found_too():
+    """Calibrated general motion, 60 % outliers (benchmarks/calibrated.py's scene 56004):
+    matches 46 and 50 are 42 and 340 error units off the fit on the true inliers, yet at
+    the fit they sit at 1.2 and 0.2 with leverages 0.74 and 0.82 — hidden, while other
+    outliers of high leverage held the fit, behind leverages no higher than an inlier's.
+    The cross-check is repeated until it takes nothing out: they are out, and the direction
+    is within 0.4° of the truth (0.58° with one cross-check)."""
+    scene, best = _calibrated_search(0.6, 56004)
+    inliers = set(np.asarray(best.inliers).tolist())
+    assert not inliers & {46, 50}
+    assert scene.inliers[np.asarray(best.inliers)].sum() == scene.inliers.sum()
+    p = best.params
+    t = np.array([p["tx"], p["ty"], p["tz"]])
+    cos = t @ scene.t / np.linalg.norm(t) / np.linalg.norm(scene.t)
+    assert np.degrees(np.arccos(min(cos, 1.0))) < 0.4
