@@ -21,6 +21,10 @@ from .scoring import scorer as get_scorer
 _RESTART_SEEDS = 1000  # seeds of restart r: seed + 1000 r, then one per search
 _CEILING = 2.0  # a structure's outlier threshold at most, in units of its L* (default)
 _NOISE_ROUNDS = 10  # rounds of a structure's threshold at its own noise, at most
+#: a structure is two when a search at this fraction of its noise variance finds a part that
+#: fits at less than it (a single structure's part fits at ~3/4 of its noise, see _split)
+_SPLIT = 0.25
+_SPLIT_SEEDS = 500  # seeds of the searches within a structure: seed + 500 + attempt
 
 
 def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None,
@@ -132,17 +136,11 @@ def _extract(fam: ModelFamily, data: Mapping, info: Mapping, max_structures: int
     scales: list[float] = []
     attempt, failures = 0, 0
     while len(found) < max_structures:
-        est = Estimator(fam, model=model, seed=None if seed is None else seed + attempt,
-                        local=local, **options)
+        est, index = _estimator_on(fam, data, info, remaining, sizes, offsets, options,
+                                   model=model, local=local,
+                                   seed=None if seed is None else seed + attempt)
         attempt += 1
-        index = []  # estimator id -> global row (channel offset + row)
-        for name, rows in remaining.items():
-            if rows.size == 0:
-                continue
-            est.add_measures(name, np.asarray(data[name], dtype=float)[rows],
-                             _rows_of(info.get(name), rows, sizes[name]))
-            index.append(offsets[name] + rows)
-        if not index:
+        if est is None:
             break
         best = est.run(max_samples=max_samples)
         if best is None or not best.samples:
@@ -154,15 +152,19 @@ def _extract(fam: ModelFamily, data: Mapping, info: Mapping, max_structures: int
                 break
             continue
         failures = 0
-        index = np.concatenate(index)
         scale = est.scales.get(best.model, est.scale or 1.0)
-        taken = _own_noise(fam, best, make_problem(
+        problem = make_problem(
             fam, best.model, {name: np.asarray(data[name], dtype=float)[rows]
                               for name, rows in remaining.items()},
             {name: _rows_of(info.get(name), rows, sizes[name])
              for name, rows in remaining.items()},
-            options.get("q0"), options.get("Q0"), options.get("constants")), scale, need)
+            options.get("q0"), options.get("Q0"), options.get("constants"))
+        taken, noise = _own_noise(fam, best, problem, scale, need)
         state = replace(taken, inliers=index[taken.inliers], outliers=index[taken.outliers])
+        if noise is not None:
+            state = _split(fam, data, info, state, scale, noise, need, sizes, offsets,
+                           options, local, max_samples,
+                           None if seed is None else seed + _SPLIT_SEEDS + attempt)
         # the measures taken out are those at the structure's own noise; the assignment
         # decides at the search's threshold (a tight one would lose the tails of inliers)
         found.append(replace(state, threshold=best.threshold))
@@ -171,6 +173,92 @@ def _extract(fam: ModelFamily, data: Mapping, info: Mapping, max_structures: int
         for name, rows in remaining.items():
             remaining[name] = rows[~np.isin(offsets[name] + rows, state.inliers)]
     return found, needed, scales
+
+
+def _estimator_on(fam: ModelFamily, data: Mapping, info: Mapping, rows: Mapping,
+                  sizes: Mapping, offsets: Mapping, options: Mapping, **more):
+    """An :class:`Estimator` (``options`` and ``more``) holding the measures ``rows`` of each
+    channel, and their global rows (channel offset + row) in its order; ``(None, None)``
+    when there are none."""
+    est = Estimator(fam, **{**options, **more})
+    index = []  # estimator id -> global row (channel offset + row)
+    for name, some in rows.items():
+        if some.size == 0:
+            continue
+        est.add_measures(name, np.asarray(data[name], dtype=float)[some],
+                         _rows_of(info.get(name), some, sizes[name]))
+        index.append(offsets[name] + some)
+    return (est, np.concatenate(index)) if index else (None, None)
+
+
+def _split(fam: ModelFamily, data: Mapping, info: Mapping, state: ModelState,
+           scale: float, noise: float, need: int, sizes: Mapping, offsets: Mapping,
+           options: Mapping, local: float, max_samples: int,
+           seed: int | None) -> ModelState:
+    """The structure ``state`` (global rows; ``scale`` its L*, ``noise`` its own ``s²``), or
+    the part of it that is a structure of its own.
+
+    Two planes whose noise is far below the assumed one can both sit under one homography
+    at a noise between theirs and the assumed (AdelaideRMF's elderhallb: two planes at
+    ``s²`` 0.14 and 0.05 fit together at 1.6): the median of their errors is the
+    mixture's, and :func:`_own_noise` cannot separate them. A search among the structure's
+    inliers at :data:`_SPLIT` of its noise variance, its best part then taken at its own
+    noise (a part that still holds some of both is mostly one of them: its median is
+    that one's), tells: on one structure the part holds most of the measures at about 3/4
+    of the noise (the median of an exponential error truncated at 1.7 ``s²``), on two it
+    holds one of them at its own, far lower, noise. When that part's noise is below
+    :data:`_SPLIT` of the whole's, and the rest, fitted on its own, fits at less than
+    :data:`_SPLIT` of its noise under the part's estimate (a second structure, not the
+    tail of the first: one plane's noisier matches are explained by its tighter ones'
+    homography about as well as by their own), the part is the structure and the rest
+    goes back to the data. Each noise is the median's, scaled by ``m / (m − d)`` (``m``
+    equations, ``d`` free parameters: a fit's errors fall short of the noise by its
+    degrees of freedom, a small part's most), and the part and the rest each need twice
+    the measures of a structure (11 of napierb's third plane's 22 matches fit at a tenth
+    of the noise of the 22, by luck)."""
+    rows = {name: np.sort(state.inliers[(state.inliers >= offsets[name])
+                                        & (state.inliers < offsets[name] + size)])
+            - offsets[name] for name, size in sizes.items()}
+    options = {k: v for k, v in options.items() if k != "scale"}
+    est, index = _estimator_on(fam, data, info, rows, sizes, offsets, options,
+                               model=state.model, local=local, seed=seed,
+                               scale=_SPLIT * noise * scale)
+    if est is None:
+        return state
+    part = est.run(max_samples=max_samples)
+    if part is None or not part.samples:
+        return state
+    problem = make_problem(fam, part.model, {name: np.asarray(data[name], dtype=float)[r]
+                                             for name, r in rows.items()},
+                           {name: _rows_of(info.get(name), r, sizes[name])
+                            for name, r in rows.items()},
+                           options.get("q0"), options.get("Q0"), options.get("constants"))
+    part = _own_noise(fam, part, problem, scale, need)[0]
+    if len(part.inliers) < 2 * need or len(state.inliers) - len(part.inliers) < 2 * need:
+        return state
+    p = min((int(r) for r, ch in zip(manifold_ranks(problem, part.q), problem.channels,
+                                     strict=True) if ch.size), default=0)
+    free = fam.free_dof(part.model, options.get("constants"))
+
+    def unbiased(s2: float, size: int) -> float:  # a fit's errors fall short by ν / m
+        return s2 * p * size / (p * size - free) if p * size > free else np.inf
+
+    def noise_at(q: np.ndarray, some: np.ndarray) -> float:
+        errors = np.concatenate(coherence_errors(problem, q))[some]
+        return unbiased(float(np.median(errors)) / (chi2.median(p) / p), some.size)
+
+    if p < 1 or not noise_at(part.q, part.inliers) < _SPLIT * unbiased(
+            noise, len(state.inliers)):
+        return state
+    bounds = np.cumsum([0] + [ch.size for ch in problem.channels])
+    rest = np.setdiff1d(np.arange(bounds[-1]), part.inliers)
+    fit = fit_problem(fam, part.model, problem.subset(_per_channel(rest, bounds)),
+                      q_start=state.q)
+    if not (np.all(np.isfinite(fit.q)) and
+            _SPLIT * noise_at(part.q, rest) > noise_at(fit.q, rest)):
+        return state
+    return replace(part, inliers=index[part.inliers], outliers=index[part.outliers],
+                   threshold=state.threshold)
 
 
 def _energy(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelState],
@@ -257,7 +345,8 @@ def _with_fit(state: ModelState, fit) -> ModelState:
 def _own_noise(fam: ModelFamily, state: ModelState, problem, scale: float,
                need: int) -> ModelState:
     """The structure at its own noise: its inliers those under ``L*`` at the noise of their
-    own errors, refitted, until that threshold stops falling (rows of ``problem``).
+    own errors, refitted, until that threshold stops falling (rows of ``problem``); and that
+    noise ``s²`` (None where it is not measured).
 
     ``info`` says the noise the user assumes for every measure; structures of real scenes
     have their own (AdelaideRMF: 0.2 to 1.5 px within a scene fitted at 1 px). Where a
@@ -277,13 +366,15 @@ def _own_noise(fam: ModelFamily, state: ModelState, problem, scale: float,
                                       strict=True) if ch.size]
     p = min(counts, default=0)
     if p < 2:
-        return state
+        return state, None
     median = chi2.median(p) / p  # of an inlier's error at the assumed noise
     bounds = np.cumsum([0] + [ch.size for ch in problem.channels])
     errors = np.concatenate(coherence_errors(problem, state.q))
     inliers, threshold = np.asarray(state.inliers), state.threshold
+    noise = None
     for _ in range(_NOISE_ROUNDS):
-        tight = scale * float(np.median(errors[inliers])) / median if inliers.size else np.inf
+        noise = float(np.median(errors[inliers])) / median if inliers.size else np.inf
+        tight = scale * noise
         rows = np.flatnonzero(errors < tight)
         if not tight < threshold or rows.size <= need:
             break
@@ -297,7 +388,7 @@ def _own_noise(fam: ModelFamily, state: ModelState, problem, scale: float,
         errors = np.concatenate(coherence_errors(problem, state.q))
         inliers = np.flatnonzero(errors < threshold)
     return replace(state, threshold=threshold, inliers=inliers,
-                   outliers=np.setdiff1d(np.arange(errors.size), inliers))
+                   outliers=np.setdiff1d(np.arange(errors.size), inliers)), noise
 
 
 def _per_channel(rows: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, ...]:
