@@ -44,6 +44,7 @@ PROVIDERS: dict[str, str] = {
     "two_view_homography": ".two_view_starts",
     "two_view_rotation": ".two_view_starts",
     "two_view_translation": ".two_view_starts",
+    "two_view_zoom": ".two_view_starts",
     "two_view_retinal_translation": ".two_view_starts",
     "two_view_retinal_displacement": ".two_view_starts",
     "calibrated_five_point": ".calibrated_starts",

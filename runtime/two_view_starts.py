@@ -2,8 +2,9 @@
 (report eq. 21), a plugin of the initializer registry (:mod:`~kanagen.runtime.initializers`).
 
 ``two_view_fundamental`` (seven- or eight-point ``F``, focal lengths, pose),
-``two_view_homography`` (DLT ``H``, its two poses), ``two_view_rotation`` and
-``two_view_translation``, on the epipolar geometry of :mod:`~kanagen.runtime.geometry`.
+``two_view_homography`` (DLT ``H``, its two poses), ``two_view_rotation``,
+``two_view_translation`` and ``two_view_zoom``, on the epipolar geometry of
+:mod:`~kanagen.runtime.geometry`.
 Importing this module registers them (:func:`~kanagen.runtime.initializers.register`); the
 registry imports it the first time one of their names is looked up
 (:data:`~kanagen.runtime.initializers.PROVIDERS`), so a family whose models name none of them
@@ -215,6 +216,23 @@ def two_view_translation(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
     return [{"tx": t[0], "ty": t[1], "tz": t[2]}]
 
 
+def two_view_zoom(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
+    """A zoom about the principal point (the zoom model: ``R = I``, ``f1 = 1``, no
+    translation): each match's rays are parallel, ``r2 = f2 r1`` in the image plane
+    (``x2 = f2 x1`` in the normalised coordinates), so ``f2`` is the least-squares ratio
+    ``Σ x1·x2 / Σ x1·x1`` over the matches; none when the matches sit on the principal
+    point or the ratio is out of the focal range. One candidate."""
+    X = np.asarray(X, dtype=float)
+    if len(X) < 1 or not np.all(np.isfinite(X)):
+        return []
+    y1, y2 = _rays(X, k)
+    norm = float(np.sum(y1[:, :2] * y1[:, :2]))
+    if not norm > 0.0:
+        return []
+    f2 = float(np.sum(y1[:, :2] * y2[:, :2])) / norm
+    return [{"f2": f2}] if _FOCAL_RANGE[0] < f2 < _FOCAL_RANGE[1] else []
+
+
 def _as_calibrated(k: Mapping[str, float]) -> dict[str, float]:
     """The nominal camera of the family (focal length ``f0``, principal point ``(cx, cy)``)
     as the calibrated closed forms read intrinsics: under the retinal motions the focal
@@ -257,6 +275,8 @@ for _entry in (
         Initializer("two_view_rotation", two_view_rotation, _TWO_VIEW_Q,
                     ("cx", "cy", "f0"), 4, two_view_rotation.__doc__.splitlines()[0]),
         Initializer("two_view_translation", two_view_translation, _TWO_VIEW_Q,
-                    ("cx", "cy", "f0"), 4, two_view_translation.__doc__.splitlines()[0])):
+                    ("cx", "cy", "f0"), 4, two_view_translation.__doc__.splitlines()[0]),
+        Initializer("two_view_zoom", two_view_zoom, _TWO_VIEW_Q, ("cx", "cy", "f0"), 4,
+                    two_view_zoom.__doc__.splitlines()[0])):
     register(_entry)
 del _entry

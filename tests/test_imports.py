@@ -150,8 +150,8 @@ def test_the_registry_names_its_initializers_without_importing_them():
             "'calibrated_rotation', 'calibrated_translation', "
             "'two_view_fundamental', 'two_view_homography', "
             "'two_view_retinal_displacement', 'two_view_retinal_translation', "
-            "'two_view_rotation', 'two_view_translation'], names\n"
-            "assert 'two_view_rotation' in INITIALIZERS and len(INITIALIZERS) == 12\n"
+            "'two_view_rotation', 'two_view_translation', 'two_view_zoom'], names\n"
+            "assert 'two_view_rotation' in INITIALIZERS and len(INITIALIZERS) == 13\n"
             "assert INITIALIZERS.get('nope') is None\n"
             "try:\n"
             "    resolve('nope')\n"
@@ -186,7 +186,8 @@ def test_reading_a_spec_imports_the_closed_forms_it_names_only():
         "calibrated_homography, calibrated_retinal_displacement, "
         "calibrated_retinal_translation, calibrated_rotation, calibrated_translation, "
         "two_view_fundamental, two_view_homography, two_view_retinal_displacement, "
-        "two_view_retinal_translation, two_view_rotation, two_view_translation)\" in "
+        "two_view_retinal_translation, two_view_rotation, two_view_translation, "
+        "two_view_zoom)\" in "
         "str(exc), exc\n")
     assert imported_after(unknown, VISION) == []
     assert imported_after(read.format("two_view") + "parse_spec(text, initializers="

@@ -153,3 +153,26 @@ def test_the_spec_names_them_and_their_needs_are_checked(fam):
             parameter=("f1", "f2", "qw", "qx", "qy", "qz", "tx", "ty", "tz", "wx", "wy"),
             constants=("cx", "cy"), channels={"m": ("u", "v", "u2")})
         assert lacks == "parameter 'wz', constant 'f0', a channel of 4 components"
+
+
+def test_the_zoom_closed_form_holds_the_truth(fam):
+    """A zoom about the principal point (``x2 = f2 x1`` in the normalised coordinates):
+    one match or all of a noise-free scene give the true ``f2``; on noisy matches the
+    least-squares ratio starts the fit in its basin (the fit moves it by less than its
+    standard deviation); a match on the principal point gives nothing."""
+    from kanagen.runtime.two_view_starts import two_view_zoom
+
+    scene = two_view_scene("zoom", n=30, sigma=0.0, seed=0)
+    truth = scene.params()["f2"]
+    for rows in (scene.data[:1], scene.data[7:8], scene.data):
+        (cand,) = two_view_zoom(rows, scene.constants)
+        assert abs(cand["f2"] - truth) < 1e-12
+    noisy = two_view_scene("zoom", n=30, sigma=0.5, seed=1)
+    (cand,) = two_view_zoom(noisy.data, noisy.constants)
+    fit = kanagen.fit(fam, "zoom", data={"match": noisy.data}, info={"match": 4.0},
+                      constants=noisy.constants, q_start=start_from(fam, cand, fam.q0))
+    assert fit.success
+    assert abs(fit.params["f2"] - cand["f2"]) < fit.std["f2"]
+    k = noisy.constants
+    assert two_view_zoom(np.array([[k["cx"], k["cy"], k["cx"], k["cy"]]]), k) == []
+    assert fam.models["zoom"].initializer == "two_view_zoom"
