@@ -4,6 +4,12 @@
 advances one random sample per :meth:`Estimator.step`, so it can be fed, queried, suspended
 and resumed between any two samples, from another thread too. Numerical trouble is absorbed
 into the status; nothing raises out of :meth:`~Estimator.run` or :meth:`~Estimator.step`.
+
+The Estimator drives the parts that do the work: its measures
+(:class:`~kanagen.runtime.measures.MeasureStore`), the samples each model's search draws
+(:class:`~kanagen.runtime.budget.SampleBudget`), the walk through the lattice — which model
+next, from which parent, which one is best (:class:`~kanagen.runtime.walk.LatticeWalk`) —
+and each model's search (:class:`~kanagen.runtime.robust.ModelSearch`).
 """
 
 from __future__ import annotations
@@ -33,6 +39,7 @@ from .projector import Problem
 from .results import ModelState
 from .robust import ModelSearch, RobustEstimate
 from .scoring import scorer as get_scorer
+from .walk import LatticeWalk
 
 _RESUME_FRACTION = 10  # a re-queued model draws a tenth of a fresh search's samples
 _BRIEF = 10  # iterations of the final refinement of a model that cannot win (_hopeless)
@@ -185,7 +192,7 @@ class Estimator:
         """
         with self._lock:
             ids, ch = self._measures.add(channel, data, info, exact)
-            best = self._best_state()
+            best = self._walk.best()
             if best is None or best.status == "null":
                 self._restart_if_idle()
             elif self._coherent_with(best, channel, ch):
@@ -198,20 +205,7 @@ class Estimator:
         with self._lock:
             gone = set(np.asarray(ids, dtype=int).tolist())
             self._measures.remove(gone)
-            touched = [s for s in self._states.values()
-                       if s.accepted and gone & set(s.inliers.tolist())]
-            # the states forget the removed measures at once (best() must not list them)
-            removed = np.fromiter(gone, dtype=int, count=len(gone))
-            for name, state in self._states.items():
-                kept = ~np.isin(state.measure_ids, removed)
-                self._states[name] = replace(
-                    state, inliers=state.inliers[~np.isin(state.inliers, removed)],
-                    outliers=state.outliers[~np.isin(state.outliers, removed)],
-                    measure_ids=state.measure_ids[kept],
-                    errors=state.errors[kept] if state.errors.size == kept.size
-                    else state.errors)
-            self._selected.clear()
-            for state in touched:
+            for state in self._walk.forget(np.fromiter(gone, dtype=int, count=len(gone))):
                 self._requeue(state.parent or state.model)
                 self._requeue(state.model)
 
@@ -316,7 +310,7 @@ class Estimator:
                 total += max(self.budget.now(search, budget, cap, least) - search.samples, 0)
             if not self._done:
                 total += sum(1 if self.fam.free_dof(m, self._constants) == 0 else
-                             self.budget.min_samples for m, _, _ in self._queue)
+                             self.budget.min_samples for m in self._walk.queued())
             return total
 
     def step(self) -> bool:
@@ -334,7 +328,7 @@ class Estimator:
                 going = self._step(batch)
             except Exception as exc:  # absorbed: the reason stays in the status
                 self.errors.append(f"{type(exc).__name__}: {exc}")
-                self._queue.clear()
+                self._walk.clear()
                 self._search = None
                 self._finish()
                 going = False
@@ -353,22 +347,19 @@ class Estimator:
     def best(self) -> ModelState | None:
         """The best model so far (least normalised cost among accepted ones)."""
         with self._lock:
-            return self._best_state()
+            return self._walk.best()
 
     def states(self) -> list[ModelState]:
         """Every model estimated so far, with its figures."""
         with self._lock:
-            return list(self._states.values())
+            return list(self._walk.states.values())
 
     # -- internals ------------------------------------------------------------------------------
     def _restart(self) -> None:
         self._rng = np.random.default_rng(self.seed)
-        self._states: dict[str, ModelState] = {}
-        self._declared_by: dict[str, str] = {}  # model -> the model whose edge queued it
-        # (model, parent, estimate to resume from or None)
-        self._root = self.model or self.fam.null_model
-        self._queue: list[tuple[str, str | None, np.ndarray | None]] = [
-            (self._root, None, None)]
+        root = self.model or self.fam.null_model
+        self._walk = LatticeWalk(self.fam, root, self._null_state(root), bool(self.model),
+                                 self.phi, self._refit)
         # (model, parent, search, budget, the most it may grow to, the inliers it must
         # reach to matter: SampleBudget.now)
         self._search: tuple[str, str | None, ModelSearch, int, int | None, int] | None = None
@@ -376,26 +367,18 @@ class Estimator:
         self._done = False
         self._measures.invalidate()
         self.history = []
-        self._states[self._root] = self._null_state()
-        self._done_relevance: float | None = None  # _best_relevance of the states so far
-        self._skipped: dict[str, str | None] = {}  # too few measures to sample: -> its parent
-        self._shape: dict[str, tuple[int, int]] = {}  # equations per measure, free dof
-        self._corrected: dict[str, dict[str, np.ndarray]] = {}  # inliers, corrected
-        self._selected: dict[tuple, ModelState] = {}
-        self._reachable = {self._root} if self.model else lattice.reachable(self.fam,
-                                                                             self._root)
 
     def _restart_if_idle(self) -> None:
         if self._done or self._search is None:
             self._restart()
 
-    def _null_state(self) -> ModelState:
+    def _null_state(self, root: str) -> ModelState:
         n = self.fam.n
-        return ModelState(self._root, None, self.fam.params_dict(self.q0),
+        return ModelState(root, None, self.fam.params_dict(self.q0),
                           self.q0.copy(), self.Q0.copy(), np.full((n, n), np.inf),
                           np.zeros(0, int), np.zeros(0, int), np.inf, 0, 0.0, 0, np.inf, True,
                           status="null", units=self.fam.units,
-                          pinned=self.fam.pinned(self._root),
+                          pinned=self.fam.pinned(root),
                           assumed=self.fam.assumed(self._constants))
 
     def _problem_for(self, model: str) -> tuple[Problem, list[np.ndarray], int]:
@@ -414,7 +397,7 @@ class Estimator:
         if self.fam.free_dof(search.model, self._constants) == 0:
             return 1  # nothing to sample: the model's parameter is fixed
         across = parent is not None and search.base is not None and \
-            self._across(parent.model, search.ranks[search.channel])
+            self._walk.across(parent.model, search.ranks[search.channel])
         return self.budget.initial(search, parent.inliers.size if across else None)
 
     def _step(self, batch: int = 1) -> bool:
@@ -437,22 +420,18 @@ class Estimator:
 
     def _best_relevance(self, search: ModelSearch) -> float:
         """The best relevance of the accepted models so far and of the current search."""
-        done = self._done_relevance
-        if done is None:  # the states changed: the best of the accepted ones anew
-            done = self._done_relevance = max(
-                [s.relevance for s in self._states.values() if s.accepted and s.samples],
-                default=-np.inf)
+        done = self._walk.best_relevance()
         current = search.best_score if np.isfinite(search.best_score) else 0.0
         return max(done, current)
 
     def _start_next(self) -> bool:
-        while self._queue:
-            model, parent, resume = self._queue.pop(0)
+        while (entry := self._walk.pop()) is not None:
+            model, parent, resume = entry
             if not len(self._measures):
                 self.status = "no measures"
                 return False
             problem, ids, channel = self._problem_for(model)
-            parent_state = self._states.get(parent) if parent else None
+            parent_state = self._walk.states.get(parent) if parent else None
             start = parent_state.q if parent_state is not None else self.q0
             pool = base = parent_free = ranks = None
             if parent_state is not None and parent_state.samples and \
@@ -465,10 +444,11 @@ class Estimator:
                 base = np.flatnonzero(np.isin(ch_ids, parent_state.inliers))
                 name = problem.channels[channel].name
                 ranks = manifold_ranks(problem, self.fam.with_slacks(start, problem.k, model))
-                across = self._across(parent, ranks[channel])
+                across = self._walk.across(parent, ranks[channel])
                 parent_free = lattice.fixed_by(
                     self.fam, parent_state, self.fam.free_dof(parent, self._constants), model,
-                    name, self._corrected.get(parent, {}).get(name), self._constants, across)
+                    name, self._walk.corrected.get(parent, {}).get(name), self._constants,
+                    across)
             search = ModelSearch(self.fam, model, problem, channel, start, self._rng,
                                  self.scale, self.scorer, pool=pool, parent_free=parent_free,
                                  base=base, initializer=self.initializers.get(model),
@@ -476,8 +456,7 @@ class Estimator:
                                  max_threshold=self.max_threshold, ranks=ranks,
                                  ceiling=self.ceiling)
             if search.exhausted:
-                self._skipped[model] = parent
-                self._queue_alternatives(model)
+                self._walk.skip(model, parent)
                 continue
             self.scales[model] = search.scale
             self.sample_sizes[model] = search.sample_size + search.base_size
@@ -487,10 +466,7 @@ class Estimator:
             if resume is not None:  # re-queued: resume from its estimate, a few more samples
                 search.seed_estimate(resume)
                 budget = cap = max(1, budget // _RESUME_FRACTION)
-            # a model that explains fewer than this is chosen by no one (lattice.select)
-            least = int(max((s.inliers.size for s in self._states.values()
-                             if s.accepted and s.samples), default=0) / lattice.MORE_SUPPORT)
-            self._search = (model, parent, search, budget, cap, least)
+            self._search = (model, parent, search, budget, cap, self._walk.least_support())
             self.status = f"searching {model}"
             return True
         return False
@@ -505,8 +481,7 @@ class Estimator:
         (then :data:`~kanagen.runtime.budget.MODEL_CAP`)."""
         if self._horizon is None or not self.budget.adaptive:
             return None
-        left = len(self._reachable - set(self._states) - set(self._skipped))
-        return max(budget, (self._horizon - self._samples) // max(left, 1))
+        return max(budget, (self._horizon - self._samples) // max(self._walk.unsettled(), 1))
 
     def _conclude(self, model: str, parent: str | None, search: ModelSearch) -> None:
         self._from_parent(parent, search)
@@ -514,23 +489,20 @@ class Estimator:
                                  _BRIEF if self._hopeless(parent, search) else _FINAL_ITER,
                                  self._short_of(parent, search))
         if estimate is None or not np.all(np.isfinite(estimate.q)):
-            self._skipped[model] = parent
-            self._queue_alternatives(model)
+            self._walk.skip(model, parent)
             return
         self._into_parent(parent, search, estimate)
-        self._shape[model] = (max(search.ranks[search.channel], 1),
-                              self.fam.free_dof(model, self._constants))
-        self._corrected[model] = estimate.fit.measures
+        # the model's shape first: its verdict against its parent reads it
+        self._walk.shape[model] = (max(search.ranks[search.channel], 1),
+                                   self.fam.free_dof(model, self._constants))
         _, _, ids = self._measures.channels()
         state = self._state(model, parent, estimate, ids)
-        self._states[model] = state
-        self._done_relevance = None
-        self._skipped.pop(model, None)
+        self._walk.record(state, estimate.fit.measures)
         if state.accepted:
-            best = self._best_state()
+            best = self._walk.best()
             if best is state:
                 self._pending.extend((cb, state) for cb in self._on_model)
-        self._queue_alternatives(model)
+        self._walk.queue_alternatives(model)
 
     def _from_parent(self, parent: str | None, search: ModelSearch) -> None:
         """A search whose samples did not clearly beat its parent (relevance up by more
@@ -541,9 +513,9 @@ class Estimator:
         sample of it may well not be drawn, and the parent's estimate is the child's best
         start. Along edges of the same equations per measure only: across them the
         parent's inliers are a singular configuration of the child."""
-        state = self._searched(parent)
+        state = self._walk.searched(parent)
         if state is None or search.base is None or \
-                self._across(parent, search.ranks[search.channel]):
+                self._walk.across(parent, search.ranks[search.channel]):
             return
         floor = state.relevance / lattice.SUPPORT
         if lattice.hopeless(state, search.best_score, 0, False) or search.best_score >= floor:
@@ -559,9 +531,9 @@ class Estimator:
         whatever the seed). Along edges of the same equations per measure only (an F's
         parameter may satisfy a plane's constraints, its matches not the plane's
         equations)."""
-        state = self._searched(parent)
+        state = self._walk.searched(parent)
         if state is None or not estimate.relevance > state.relevance or \
-                self._across(parent, search.ranks[search.channel]):
+                self._walk.across(parent, search.ranks[search.channel]):
             return
         problem, ids, channel = self._problem_for(parent)
         q = self.fam.with_slacks(estimate.q, problem.k, parent)
@@ -580,63 +552,26 @@ class Estimator:
             return
         again = self._state(parent, state.parent, refined, ids)
         if again.relevance > state.relevance and again.accepted >= state.accepted:
-            self._states[parent] = replace(again, samples=state.samples)
-            self._corrected[parent] = refined.fit.measures
-            self._done_relevance = None
+            self._walk.improve(replace(again, samples=state.samples), refined.fit.measures)
 
     def _hopeless(self, parent: str | None, search: ModelSearch) -> bool:
         """Can the model searched not replace its parent, by a wide margin
         (:func:`~kanagen.runtime.lattice.hopeless`)? Then its final refinement is brief."""
-        state = self._searched(parent)
+        state = self._walk.searched(parent)
         if state is None or search.best_errors is None:
             return False
         inliers = sum(r.size for r in search.split(search.best_errors, self.window)[1])
         return lattice.hopeless(state, search.best_score, inliers,
-                                self._across(parent, search.ranks[search.channel]))
+                                self._walk.across(parent, search.ranks[search.channel]))
 
     def _short_of(self, parent: str | None, search: ModelSearch) -> float | None:
         """The inliers the model searched must reach to replace its parent when only their
         number decides (across a change of equations per measure,
         :func:`~kanagen.runtime.lattice.explains_more`), else None."""
-        state = self._searched(parent)
-        if state is None or not self._across(parent, search.ranks[search.channel]):
+        state = self._walk.searched(parent)
+        if state is None or not self._walk.across(parent, search.ranks[search.channel]):
             return None
         return lattice.MORE_SUPPORT * state.inliers.size
-
-    def _searched(self, parent: str | None) -> ModelState | None:
-        """The state of ``parent`` when it was searched (drew samples), else None."""
-        state = self._states.get(parent) if parent else None
-        return state if state is not None and state.samples else None
-
-    def _across(self, parent: str, rank: int) -> bool:
-        """Does the edge from ``parent`` to a model of ``rank`` equations per measure (on the
-        sampled channel) change that number (an H-type parent, an F-type child)?"""
-        return parent in self._shape and self._shape[parent][0] != max(rank, 1)
-
-    # -- the lattice ---------------------------------------------------------------------------
-    def _queue_alternatives(self, model: str) -> None:
-        """Queue each more general model once all its parents in the lattice are settled
-        (report §5: a model is not estimated before its parents), against the best of their
-        accepted anchors."""
-        if self.model:
-            return
-        known = {m for m, _, _ in self._queue}
-        for alt, _ in self.fam.model(model).alternatives:
-            if alt in known or alt in self._states or alt in self._skipped:
-                continue
-            parents = lattice.lattice_parents(self.fam, alt, self._reachable)
-            if not all(p in self._states or p in self._skipped for p in parents):
-                continue  # the others will queue it
-            anchors: dict[str, str] = {}
-            for p in parents:
-                anchor = lattice.anchor(self._states, self._skipped, p)
-                if anchor is not None:
-                    anchors.setdefault(anchor, p)
-            if not anchors:
-                continue
-            chosen = self._select([self._states[a] for a in anchors])
-            self._queue.append((alt, chosen.model, None))
-            self._declared_by[alt] = anchors[chosen.model]  # the edge whose Φ decides
 
     def _state(self, model, parent, est: RobustEstimate, ids) -> ModelState:
         names = list(est.inliers)
@@ -654,50 +589,15 @@ class Estimator:
                            est.fit.slacks, scored[order], errors[order],
                            est.fit.equations, est.fit.units, est.fit.pinned,
                            self.fam.assumed(self._constants))
-        if parent is not None:
-            p = self._states.get(parent)
-            if p is not None and p.samples and np.isfinite(p.normalized_cost):
-                # only an honest success (a verified minimum) may replace its parent
-                state = replace(state, accepted=bool(est.fit.success) and lattice.beats(
-                    p, state, self._shape, self._replaces))
-        return state
+        return self._walk.accepted(state, est.fit.success)
 
-    def _replaces(self, specific: ModelState, general: ModelState) -> bool:
-        """Both refitted on the measures both take as inliers, ``L̃'²/d' < Φ(d, d') L̃²/d``
-        (:func:`~kanagen.runtime.lattice.general_wins`)."""
+    def _refit(self, state: ModelState, common: np.ndarray):
+        """``state``'s model fitted on the measures of ids ``common`` from its estimate (the
+        walk's cost test between two models, eq. 36)."""
         _, _, ids = self._measures.channels()
-        common = np.intersect1d(specific.inliers, general.inliers)
         rows = tuple(np.flatnonzero(np.isin(ch_ids, common)) for ch_ids in ids)
-        fits = [fit_problem(self.fam, s.model, self._problem_for(s.model)[0].subset(rows),
-                            q_start=s.q) for s in (specific, general)]
-        return lattice.general_wins(fits[0], fits[1], self._phi(specific.model, general.model))
-
-    def _phi(self, parent: str, model: str):
-        """The factor of the edge that queued ``model``; between models with no edge (two
-        children of one parent), the F-test factor."""
-        if self.phi is not None:
-            return get_phi(self.phi)
-        for alt, choice in self.fam.model(self._declared_by.get(model, parent)).alternatives:
-            if alt == model:
-                return get_phi(choice)
-        return get_phi("ftest")
-
-    def _select(self, states: list[ModelState]) -> ModelState:
-        """:func:`~kanagen.runtime.lattice.select`, remembered (its cost tests refit)."""
-        key = tuple((s.model, s.samples, s.normalized_cost, s.relevance) for s in states)
-        if key not in self._selected:
-            self._selected[key] = lattice.select(states, self._shape, self._replaces)
-        return self._selected[key]
-
-    def _best_state(self) -> ModelState | None:
-        """The best accepted model that no accepted, more general model replaced."""
-        accepted = [s for s in self._states.values() if s.accepted]
-        if not accepted:
-            return None
-        replaced = {s.parent for s in accepted if s.parent is not None and s.samples}
-        leaves = [s for s in accepted if s.model not in replaced]
-        estimated = [s for s in leaves if s.samples] or leaves
-        return self._select(estimated)
+        return fit_problem(self.fam, state.model,
+                           self._problem_for(state.model)[0].subset(rows), q_start=state.q)
 
     def _coherent_with(self, state: ModelState, channel: str, ch: ChannelData) -> bool:
 
@@ -707,18 +607,14 @@ class Estimator:
         return bool(np.any(errors < state.threshold))
 
     def _requeue(self, model: str) -> None:
-        state = self._states.get(model)
-        if state is None or state.status == "null":
-            return
-        if all(m != model for m, _, _ in self._queue):
-            self._queue.insert(0, (model, state.parent, state.q))
-        self._done = False
+        if self._walk.requeue(model):
+            self._done = False
 
     def _finish(self) -> None:
         if self._done:
             return
         self._done = True
-        best = self._best_state()
+        best = self._walk.best()
         status = "done" if best is not None and not self.errors else self.status
         self.status = self._status_with_errors(status)
         self._pending.extend((cb, best) for cb in self._on_done)
