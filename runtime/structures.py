@@ -207,33 +207,24 @@ def _split(fam: ModelFamily, data: Mapping, info: Mapping, state: ModelState,
     that one's), tells: on one structure the part holds most of the measures at about 3/4
     of the noise (the median of an exponential error truncated at 1.7 ``s²``), on two it
     holds one of them at its own, far lower, noise. When that part's noise is below
-    :data:`_SPLIT` of the whole's, and the rest, fitted on its own, fits at less than
-    :data:`_SPLIT` of its noise under the part's estimate (a second structure, not the
-    tail of the first: one plane's noisier matches are explained by its tighter ones'
-    homography about as well as by their own), the part is the structure and the rest
-    goes back to the data. Each noise is the median's, scaled by ``m / (m − d)`` (``m``
-    equations, ``d`` free parameters: a fit's errors fall short of the noise by its
-    degrees of freedom, a small part's most), and the part and the rest each need twice
-    the measures of a structure (11 of napierb's third plane's 22 matches fit at a tenth
-    of the noise of the 22, by luck)."""
-    rows = {name: np.sort(state.inliers[(state.inliers >= offsets[name])
-                                        & (state.inliers < offsets[name] + size)])
-            - offsets[name] for name, size in sizes.items()}
+    :data:`_SPLIT` of the whole's, and the best part of the rest (the same search on the
+    rest: it may hold more than one structure — elderhallb's three planes under one
+    homography on seed 4) fits at less than :data:`_SPLIT` of its noise under the part's
+    estimate (a second structure, not the tail of the first: one plane's noisier matches
+    are explained by its tighter ones' homography about as well as by their own), the
+    part is the structure and the rest goes back to the data. Each noise is the median's,
+    scaled by ``m / (m − d)`` (``m`` equations, ``d`` free parameters: a fit's errors
+    fall short of the noise by its degrees of freedom, a small part's most), and the
+    part, the rest and its part each need twice the measures of a structure (11 of
+    napierb's third plane's 22 matches fit at a tenth of the noise of the 22, by luck)."""
+    rows = _channel_rows(state.inliers, sizes, offsets)
     options = {k: v for k, v in options.items() if k != "scale"}
-    est, index = _estimator_on(fam, data, info, rows, sizes, offsets, options,
-                               model=state.model, local=local, seed=seed,
-                               scale=_SPLIT * noise * scale)
-    if est is None:
+    tight = _SPLIT * noise * scale
+    part = _tight_part(fam, state.model, data, info, rows, sizes, offsets, options, local,
+                       max_samples, seed, tight, scale, need)
+    if part is None:
         return state
-    part = est.run(max_samples=max_samples)
-    if part is None or not part.samples:
-        return state
-    problem = make_problem(fam, part.model, {name: np.asarray(data[name], dtype=float)[r]
-                                             for name, r in rows.items()},
-                           {name: _rows_of(info.get(name), r, sizes[name])
-                            for name, r in rows.items()},
-                           options.get("q0"), options.get("Q0"), options.get("constants"))
-    part = _own_noise(fam, part, problem, scale, need)[0]
+    part, problem, index = part
     if len(part.inliers) < 2 * need or len(state.inliers) - len(part.inliers) < 2 * need:
         return state
     p = min((int(r) for r, ch in zip(manifold_ranks(problem, part.q), problem.channels,
@@ -250,15 +241,49 @@ def _split(fam: ModelFamily, data: Mapping, info: Mapping, state: ModelState,
     if p < 1 or not noise_at(part.q, part.inliers) < _SPLIT * unbiased(
             noise, len(state.inliers)):
         return state
-    bounds = np.cumsum([0] + [ch.size for ch in problem.channels])
-    rest = np.setdiff1d(np.arange(bounds[-1]), part.inliers)
-    fit = fit_problem(fam, part.model, problem.subset(_per_channel(rest, bounds)),
-                      q_start=state.q)
-    if not (np.all(np.isfinite(fit.q)) and
-            _SPLIT * noise_at(part.q, rest) > noise_at(fit.q, rest)):
+    rest = np.setdiff1d(np.arange(index.size), part.inliers)
+    other = _tight_part(fam, state.model, data, info,
+                        _channel_rows(index[rest], sizes, offsets), sizes, offsets, options,
+                        local, max_samples, None if seed is None else seed + 1, tight,
+                        scale, need)
+    if other is None or len(other[0].inliers) < 2 * need:
         return state
-    return replace(part, inliers=index[part.inliers], outliers=index[part.outliers],
+    theirs = rest[other[0].inliers]  # the rest's own part, as positions in the structure
+    if not _SPLIT * noise_at(part.q, theirs) > noise_at(other[0].q, theirs):
+        return state
+    # its outliers: the structure's, and the rest of its inliers (they go back to the data)
+    return replace(part, inliers=index[part.inliers],
+                   outliers=np.union1d(state.outliers, index[rest]),
                    threshold=state.threshold)
+
+
+def _tight_part(fam: ModelFamily, model: str, data: Mapping, info: Mapping, rows: Mapping,
+                sizes: Mapping, offsets: Mapping, options: Mapping, local: float,
+                max_samples: int, seed: int | None, tight: float, scale: float,
+                need: int):
+    """The best structure of ``model`` among the measures ``rows`` at the error scale
+    ``tight``, taken at its own noise (:func:`_own_noise`, ``scale`` its L*): ``(state,
+    problem, index)`` — its rows and problem those of the measures, ``index`` their global
+    rows — or None when the search finds nothing."""
+    est, index = _estimator_on(fam, data, info, rows, sizes, offsets, options,
+                               model=model, local=local, seed=seed, scale=tight)
+    if est is None:
+        return None
+    part = est.run(max_samples=max_samples)
+    if part is None or not part.samples:
+        return None
+    problem = make_problem(fam, part.model, {name: np.asarray(data[name], dtype=float)[r]
+                                             for name, r in rows.items()},
+                           {name: _rows_of(info.get(name), r, sizes[name])
+                            for name, r in rows.items()},
+                           options.get("q0"), options.get("Q0"), options.get("constants"))
+    return _own_noise(fam, part, problem, scale, need)[0], problem, index
+
+
+def _channel_rows(rows: np.ndarray, sizes: Mapping, offsets: Mapping) -> dict:
+    """Global rows (channel offset + row) as each channel's own rows, sorted."""
+    return {name: np.sort(rows[(rows >= offsets[name]) & (rows < offsets[name] + size)])
+            - offsets[name] for name, size in sizes.items()}
 
 
 def _energy(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelState],
