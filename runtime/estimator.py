@@ -591,13 +591,13 @@ class Estimator:
                            self.fam.assumed(self._constants))
         return self._walk.accepted(state, est.fit.success)
 
-    def _refit(self, state: ModelState, common: np.ndarray):
-        """``state``'s model fitted on the measures of ids ``common`` from its estimate (the
-        walk's cost test between two models, eq. 36)."""
+    def _refit(self, states: tuple[ModelState, ...], common: np.ndarray) -> list:
+        """Each state's model fitted on the measures of ids ``common`` from its estimate
+        (the walk's cost test between two models, eq. 36)."""
         _, _, ids = self._measures.channels()
         rows = tuple(np.flatnonzero(np.isin(ch_ids, common)) for ch_ids in ids)
-        return fit_problem(self.fam, state.model,
-                           self._problem_for(state.model)[0].subset(rows), q_start=state.q)
+        return [fit_problem(self.fam, s.model, self._problem_for(s.model)[0].subset(rows),
+                            q_start=s.q) for s in states]
 
     def _coherent_with(self, state: ModelState, channel: str, ch: ChannelData) -> bool:
 

@@ -153,12 +153,7 @@ def _extract(fam: ModelFamily, data: Mapping, info: Mapping, max_structures: int
             continue
         failures = 0
         scale = est.scales.get(best.model, est.scale or 1.0)
-        problem = make_problem(
-            fam, best.model, {name: np.asarray(data[name], dtype=float)[rows]
-                              for name, rows in remaining.items()},
-            {name: _rows_of(info.get(name), rows, sizes[name])
-             for name, rows in remaining.items()},
-            options.get("q0"), options.get("Q0"), options.get("constants"))
+        problem = _problem_on(fam, best.model, data, info, remaining, sizes, options)
         taken, noise = _own_noise(fam, best, problem, scale, need)
         state = replace(taken, inliers=index[taken.inliers], outliers=index[taken.outliers])
         if noise is not None:
@@ -227,19 +222,19 @@ def _split(fam: ModelFamily, data: Mapping, info: Mapping, state: ModelState,
     part, problem, index = part
     if len(part.inliers) < 2 * need or len(state.inliers) - len(part.inliers) < 2 * need:
         return state
-    p = min((int(r) for r, ch in zip(manifold_ranks(problem, part.q), problem.channels,
-                                     strict=True) if ch.size), default=0)
+    p = _equations(problem, part.q)
     free = fam.free_dof(part.model, options.get("constants"))
 
     def unbiased(s2: float, size: int) -> float:  # a fit's errors fall short by ν / m
         return s2 * p * size / (p * size - free) if p * size > free else np.inf
 
-    def noise_at(q: np.ndarray, some: np.ndarray) -> float:
-        errors = np.concatenate(coherence_errors(problem, q))[some]
-        return unbiased(float(np.median(errors)) / (chi2.median(p) / p), some.size)
+    def noise_at(errors: np.ndarray, some: np.ndarray) -> float:
+        return unbiased(_noise(errors[some], p), some.size)
 
-    if p < 1 or not noise_at(part.q, part.inliers) < _SPLIT * unbiased(
-            noise, len(state.inliers)):
+    if p < 1:
+        return state
+    at_part = np.concatenate(coherence_errors(problem, part.q))  # the part's errors
+    if not noise_at(at_part, part.inliers) < _SPLIT * unbiased(noise, len(state.inliers)):
         return state
     rest = np.setdiff1d(np.arange(index.size), part.inliers)
     other = _tight_part(fam, state.model, data, info,
@@ -249,7 +244,8 @@ def _split(fam: ModelFamily, data: Mapping, info: Mapping, state: ModelState,
     if other is None or len(other[0].inliers) < 2 * need:
         return state
     theirs = rest[other[0].inliers]  # the rest's own part, as positions in the structure
-    if not _SPLIT * noise_at(part.q, theirs) > noise_at(other[0].q, theirs):
+    own = np.concatenate(coherence_errors(problem, other[0].q))
+    if not _SPLIT * noise_at(at_part, theirs) > noise_at(own, theirs):
         return state
     # its outliers: the structure's, and the rest of its inliers (they go back to the data)
     return replace(part, inliers=index[part.inliers],
@@ -272,18 +268,24 @@ def _tight_part(fam: ModelFamily, model: str, data: Mapping, info: Mapping, rows
     part = est.run(max_samples=max_samples)
     if part is None or not part.samples:
         return None
-    problem = make_problem(fam, part.model, {name: np.asarray(data[name], dtype=float)[r]
-                                             for name, r in rows.items()},
-                           {name: _rows_of(info.get(name), r, sizes[name])
-                            for name, r in rows.items()},
-                           options.get("q0"), options.get("Q0"), options.get("constants"))
+    problem = _problem_on(fam, part.model, data, info, rows, sizes, options)
     return _own_noise(fam, part, problem, scale, need)[0], problem, index
+
+
+def _problem_on(fam: ModelFamily, model: str, data: Mapping, info: Mapping, rows: Mapping,
+                sizes: Mapping, options: Mapping):
+    """``model``'s problem on the measures ``rows`` of each channel."""
+    return make_problem(fam, model, {name: np.asarray(data[name], dtype=float)[r]
+                                     for name, r in rows.items()},
+                        {name: _rows_of(info.get(name), r, sizes[name])
+                         for name, r in rows.items()},
+                        options.get("q0"), options.get("Q0"), options.get("constants"))
 
 
 def _channel_rows(rows: np.ndarray, sizes: Mapping, offsets: Mapping) -> dict:
     """Global rows (channel offset + row) as each channel's own rows, sorted."""
-    return {name: np.sort(rows[(rows >= offsets[name]) & (rows < offsets[name] + size)])
-            - offsets[name] for name, size in sizes.items()}
+    bounds = np.r_[list(offsets.values()), sum(sizes.values())]
+    return dict(zip(sizes, _per_channel(np.sort(rows), bounds), strict=True))
 
 
 def _energy(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelState],
@@ -387,18 +389,15 @@ def _own_noise(fam: ModelFamily, state: ModelState, problem, scale: float,
     lines wherever the two motions' epipolar lines agree, and their median does not tell
     the structure's noise from theirs (AdelaideRMF F, seed 0: 7.9 to 8.9 % with it).
     """
-    counts = [int(r) for r, ch in zip(manifold_ranks(problem, state.q), problem.channels,
-                                      strict=True) if ch.size]
-    p = min(counts, default=0)
+    p = _equations(problem, state.q)
     if p < 2:
         return state, None
-    median = chi2.median(p) / p  # of an inlier's error at the assumed noise
     bounds = np.cumsum([0] + [ch.size for ch in problem.channels])
     errors = np.concatenate(coherence_errors(problem, state.q))
     inliers, threshold = np.asarray(state.inliers), state.threshold
     noise = None
     for _ in range(_NOISE_ROUNDS):
-        noise = float(np.median(errors[inliers])) / median if inliers.size else np.inf
+        noise = _noise(errors[inliers], p) if inliers.size else np.inf
         tight = scale * noise
         rows = np.flatnonzero(errors < tight)
         if not tight < threshold or rows.size <= need:
@@ -414,6 +413,19 @@ def _own_noise(fam: ModelFamily, state: ModelState, problem, scale: float,
         inliers = np.flatnonzero(errors < threshold)
     return replace(state, threshold=threshold, inliers=inliers,
                    outliers=np.setdiff1d(np.arange(errors.size), inliers)), noise
+
+
+def _equations(problem, q: np.ndarray) -> int:
+    """Equations per measure at ``q`` (eq. 24's ``p``; the least over the channels that
+    hold measures, 0 without any)."""
+    return min((int(r) for r, ch in zip(manifold_ranks(problem, q), problem.channels,
+                                        strict=True) if ch.size), default=0)
+
+
+def _noise(errors: np.ndarray, p: int) -> float:
+    """``s²``, the noise variance of measures of ``p`` equations in units of their
+    information: the median of their errors over that of an inlier's (``χ²_p / p``)."""
+    return float(np.median(errors)) / (chi2.median(p) / p)
 
 
 def _per_channel(rows: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, ...]:

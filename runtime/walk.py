@@ -19,9 +19,9 @@ from . import lattice
 from .phi import phi as get_phi
 from .results import FitResult, ModelState
 
-#: ``refit(state, ids)``: the state's model fitted on the measures of ``ids`` from its
+#: ``refit(states, ids)``: each state's model fitted on the measures of ``ids`` from its
 #: estimate (the cost test of eq. 36 fits both models on the measures both take as inliers)
-Refit = Callable[[ModelState, np.ndarray], FitResult]
+Refit = Callable[[tuple[ModelState, ...], np.ndarray], list[FitResult]]
 
 
 class LatticeWalk:
@@ -179,7 +179,7 @@ class LatticeWalk:
         """Both refitted on the measures both take as inliers, ``L̃'²/d' < Φ(d, d') L̃²/d``
         (:func:`~kanagen.runtime.lattice.general_wins`)."""
         common = np.intersect1d(specific.inliers, general.inliers)
-        fits = [self._refit(s, common) for s in (specific, general)]
+        fits = self._refit((specific, general), common)
         return lattice.general_wins(fits[0], fits[1],
                                     self.edge_phi(specific.model, general.model))
 
