@@ -17,6 +17,9 @@ mean misclassification of 6.6 % on the AdelaideRMF homography scenes.
 
 Figures (both seeds, per-scene tables, where we lose): ``docs/real_data.md``.
 
+``--defaults`` gives only the number of structures and the model (the library's defaults for
+the rest, issue 18's floors); ``--defaults --unknown`` gives only the model.
+
 Run ``python experiments/adelaide.py [--kind H|F|both] [--scenes a,b] [--json out.json]``
 (needs ``pip install "kanagen[examples]"`` for OpenCV and the shared data folder).
 """
@@ -72,18 +75,19 @@ def kanagen_labels(fam, scene: datasets.MultiStructureScene, samples: int = SAMP
                    scale: float = SCALE, local: float = LOCAL, reassign: int = REASSIGN,
                    ceiling: float = CEILING, retries: int = RETRIES,
                    restarts: int = RESTARTS, seed: int = 0,
-                   defaults: bool = False) -> tuple[np.ndarray, int]:
+                   defaults: bool = False, unknown: bool = False) -> tuple[np.ndarray, int]:
     """Per-match classes from :func:`kanagen.find_structures` (0 = outlier), and the number
     of structures found. ``defaults``: only the number of structures and the model given
-    (issue 18's floor), the other options at the library's defaults."""
+    (issue 18's floor), the other options at the library's defaults; ``unknown`` (with
+    ``defaults``): the number not given either (``max_structures`` at its default)."""
     cx, cy = scene.centre
     width, height = scene.image_size or (2 * cx, 2 * cy)
     constants = {"cx": cx, "cy": cy, "f0": float(max(width, height))}
     if defaults:
+        count = {} if unknown else {"max_structures": scene.structures}
         found = kanagen.find_structures(
-            fam, data={"match": scene.matches}, info={"match": 1.0},
-            max_structures=scene.structures, model=MODEL[scene.kind], seed=seed,
-            constants=constants)
+            fam, data={"match": scene.matches}, info={"match": 1.0}, **count,
+            model=MODEL[scene.kind], seed=seed, constants=constants)
         return labels_from_structures(len(scene.matches), [s.inliers for s in found]), \
             len(found)
     found = kanagen.find_structures(
@@ -192,6 +196,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--defaults", action="store_true",
                         help="only the number of structures and the model given (the "
                              "library's defaults for the rest; the options above ignored)")
+    parser.add_argument("--unknown", action="store_true",
+                        help="with --defaults: the number of structures not given either")
     parser.add_argument("--json", help="write the per-scene results here")
     args = parser.parse_args(argv)
     fam = kanagen.load("two_view")
@@ -206,7 +212,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             r = run_scene(fam, scene, samples=args.samples, scale=args.scale,
                           local=args.local, reassign=args.reassign, ceiling=args.ceiling,
                           retries=args.retries, restarts=args.restarts, seed=args.seed,
-                          defaults=args.defaults)
+                          defaults=args.defaults, unknown=args.unknown)
             results.append(r)
             print(f"{kind} {name}: kanagen {100 * r.kanagen:.1f} % ({r.kanagen_seconds:.1f} s), "
                   f"MAGSAC " + ", ".join(f"{t}: {100 * v:.1f} %" for t, v in r.magsac.items()),
