@@ -348,6 +348,8 @@ def _model_metadata(model, parameter: tuple[str, ...]) -> dict:
         out["derived"] = list(model.derived)
     if model.initializer is not None:
         out["initializer"] = model.initializer
+    if model.admissible is not None:
+        out["admissible"] = model.admissible
     labels = qualitative_labels(model.constraints, parameter)
     if labels:
         out["labels"] = {name: list(values) for name, values in sorted(labels.items())}

@@ -154,21 +154,23 @@ def _check_initializers(family) -> None:
     """A family built elsewhere (``family_from_data`` without the registry): the
     initialisers its models name must be registered and have what they need."""
     from .modelspec import SpecError
-    from .runtime.initializers import INITIALIZERS
+    from .runtime.initializers import lookup, named
 
     for model in family.models:
-        if model.initializer is None:
-            continue
-        entry = INITIALIZERS.get(model.initializer)
-        if entry is None:
-            raise SpecError(f"model {model.name!r}: unknown initializer {model.initializer!r} "
-                            f"(known: {', '.join(sorted(INITIALIZERS))})", family.source)
-        missing = entry.missing(parameter=list(family.parameter_names),
-                                constants=[n for n, _ in family.constants],
-                                channels={c.name: c.components for c in family.channels})
-        if missing:
-            raise SpecError(f"model {model.name!r}: initializer {model.initializer!r} needs "
-                            f"{missing}", family.source)
+        for name, kind in ((model.initializer, "initializer"),
+                           (model.admissible, "admission")):
+            if name is None:
+                continue
+            entry = lookup(name, kind)
+            if entry is None:
+                raise SpecError(f"model {model.name!r}: unknown {kind} {name!r} (known: "
+                                f"{', '.join(named(kind))})", family.source)
+            missing = entry.missing(parameter=list(family.parameter_names),
+                                    constants=[n for n, _ in family.constants],
+                                    channels={c.name: c.components for c in family.channels})
+            if missing:
+                raise SpecError(f"model {model.name!r}: {kind} {name!r} needs {missing}",
+                                family.source)
 
 
 def load_text(text: str, source: str = "<spec>", *, limits: Limits = DEFAULT,

@@ -45,7 +45,8 @@ class Alternative:
 @dataclass(frozen=True)
 class Model:
     """A model: parameter constraints, optional equation overrides, its alternatives, the
-    derived quantities it reports (None: all) and the name of its closed-form initialiser."""
+    derived quantities it reports (None: all), the name of its closed-form initialiser and
+    the name of the test of which measures it admits besides its equations."""
 
     name: str
     constraints: tuple[sp.Expr, ...]
@@ -53,6 +54,7 @@ class Model:
     alternatives: tuple[Alternative, ...] = ()
     derived: tuple[str, ...] | None = None
     initializer: str | None = None
+    admissible: str | None = None
 
 
 @dataclass(frozen=True)

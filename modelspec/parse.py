@@ -37,7 +37,7 @@ _UNIT = re.compile(r"[A-Za-z0-9µΩ°%²³·/^*(). -]{1,24}")
 _ASSUME = re.compile(r"[^\x00-\x1f\x7f\"'`<>&\\]{1,120}")
 _CHANNEL_KEYS = ("components", "exact", "equations", "description")
 _MODEL_KEYS = ("constraints", "equations", "alternatives", "derived", "initializer",
-               "description")
+               "admissible", "description")
 _PHI_WORDS = ("aic", "ftest", "exp")
 _SYMPY_FUNCS = tuple(f for f in FUNCTIONS.values() if isinstance(f, type))  # sqrt is a Pow
 
@@ -398,9 +398,14 @@ class _Builder:
         if initializer is not None and not isinstance(initializer, str):
             raise self.error(f"initializer must be a name, got {initializer!r}", *path,
                              "initializer")
+        admissible = spec.get("admissible")
+        if admissible is not None and not (isinstance(admissible, str)
+                                           and admissible.isidentifier()):
+            raise self.error(f"admissible must be the name of a registered test, got "
+                             f"{admissible!r}", *path, "admissible")
         return Model(name, constraints, tuple(overrides),
                      self.alternatives(spec.get("alternatives"), all_models, name, *path),
-                     derived, initializer)
+                     derived, initializer, admissible)
 
     def constraints(self, model, value, base, declare, *path):
         """Constraint equations of a model, formulas compiled (appendix F), and their slacks.
@@ -508,27 +513,33 @@ class _Builder:
         return parameter + starts, tuple(pinned), fields
 
     def check_model_extras(self, models, derived, parameter, constants, channels):
-        """A model's ``derived`` names declared quantities; its ``initializer`` is a name of
-        the registry handed over (names only: never executable text) whose needs
-        (parameter, constants, channel) the family meets."""
+        """A model's ``derived`` names declared quantities; its ``initializer`` and
+        ``admissible`` are names of the registry handed over (names only: never executable
+        text), of their kind, whose needs (parameter, constants, channel) the family
+        meets."""
         names = {d.name for d in derived}
         for m in models:
             for i, d in enumerate(m.derived or ()):
                 if d not in names:
                     raise self.error(f"model {m.name!r} reports an unknown derived quantity "
                                      f"{d!r}", "models", m.name, "derived", i)
-            if m.initializer is None or self.initializers is None:
+            if self.initializers is None:
                 continue
-            where = ("models", m.name, "initializer")
-            entry = self.initializers.get(m.initializer)
-            if entry is None:
-                raise self.error(f"unknown initializer {m.initializer!r} (known: "
-                                 f"{', '.join(sorted(self.initializers))})", *where)
-            missing = entry.missing(parameter=[n for n, _ in parameter],
-                                    constants=[n for n, _ in constants],
-                                    channels={c.name: c.components for c in channels})
-            if missing:
-                raise self.error(f"initializer {m.initializer!r} needs {missing}", *where)
+            for key, kind in (("initializer", "initializer"), ("admissible", "admission")):
+                name = getattr(m, key)
+                if name is None:
+                    continue
+                entry = self.initializers.get(name)
+                if entry is None or getattr(entry, "kind", "initializer") != kind:
+                    names_of = getattr(self.initializers, "names_of", None)  # imports nothing
+                    known = names_of(kind) if names_of else sorted(self.initializers)
+                    raise self.error(f"unknown {kind} {name!r} (known: {', '.join(known)})",
+                                     "models", m.name, key)
+                missing = entry.missing(parameter=[n for n, _ in parameter],
+                                        constants=[n for n, _ in constants],
+                                        channels={c.name: c.components for c in channels})
+                if missing:
+                    raise self.error(f"{kind} {name!r} needs {missing}", "models", m.name, key)
 
     def check_acyclic(self, models):
         edges = {m.name: [a.model for a in m.alternatives] for m in models}

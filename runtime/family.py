@@ -50,7 +50,8 @@ class Reduction:
 @dataclass(frozen=True)
 class ModelInfo:
     """A model of the family: its constraints (as text), alternatives, equation overrides,
-    the derived quantities it reports and the name of its closed-form initializer."""
+    the derived quantities it reports, the name of its closed-form initializer and that of
+    the test of the measures it admits (:func:`~kanagen.runtime.initializers.admission`)."""
 
     name: str
     constraints: tuple[str, ...]
@@ -60,6 +61,7 @@ class ModelInfo:
     initializer: str | None = None
     #: qualitative variables (appendix F, ``x in {a, b, ...}``): component -> its labels
     labels: Mapping[str, tuple[float, ...]] = field(default_factory=dict)
+    admissible: str | None = None
 
 
 class ModelFamily:
@@ -99,7 +101,8 @@ class ModelFamily:
                             tuple((a, phi) for a, phi in m["alternatives"]),
                             {c: tuple(e) for c, e in m["equations"].items()},
                             tuple(m.get("derived", meta["derived"])), m.get("initializer"),
-                            {x: tuple(v) for x, v in m.get("labels", {}).items()})
+                            {x: tuple(v) for x, v in m.get("labels", {}).items()},
+                            m.get("admissible"))
             for name, m in meta["models"].items()
         }
         self.derived_shapes = {k: tuple(v) for k, v in meta["derived"].items()}

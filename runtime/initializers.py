@@ -20,6 +20,13 @@ This module is the generic machinery: the registry and how a model's starts are 
 closed forms themselves are plugins that :func:`register` their entries: the two-view ones
 (:mod:`~kanagen.runtime.two_view_starts`) are imported the first time one of their names
 is looked up (:data:`PROVIDERS`), so a family that names none of them never loads them.
+
+The same registry holds the *admission tests* a model may name (``admissible:
+calibrated_in_front``, entries of kind ``"admission"``): ``f(q, rows, info, constants) ->
+bool array``, ``q`` the parameter by name, ``rows`` a channel's measures, ``info`` their
+information (one matrix or one per measure). A measure the test refuses is an outlier of
+the model whatever its error (:func:`admission`): a match behind a camera fits the epipolar
+equation but not the motion.
 """
 
 from __future__ import annotations
@@ -53,7 +60,11 @@ PROVIDERS: dict[str, str] = {
     "calibrated_retinal_translation": ".calibrated_starts",
     "calibrated_retinal_displacement": ".calibrated_starts",
     "calibrated_homography": ".calibrated_starts",
+    "calibrated_in_front": ".calibrated_admission",
 }
+#: The kind of the names of :data:`PROVIDERS` that are not initialisers (known without
+#: importing their providers).
+PROVIDED_KINDS: dict[str, str] = {"calibrated_in_front": "admission"}
 
 
 @dataclass(frozen=True)
@@ -69,6 +80,8 @@ class Initializer:
     #: the candidates parameterise one estimate (the two decompositions of one homography
     #: give the same errors): a random sample scores only the first whose solve passes
     equivalent: bool = False
+    #: "initializer" (a model's ``initializer:``) or "admission" (its ``admissible:``)
+    kind: str = "initializer"
 
     def missing(self, parameter, constants, channels: Mapping[str, tuple[str, ...]]) -> str:
         """What the family lacks for this initializer ('' when nothing)."""
@@ -128,20 +141,63 @@ class Registry(Mapping[str, Initializer]):
     def __repr__(self) -> str:
         return f"<initializer registry: {', '.join(self)}>"
 
+    def names_of(self, kind: str) -> list[str]:
+        """The names of the entries of ``kind`` (imports nothing)."""
+        return named(kind)
+
 
 #: The registry that specs name initialisers from (``initializer: two_view_fundamental``).
 INITIALIZERS = Registry()
+
+
+def named(kind: str) -> list[str]:
+    """The registry's names of entries of ``kind`` (imports nothing)."""
+    def kind_of(name: str) -> str:
+        entry = _REGISTERED.get(name)
+        return entry.kind if entry is not None else PROVIDED_KINDS.get(name, "initializer")
+
+    return sorted(n for n in INITIALIZERS if kind_of(n) == kind)
+
+
+def lookup(name: str, kind: str = "initializer") -> Initializer | None:
+    """The registered entry ``name`` of ``kind``, or None."""
+    entry = INITIALIZERS.get(name)
+    return entry if entry is not None and entry.kind == kind else None
 
 
 def resolve(choice) -> InitializerFn | None:
     """A registry name, a callable or None → the initializer function (or None)."""
     if choice is None or callable(choice):
         return choice
-    entry = INITIALIZERS.get(choice)
+    entry = lookup(choice)
     if entry is None:
         raise ValueError(f"unknown initializer {choice!r} (known: "
-                         f"{', '.join(sorted(INITIALIZERS))}, or a callable)")
+                         f"{', '.join(named('initializer'))}, or a callable)")
     return entry.fn
+
+
+def admission(fam, model: str) -> Callable | None:
+    """The model's admission test (its spec's ``admissible:``) as ``admit(problem, q) ->
+    per-channel bool arrays`` (None for a channel it does not test: every measure
+    admitted), or None when the model names none."""
+    name = fam.model(model).admissible
+    if name is None:
+        return None
+    entry = lookup(name, "admission")
+    if entry is None:
+        raise ValueError(f"model {model!r}: unknown admission test {name!r} (known: "
+                         f"{', '.join(named('admission'))})")
+    names = fam.parameter_names
+
+    def admit(problem, q: np.ndarray) -> tuple:
+        values = dict(zip(names, np.asarray(q, dtype=float).tolist(), strict=True))
+        constants = dict(zip(fam.constant_names, np.asarray(problem.k).tolist(),
+                             strict=True))
+        return tuple(entry.fn(values, ch.X, ch.Q, constants)
+                     if ch.size and ch.X.shape[1] == entry.width else None
+                     for ch in problem.channels)
+
+    return admit
 
 
 def label_candidates(labels: Mapping[str, tuple[float, ...]]) -> InitializerFn:

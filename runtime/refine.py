@@ -123,11 +123,15 @@ class Refinement:
         A refinement needs more measures than this (a sample's size).
     max_threshold : float, optional
         A ceiling on the outlier threshold.
+    admit : callable, optional
+        The model's admission test (:func:`~kanagen.runtime.initializers.admission`): a
+        measure it refuses has an infinite error here (an outlier whatever its distance to
+        the model's equations: a match behind a camera).
     """
 
     def __init__(self, fam: ModelFamily, model: str, problem: Problem, scale: float,
                  score_fn: Callable, ranks: tuple[int, ...], min_rows: int,
-                 max_threshold: float | None = None):
+                 max_threshold: float | None = None, admit: Callable | None = None):
         self.fam = fam
         self.model = model
         self.problem = problem
@@ -136,6 +140,20 @@ class Refinement:
         self.ranks = ranks
         self.min_rows = min_rows
         self.max_threshold = max_threshold
+        self.admit = admit
+
+    def errors(self, q: np.ndarray, **options) -> tuple[np.ndarray, ...]:
+        """Every measure's coherence error at ``q`` (eq. 24, per channel; ``options`` those
+        of :func:`~kanagen.runtime.minimal.coherence_errors`), infinite where the model
+        does not admit the measure."""
+        return self.admitted(q, coherence_errors(self.problem, q, **options))
+
+    def admitted(self, q: np.ndarray, errors) -> tuple[np.ndarray, ...]:
+        """``errors`` at ``q``, infinite where the model does not admit the measure."""
+        if self.admit is None:
+            return tuple(errors)
+        return tuple(e if ok is None else np.where(ok, e, np.inf)
+                     for e, ok in zip(errors, self.admit(self.problem, q), strict=True))
 
     def split(self, errors: tuple[np.ndarray, ...], window: float = 0.35):
         """The outlier threshold of ``errors`` (per channel; :func:`outlier_threshold` with
@@ -148,14 +166,14 @@ class Refinement:
     def refined(self, q: np.ndarray, errors, max_iter: int = 10):
         """``q`` refined on the measures it explains (their errors ``errors``):
         ``(q, score, errors)``, or None when too few to refine or the fit failed."""
-        rows = self.split(errors)[1]
+        rows = self.split(self.admitted(q, errors))[1]
         if sum(r.size for r in rows) <= self.min_rows:
             return None
         fit = fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=q,
                           max_iter=max_iter, verify=False)  # its estimate alone is used
         if not np.all(np.isfinite(fit.q)):
             return None
-        refined = coherence_errors(self.problem, fit.q, iterations=1, ranks=self.ranks)
+        refined = self.errors(fit.q, iterations=1, ranks=self.ranks)
         return fit.q, self.score_fn(np.concatenate(refined), self.scale), refined
 
     def rounds(self, q: np.ndarray, errors, q0: np.ndarray, Q0: np.ndarray,
@@ -167,6 +185,7 @@ class Refinement:
         on the reported inliers. ``first(rows)``: more starts of the first refinement (a
         closed form on the inliers), which keeps the fit of least cost. ``short_of``: see
         :meth:`~kanagen.runtime.robust.ModelSearch.finish`."""
+        errors = self.admitted(q, errors)
         threshold, rows = self.split(errors, window)
         result = None
 
@@ -184,13 +203,13 @@ class Refinement:
             if not np.all(np.isfinite(result.q)):
                 break
             q = result.q
-            errors = coherence_errors(self.problem, q)
+            errors = self.errors(q)
             threshold, new = self.split(errors, window)
             if _same(new, rows):
                 result = self._go_on(result, self.problem.subset(rows), q0, Q0, per_round,
                                      max_iter, short(rows))
                 if result.q is not q and np.all(np.isfinite(result.q)):
-                    errors = coherence_errors(self.problem, result.q)  # at the reported q
+                    errors = self.errors(result.q)  # at the reported q
                     threshold = self.split(errors, window)[0]
                 break  # stable: the fit is on the reported inliers
             rows = new
@@ -199,7 +218,7 @@ class Refinement:
             result = fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=q,
                                  q0=q0, Q0=Q0, max_iter=max_iter)
             if np.all(np.isfinite(result.q)):
-                errors = coherence_errors(self.problem, result.q)
+                errors = self.errors(result.q)
                 threshold = self.split(errors, window)[0]
         if short(rows) or result is None or not np.all(np.isfinite(result.q)):
             return result, rows, errors, threshold
@@ -228,7 +247,7 @@ class Refinement:
                                   q_start=result.q, q0=q0, Q0=Q0, max_iter=max_iter)
                 if not np.all(np.isfinite(fit.q)):
                     break
-                result, rows, errors = fit, new, coherence_errors(self.problem, fit.q)
+                result, rows, errors = fit, new, self.errors(fit.q)
             if threshold > level:
                 break  # the threshold rose with the inliers it took in: not settled
         threshold = self.split(errors, window)[0]
@@ -278,7 +297,7 @@ class Refinement:
                                 Q0=Q0, max_iter=max_iter)
             if not np.all(np.isfinite(trial.q)):
                 break
-            trial_errors = coherence_errors(self.problem, trial.q)
+            trial_errors = self.errors(trial.q)
             t = truncated(trial_errors)
             if not t < total:
                 break
@@ -326,7 +345,7 @@ class Refinement:
                              q0=q0, Q0=Q0, max_iter=max_iter)
         if not np.all(np.isfinite(others.q)):
             return None
-        errors = coherence_errors(self.problem, others.q)
+        errors = self.errors(others.q)
         theirs = np.concatenate([e[r] for e, r in zip(errors, rows, strict=True)])
         level = min(threshold, self.scale)  # their χ² test at L*, not the histogram's cut
         out = [j for j in suspects if not theirs[j] <= level]  # nan: out
@@ -338,7 +357,7 @@ class Refinement:
                                  q_start=others.q, q0=q0, Q0=Q0, max_iter=max_iter)
             if not np.all(np.isfinite(others.q)):
                 return None
-            errors = coherence_errors(self.problem, others.q)
+            errors = self.errors(others.q)
         return others, rest, errors
 
     def _race(self, starts, rows, q0, Q0, max_iter: int, laps: bool = False) -> FitResult:

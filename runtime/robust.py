@@ -20,7 +20,7 @@ import numpy as np
 from .family import ModelFamily
 from .fastsample import draws_as_numpy, sampler_for
 from .fit import check_correct_bias, fit_problem, make_problem
-from .initializers import InitializerFn, equivalent, model_initializers, start_from
+from .initializers import InitializerFn, admission, equivalent, model_initializers, start_from
 from .inputs import check_search_options
 from .iterate import CONVERGED, UNVERIFIED
 from .minimal import coherence_errors, manifold_ranks, minimal_solve_problem
@@ -205,7 +205,7 @@ class ModelSearch:
         #: the full estimator on the measures an estimate explains (LO, the final rounds)
         self.refinement = Refinement(fam, model, problem, self.scale, self.score_fn,
                                      self.ranks, self.sample_size + self.base_size,
-                                     max_threshold)
+                                     max_threshold, admission(fam, model))
         self._sampler = sampler_for(self)  # the compiled sample, or None
         # several samples per compiled call (kg_search): eq. 29's relevance scored in C,
         # uniform samples only, drawn as numpy draws them (fastsample.draws_as_numpy)

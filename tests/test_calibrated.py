@@ -66,7 +66,11 @@ def test_family_shape(fam):
         "retinal_displacement": 2, "planar": 4, "general": 5}
     assert fam.model("general").initializer == "calibrated_five_point"
     assert all(PROVIDERS[name] == ".calibrated_starts" for name in INITIALIZERS
-               if name.startswith("calibrated_"))
+               if name.startswith("calibrated_") and INITIALIZERS[name].kind == "initializer")
+    assert {m: fam.model(m).admissible for m in fam.models} == {
+        "none": None, "rotation": None, "retinal_translation": "calibrated_in_front",
+        "translation": "calibrated_in_front", "retinal_displacement": "calibrated_in_front",
+        "planar": None, "general": "calibrated_in_front"}
 
 
 @pytest.mark.parametrize("seed", range(40))
@@ -262,3 +266,73 @@ def test_a_tie_between_equivalent_fits_goes_to_the_closed_form(fam):
     for starts, want in (([flipped, q], q), ([q, flipped], flipped)):
         fit = ref._race(starts, rows, problem.q0, problem.Q0, 100)
         assert np.sign(fit.q[sign]) == np.sign(want[sign])
+
+
+def _pixels(y1, y2, k):
+    return np.c_[y1[:, 0] * k["fx1"] + k["cx1"], y1[:, 1] * k["fy1"] + k["cy1"],
+                 y2[:, 0] * k["fx2"] + k["cx2"], y2[:, 1] * k["fy2"] + k["cy2"]]
+
+
+def test_matches_behind_a_camera_are_not_admitted(fam):
+    """The epipolar equation holds for a point and for its mirror image through camera 1
+    (``-X``: both depths negative); the general motion admits the first only — unless the
+    rays are parallel within their noise (a far point), where the depths' sign is noise."""
+    from kanagen.runtime.calibrated_admission import calibrated_in_front
+
+    rng = np.random.default_rng(5)
+    R = g.rotation_about(rng.normal(size=3), 0.2)
+    t = np.array([0.6, 0.0, 0.8])
+    X = np.c_[rng.uniform(-2, 2, (50, 2)), rng.uniform(4, 10, 50)]
+    far = X * 1e5  # rays parallel to 1e-5 rad, well inside σ/f
+    k = dict(zip(fam.constant_names, fam.constant_vector(), strict=True))
+    q = dict(zip("qw qx qy qz".split(), g.quaternion_from_rotation(R), strict=True))
+    q.update(tx=t[0], ty=t[1], tz=t[2])
+
+    def matches(P):
+        P2 = P @ R.T + t
+        return _pixels(P / P[:, 2:], P2 / P2[:, 2:], k)
+
+    info = np.eye(4) * 4.0  # σ = 0.5 px
+    behind = -X  # the mirror image: x1 the same ray negated, x2 on the same epipolar line
+    P2 = behind @ R.T + t
+    mirror = _pixels(behind / behind[:, 2:], P2 / P2[:, 2:], k)
+    assert np.all(calibrated_in_front(q, matches(X), info, k))
+    assert not np.any(calibrated_in_front(q, mirror, info, k))
+    assert np.all(calibrated_in_front(q, matches(far), info, k))
+    residual = kanagen.coherence(fam, "general", np.r_[list(q.values()), 0, 0, 0],
+                                 data={"match": mirror}, constants=k)["match"]
+    assert np.max(residual) < 1e-12  # the mirror images fit the equation exactly
+
+
+def test_a_search_keeps_no_match_behind_a_camera(fam):
+    """Calibrated scene 56002 (60 % outliers): five random matches within the outlier
+    threshold of their epipolar lines were inliers of the general motion, every one
+    behind a camera (direction error 0.384°); refused, the estimate is the one the true
+    inliers give."""
+    scene = calibrated_scene("general", n=200, outliers=0.6, sigma=0.5, seed=56002)
+    est = kanagen.Estimator(fam, seed=56002, constants=scene.constants)
+    est.add_measures("match", scene.data, info=1.0 / scene.sigma**2)
+    best = est.run()
+    state = best if best.model == "general" else \
+        next(s for s in est.states() if s.model == "general")
+    truth = np.zeros(len(scene.data), bool)
+    truth[scene.inliers] = True
+    assert np.count_nonzero(~truth[state.inliers]) <= 1
+    assert np.count_nonzero(truth[state.inliers]) == truth.sum()
+
+
+def test_admissible_names_a_registered_test():
+    """``admissible:`` is a name of the registry, of the admission kind."""
+    from conftest import ROOT
+
+    from kanagen.modelspec import SpecError, parse_spec
+    from kanagen.runtime.initializers import INITIALIZERS
+
+    text = (ROOT / "examples" / "two_view_calibrated.yaml").read_text(encoding="utf-8")
+    for bad, message in (("calibrated_five_point", "unknown admission"),
+                         ("in_front", "unknown admission"),
+                         ("'a; b'", "admissible must be the name")):
+        with pytest.raises(SpecError, match=message):
+            parse_spec(text.replace("\n    admissible: calibrated_in_front",
+                                    f"\n    admissible: {bad}", 1), "calibrated.yaml",
+                       initializers=INITIALIZERS)
