@@ -8,12 +8,13 @@ from dataclasses import replace
 import numpy as np
 
 from .family import ModelFamily
+from .hyper import corrected
 from .inputs import channel_data, data_hint, describe, parameter_vector, prior_information
 from .iterate import CONVERGED, iterate
 from .minimal import minimal_solve_problem
 from .projector import Problem, evaluate, project
 from .reduce import reduced_problem
-from .results import DerivedValue, FitResult, constrained_covariance, propagate
+from .results import FitResult, constrained_covariance, derived_values
 from .sqrt import EPS
 
 
@@ -124,8 +125,6 @@ def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
     assumed = fam.warn_assumed(constants)
     res = fit_problem(fam, model, problem, q_start=start, max_iter=max_iter, xtol=xtol)
     if correct_bias:
-        from .hyper import corrected
-
         res = corrected(fam, model, problem, res, relative=correct_bias == "relative")
     return replace(res, assumed=assumed) if assumed else res
 
@@ -234,17 +233,3 @@ def _feasible(x, start_violation: float, residual: float, ranks) -> bool:
     if all(r.size == 0 or r.min() > 0 for r in ranks):
         return bool(np.isfinite(residual) and residual <= 1e-10 * max(1.0, x.cost))
     return x.delta <= 1e-6 * start_violation
-
-
-def derived_values(fam: ModelFamily, q: np.ndarray, covariance: np.ndarray,
-                   k: np.ndarray, model: str | None = None) -> dict[str, DerivedValue]:
-    """Derived quantities at ``q`` with covariances ``J Σ Jᵀ`` (those ``model`` reports)."""
-    out = {}
-    wanted = fam.model(model).derived if model is not None else None
-    with np.errstate(all="ignore"):
-        for name, (value, jac) in fam.derived(q, k).items():
-            if wanted is not None and name not in wanted:
-                continue
-            J = jac.reshape(-1, fam.n)
-            out[name] = DerivedValue(value, propagate(J, covariance), jac)
-    return out

@@ -37,6 +37,7 @@ import numpy as np
 
 from .projector import Problem, evaluate, linearise, restore_parameter, solve
 from .restoration import restore_measures
+from .results import derived_values
 
 #: Projector steps of each perturbed fit (from the estimate, one measure moved by one σ:
 #: Newton's quadratic convergence, report §3.6 — the move is ~1e-3 of q, its second-order
@@ -128,8 +129,6 @@ def corrected(fam, model: str, problem: Problem, result, relative: bool = False)
         x, _ = restore_measures(problem, q, mt)
     if not (np.all(np.isfinite(q)) and x.finite):
         return result
-    from .fit import derived_values
-
     measures = {ch.name: ch.with_corrected(m) for ch, m in zip(problem.channels, x.mt,
                                                                  strict=True)}
     # each derived quantity less its own bias (at the corrected q, its covariance)

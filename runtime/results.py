@@ -110,6 +110,21 @@ def propagate(J: np.ndarray, covariance: np.ndarray) -> np.ndarray:
     return out
 
 
+def derived_values(fam, q: np.ndarray, covariance: np.ndarray,
+                   k: np.ndarray, model: str | None = None) -> dict[str, DerivedValue]:
+    """Derived quantities at ``q`` with covariances ``J Σ Jᵀ`` (those ``model`` reports;
+    ``fam`` a :class:`~kanagen.runtime.family.ModelFamily`)."""
+    out = {}
+    wanted = fam.model(model).derived if model is not None else None
+    with np.errstate(all="ignore"):
+        for name, (value, jac) in fam.derived(q, k).items():
+            if wanted is not None and name not in wanted:
+                continue
+            J = jac.reshape(-1, fam.n)
+            out[name] = DerivedValue(value, propagate(J, covariance), jac)
+    return out
+
+
 class ParameterStd(dict):
     """Standard deviations by component name (the parameter's, then its slack components),
     from the diagonal of the covariance: 0 (to rounding) for a component the model's

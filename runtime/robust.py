@@ -20,6 +20,7 @@ import numpy as np
 from .family import ModelFamily
 from .fastsample import draws_as_numpy, sampler_for
 from .fit import check_correct_bias, fit_problem, make_problem
+from .hyper import corrected
 from .initializers import InitializerFn, admission, equivalent, model_initializers, start_from
 from .inputs import check_search_options
 from .iterate import CONVERGED, UNVERIFIED
@@ -579,8 +580,6 @@ def robust_fit(fam: ModelFamily, model: str | None = None, data: Mapping | None 
             break
     est = search.finish(problem.q0, problem.Q0, window)
     if est is not None and correct_bias:  # the ML fit on the inliers, then its bias
-        from .hyper import corrected
-
         rows = tuple(np.asarray(est.inliers[ch.name], dtype=int) for ch in problem.channels)
         est = replace(est, fit=corrected(fam, model, problem.subset(rows), est.fit,
                                          relative=correct_bias == "relative"))
