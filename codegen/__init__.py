@@ -6,7 +6,7 @@ first use), so the run time may use :mod:`kanagen.codegen.version` (cache keys) 
 :mod:`kanagen.codegen.compile` (the "compiled" backend) without them.
 """
 
-from ..modelspec.lazy import lazy as _lazy
+from ..common.lazy import lazy as _lazy
 
 _NAMES = {
     "BACKENDS": ".generate", "build": ".generate", "check": ".generate",

@@ -22,7 +22,7 @@ _here = _Path(__file__).resolve().parent
 if not (_here / "runtime").is_dir() and (_here.parent / "runtime" / "__init__.py").is_file():
     __path__.append(str(_here.parent))  # noqa: F821 - the package's own __path__
 
-from .modelspec.lazy import lazy as _lazy  # noqa: E402 - after the path is set
+from .common.lazy import lazy as _lazy  # noqa: E402 - after the path is set
 
 __version__ = "0.1.0"
 

@@ -1,15 +1,16 @@
 """Model specifications: safe parsing and validation into a frozen IR (SPEC §1).
 
-The names below are imported on first use (PEP 562): reading a spec needs SymPy and PyYAML,
-while the runtime only needs :mod:`~kanagen.modelspec.errors`, :mod:`~kanagen.modelspec.limits`
-and :mod:`~kanagen.modelspec.slack`, which import neither.
+The names below are imported on first use (PEP 562): reading a spec needs SymPy and PyYAML;
+:mod:`~kanagen.modelspec.errors` and :mod:`~kanagen.modelspec.limits` import neither (the
+loader and the command line use them). The runtime imports nothing of this package (the
+slack's value it shares with the spec reader is :mod:`~kanagen.common.slack`).
 """
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from .lazy import lazy as _lazy
+from ..common.lazy import lazy as _lazy
 
 if TYPE_CHECKING:  # the same names, for type checkers and editors
     from .errors import SpecError

@@ -23,12 +23,12 @@ from dataclasses import dataclass
 import sympy as sp
 from sympy.logic.boolalg import BooleanFalse, BooleanTrue, to_cnf
 
+from ..common.slack import slack_value
 from .errors import SpecError
 from .expressions import parse_expression
 from .guards import scan
 from .ir import symbol
 from .limits import DEFAULT, Limits
-from .slack import slack_value
 
 _COMPARE = {ast.Eq: sp.Eq, ast.NotEq: sp.Ne, ast.Gt: sp.Gt, ast.GtE: sp.Ge, ast.Lt: sp.Lt,
             ast.LtE: sp.Le}

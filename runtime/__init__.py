@@ -4,6 +4,6 @@ iteration (eq. 18), coherence (eq. 22–24), the minimal solve (eq. 21) and the 
 Submodules are imported on first use (``kanagen.runtime.scoring`` after ``import kanagen``).
 """
 
-from ..modelspec.lazy import lazy as _lazy
+from ..common.lazy import lazy as _lazy
 
 __getattr__ = _lazy(__name__)[0]

@@ -14,7 +14,7 @@ from types import ModuleType
 
 import numpy as np
 
-from ..modelspec.slack import slack_value
+from ..common.slack import slack_value
 from . import kernels as generic_kernels
 from .backends import NumpyFunctions
 from .minimal import generic_free_dof
@@ -168,7 +168,7 @@ class ModelFamily:
         ``q`` may omit the slacks. The slacks of ``model`` are set from their relations at
         ``q``: ``s = √c`` for ``c >= 0``, ``1/√c`` for ``c > 0``, ``1/c`` for ``c != 0`` where
         the relation holds, else a non-zero value of the same magnitude (the iteration then
-        moves the parameter until it holds; :func:`~kanagen.modelspec.slack.slack_value`).
+        moves the parameter until it holds; :func:`~kanagen.common.slack.slack_value`).
         The other slacks (pinned in ``model``) take the
         spec's values; without ``model``, every slack does.
         """

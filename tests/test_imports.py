@@ -229,3 +229,26 @@ def test_a_plugin_registers_its_initializers(monkeypatch, tmp_path):
             reg.INITIALIZERS.get("ghost_start")
     finally:
         sys.modules.pop("my_kanagen_plugin", None)
+
+
+def test_the_runtime_imports_nothing_of_the_spec_reader_or_the_generator():
+    """Layers (modelspec -> codegen -> generated <- runtime <- API): a module of the runtime
+    imports neither ``modelspec`` nor ``codegen``, at its top or inside a function; what
+    the layers share (``lazy``, ``slack_value``) is the lowest package, ``kanagen.common``."""
+    import ast
+
+    offending = []
+    for path in sorted((ROOT / "runtime").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom):
+                names = [("." * node.level) + (node.module or "")]
+            elif isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            else:
+                continue
+            for name in names:
+                parts = name.lstrip(".").split(".")
+                if {"modelspec", "codegen"} & set(parts[:2]) and \
+                        (name.startswith("..") or parts[0] == "kanagen"):
+                    offending.append(f"{path.name}:{node.lineno} {name}")
+    assert offending == []
