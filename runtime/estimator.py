@@ -492,11 +492,10 @@ class Estimator:
             self._walk.skip(model, parent)
             return
         self._into_parent(parent, search, estimate)
-        # the model's shape first: its verdict against its parent reads it
-        self._walk.shape[model] = (max(search.ranks[search.channel], 1),
-                                   self.fam.free_dof(model, self._constants))
         _, _, ids = self._measures.channels()
-        state = self._state(model, parent, estimate, ids)
+        state = self._state(model, parent, estimate, ids,
+                            (max(search.ranks[search.channel], 1),
+                             self.fam.free_dof(model, self._constants)))
         self._walk.record(state, estimate.fit.measures)
         if state.accepted:
             best = self._walk.best()
@@ -573,7 +572,11 @@ class Estimator:
             return None
         return lattice.MORE_SUPPORT * state.inliers.size
 
-    def _state(self, model, parent, est: RobustEstimate, ids) -> ModelState:
+    def _state(self, model, parent, est: RobustEstimate, ids,
+               shape: tuple[int, int] | None = None) -> ModelState:
+        """The search's estimate of ``model`` as a state of the lattice, with its verdict
+        against its parent (``shape``: the model's equations per measure and free degrees
+        of freedom, for a model searched the first time)."""
         names = list(est.inliers)
         channel_ids = dict(zip(self._measures.channels()[0], ids, strict=True))
         inliers = np.concatenate([channel_ids[n][est.inliers[n]] for n in names])
@@ -589,7 +592,7 @@ class Estimator:
                            est.fit.slacks, scored[order], errors[order],
                            est.fit.equations, est.fit.units, est.fit.pinned,
                            self.fam.assumed(self._constants))
-        return self._walk.accepted(state, est.fit.success)
+        return self._walk.accepted(state, est.fit.success, shape)
 
     def _refit(self, states: tuple[ModelState, ...], common: np.ndarray) -> list:
         """Each state's model fitted on the measures of ids ``common`` from its estimate

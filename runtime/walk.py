@@ -98,8 +98,8 @@ class LatticeWalk:
 
     def record(self, state: ModelState, corrected) -> None:
         """The estimate of a model searched, and its corrected measures (its :attr:`shape`
-        is set before its verdict, :meth:`accepted`, which reads it; its more general models
-        are queued by :meth:`queue_alternatives` once the caller has reported it)."""
+        was set by its verdict, :meth:`accepted`; its more general models are queued by
+        :meth:`queue_alternatives` once the caller has reported it)."""
         self.corrected[state.model] = corrected
         self.states[state.model] = state
         self._relevance = None
@@ -163,10 +163,15 @@ class LatticeWalk:
         sampled channel) change that number (an H-type parent, an F-type child)?"""
         return parent in self.shape and self.shape[parent][0] != max(rank, 1)
 
-    def accepted(self, state: ModelState, success: bool) -> ModelState:
+    def accepted(self, state: ModelState, success: bool,
+                 shape: tuple[int, int] | None = None) -> ModelState:
         """``state`` (a model's new estimate) with its verdict against its parent: only an
         honest success (a verified minimum) may replace a searched parent, and then only as
-        :func:`~kanagen.runtime.lattice.beats` decides."""
+        :func:`~kanagen.runtime.lattice.beats` decides (which reads the models'
+        :attr:`shape`: ``shape``, the equations per measure and free degrees of freedom of
+        a model searched the first time, is recorded first)."""
+        if shape is not None:
+            self.shape[state.model] = shape
         if state.parent is None:
             return state
         p = self.states.get(state.parent)
