@@ -152,25 +152,21 @@ def _announce(name: str, seconds: float | None) -> None:
 
 def _check_initializers(family) -> None:
     """A family built elsewhere (``family_from_data`` without the registry): the
-    initialisers its models name must be registered and have what they need."""
+    initialisers and admission tests its models name must be registered and have what they
+    need (the spec reader's check, :func:`~kanagen.modelspec.parse.registry_problem`)."""
     from .modelspec import SpecError
-    from .runtime.initializers import lookup, named
+    from .modelspec.parse import NAMED_KEYS, registry_problem
+    from .runtime.initializers import INITIALIZERS
 
     for model in family.models:
-        for name, kind in ((model.initializer, "initializer"),
-                           (model.admissible, "admission")):
-            if name is None:
-                continue
-            entry = lookup(name, kind)
-            if entry is None:
-                raise SpecError(f"model {model.name!r}: unknown {kind} {name!r} (known: "
-                                f"{', '.join(named(kind))})", family.source)
-            missing = entry.missing(parameter=list(family.parameter_names),
-                                    constants=[n for n, _ in family.constants],
-                                    channels={c.name: c.components for c in family.channels})
-            if missing:
-                raise SpecError(f"model {model.name!r}: {kind} {name!r} needs {missing}",
-                                family.source)
+        for key, kind in NAMED_KEYS:
+            name = getattr(model, key)
+            problem = None if name is None else registry_problem(
+                INITIALIZERS, name, kind, family.parameter_names,
+                [n for n, _ in family.constants],
+                {c.name: c.components for c in family.channels})
+            if problem:
+                raise SpecError(f"model {model.name!r}: {problem}", family.source)
 
 
 def load_text(text: str, source: str = "<spec>", *, limits: Limits = DEFAULT,

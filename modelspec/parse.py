@@ -38,6 +38,8 @@ _ASSUME = re.compile(r"[^\x00-\x1f\x7f\"'`<>&\\]{1,120}")
 _CHANNEL_KEYS = ("components", "exact", "equations", "description")
 _MODEL_KEYS = ("constraints", "equations", "alternatives", "derived", "initializer",
                "admissible", "description")
+#: a model's keys that name an entry of the runtime's registry, and the entry's kind
+NAMED_KEYS = (("initializer", "initializer"), ("admissible", "admission"))
 _PHI_WORDS = ("aic", "ftest", "exp")
 _SYMPY_FUNCS = tuple(f for f in FUNCTIONS.values() if isinstance(f, type))  # sqrt is a Pow
 
@@ -99,6 +101,22 @@ def family_from_data(data: Mapping, source: str = "<python>",
     plain = _plain(data)
     digest = hashlib.sha256(sp.srepr(_sympy_only(plain)).encode("utf-8")).hexdigest()
     return _Builder(Located(plain, {}, source), digest, limits, initializers).family()
+
+
+def registry_problem(registry: Mapping, name: str, kind: str, parameter, constants,
+                     channels: Mapping) -> str | None:
+    """What is wrong with a model naming ``name``, an entry of ``kind`` of ``registry``
+    (names only, never executable text), for a family of those ``parameter`` and
+    ``constants`` names and ``channels`` (name -> components); None when nothing. The
+    spec reader and ``kanagen.load`` (a family built without the registry) both ask."""
+    entry = registry.get(name)
+    if entry is None or getattr(entry, "kind", "initializer") != kind:
+        names_of = getattr(registry, "names_of", None)  # the runtime's: imports nothing
+        known = names_of(kind) if names_of else sorted(registry)
+        return f"unknown {kind} {name!r} (known: {', '.join(known)})"
+    missing = entry.missing(parameter=list(parameter), constants=list(constants),
+                            channels=channels)
+    return f"{kind} {name!r} needs {missing}" if missing else None
 
 
 def _plain(value):
@@ -525,21 +543,13 @@ class _Builder:
                                      f"{d!r}", "models", m.name, "derived", i)
             if self.initializers is None:
                 continue
-            for key, kind in (("initializer", "initializer"), ("admissible", "admission")):
+            for key, kind in NAMED_KEYS:
                 name = getattr(m, key)
-                if name is None:
-                    continue
-                entry = self.initializers.get(name)
-                if entry is None or getattr(entry, "kind", "initializer") != kind:
-                    names_of = getattr(self.initializers, "names_of", None)  # imports nothing
-                    known = names_of(kind) if names_of else sorted(self.initializers)
-                    raise self.error(f"unknown {kind} {name!r} (known: {', '.join(known)})",
-                                     "models", m.name, key)
-                missing = entry.missing(parameter=[n for n, _ in parameter],
-                                        constants=[n for n, _ in constants],
-                                        channels={c.name: c.components for c in channels})
-                if missing:
-                    raise self.error(f"{kind} {name!r} needs {missing}", "models", m.name, key)
+                problem = None if name is None else registry_problem(
+                    self.initializers, name, kind, [n for n, _ in parameter],
+                    [n for n, _ in constants], {c.name: c.components for c in channels})
+                if problem:
+                    raise self.error(problem, "models", m.name, key)
 
     def check_acyclic(self, models):
         edges = {m.name: [a.model for a in m.alternatives] for m in models}
