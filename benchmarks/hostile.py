@@ -97,8 +97,10 @@ _CHILD = textwrap.dedent("""\
     import json, resource, sys, time
     resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30))
     import kanagen
+    import kanagen.runtime.family  # the runtime's imports (numba's compiler) are not the spec's
     from kanagen.modelspec import SpecError
     text = open(sys.argv[1], encoding="utf-8").read()
+    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     started = time.perf_counter()
     try:
         kanagen.load_text(text, source="hostile.yaml")
@@ -110,13 +112,14 @@ _CHILD = textwrap.dedent("""\
     seconds = time.perf_counter() - started
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(json.dumps({"outcome": outcome, "message": message.splitlines()[0][:160]
-                      if message else "", "line": line, "seconds": seconds, "mb": peak}))
+                      if message else "", "line": line, "seconds": seconds, "mb": peak,
+                      "base_mb": base}))
     """)
 
 
 def run_spec(text: str, timeout: float = 120.0) -> dict:
     """Read ``text`` with kanagen in a fresh process: outcome, first error line, seconds
-    (after import), peak MB."""
+    (after import), peak MB and the MB the imports alone took (``base_mb``)."""
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "hostile.yaml"
         path.write_text(text, encoding="utf-8")

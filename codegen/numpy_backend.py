@@ -36,6 +36,38 @@ def _returns(f: Function) -> str:
     return ", ".join(o.name for o in f.outputs)
 
 
+def _flat(index: tuple[int, ...], shape: tuple[int, ...]) -> int:
+    flat = 0
+    for i, size in zip(index, shape, strict=True):
+        flat = flat * size + i
+    return flat
+
+
+def row_context(f: Function, temps, outputs) -> dict:
+    """The row form of a function: one measure (``m`` its whole row) and every output entry
+    written, in order, into one flat ``out`` (the kernels' layout, runtime/engine)."""
+    used = sorted(f.used(), key=lambda u: u[0].name == "m")
+    entries, base = [], 0
+    for o, printed_entries in zip(f.outputs, outputs, strict=True):
+        size = 1
+        for dim in o.shape:
+            size *= dim
+        values = {_flat(index, o.shape): code for index, code in printed_entries}
+        entries += [(base + i, values.get(i, "0.0")) for i in range(size)]
+        base += size
+    return {
+        "name": f"row_{f.name}",
+        "args": [inp.name for inp in f.inputs] + ["out"],
+        "doc": f"Row form of ``{f.name}`` (one measure, ``m`` its whole row): ``out`` holds "
+               + ", ".join(f"{o.name} {o.shape}" for o in f.outputs)
+               + ", row-major, one after the other.",
+        "unpack": [f"{inp.prefix}{s.name} = {inp.name}[{i}]" for inp, i, s in used],
+        "temps": temps,
+        "entries": entries,
+        "size": base,
+    }
+
+
 def function_context(f: Function) -> dict:
     """One function as plain data for the NumPy templates."""
     temps, outputs = printed(f, NumpyPrinter)
@@ -55,6 +87,7 @@ def function_context(f: Function) -> dict:
                      "entries": [(_index(i, per), code) for i, code in entries]}
                     for o, entries in zip(f.outputs, outputs, strict=True)],
         "returns": _returns(f),
+        "row": row_context(f, temps, outputs) if f.kind in ("c0", "measure", "slack") else None,
     }
 
 

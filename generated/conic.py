@@ -6,7 +6,7 @@ algebra of the projector. Load it with ``kanagen.load``.
 
 import numpy as np
 
-FORMAT = 2
+FORMAT = 3
 SPEC_SOURCE = "conic.yaml"
 SPEC_SHA256 = "6beb11540e75ad36938eedc377d2c0695a4acf3b853debd403b62bf469304c97"
 FAMILY = {'name': 'conic',
@@ -89,6 +89,37 @@ def c0_circle(q, k):
     return c0, C0
 
 
+def row_c0_circle(q, k, out):
+    """Row form of ``c0_circle`` (one measure, ``m`` its whole row): ``out`` holds c0 (3,), C0 (3, 6), row-major, one after the other."""
+    p_A = q[0]
+    p_B = q[1]
+    p_C = q[2]
+    p_D = q[3]
+    p_E = q[4]
+    p_F = q[5]
+    out[0] = p_A**2 + p_B**2 + p_C**2 + p_D**2 + p_E**2 + p_F**2 - 1
+    out[1] = p_A - p_C
+    out[2] = p_B
+    out[3] = 2*p_A
+    out[4] = 2*p_B
+    out[5] = 2*p_C
+    out[6] = 2*p_D
+    out[7] = 2*p_E
+    out[8] = 2*p_F
+    out[9] = 1
+    out[10] = 0.0
+    out[11] = -1
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 0.0
+    out[16] = 1
+    out[17] = 0.0
+    out[18] = 0.0
+    out[19] = 0.0
+    out[20] = 0.0
+
+
 def measure_point(q, m, k):
     """Equations of channel 'point', their Jacobians in q and in the corrected
     components ['x', 'y']: shapes (M, 1), (M, 1, 6), (M, 1, 2)."""
@@ -126,6 +157,35 @@ def measure_point(q, m, k):
     return c, C, D
 
 
+def row_measure_point(q, m, k, out):
+    """Row form of ``measure_point`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 6), D (1, 2), row-major, one after the other."""
+    p_A = q[0]
+    p_B = q[1]
+    p_C = q[2]
+    p_D = q[3]
+    p_E = q[4]
+    p_F = q[5]
+    k_f0 = k[0]
+    m_x = m[0]
+    m_y = m[1]
+    _tmp0 = m_x**2
+    _tmp1 = m_y**2
+    _tmp2 = k_f0**2
+    _tmp3 = 2*m_x
+    _tmp4 = _tmp3*m_y
+    _tmp5 = 2*k_f0
+    _tmp6 = 2*m_y
+    out[0] = p_A*_tmp0 + p_B*_tmp4 + p_C*_tmp1 + p_F*_tmp2 + _tmp5*(p_D*m_x + p_E*m_y)
+    out[1] = _tmp0
+    out[2] = _tmp4
+    out[3] = _tmp1
+    out[4] = _tmp5*m_x
+    out[5] = _tmp5*m_y
+    out[6] = _tmp2
+    out[7] = p_A*_tmp3 + p_B*_tmp6 + p_D*_tmp5
+    out[8] = p_B*_tmp3 + p_C*_tmp6 + p_E*_tmp5
+
+
 def c0_circle__reduced(r, k):
     """Remaining constraints c0(r) of model 'circle' and their Jacobian: shapes (1,), (1, 4)."""
     p_A = r[0]
@@ -141,6 +201,19 @@ def c0_circle__reduced(r, k):
     C0[0, 2] = 2*p_E
     C0[0, 3] = 2*p_F
     return c0, C0
+
+
+def row_c0_circle__reduced(r, k, out):
+    """Row form of ``c0_circle__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (1,), C0 (1, 4), row-major, one after the other."""
+    p_A = r[0]
+    p_D = r[1]
+    p_E = r[2]
+    p_F = r[3]
+    out[0] = 2*p_A**2 + p_D**2 + p_E**2 + p_F**2 - 1
+    out[1] = 4*p_A
+    out[2] = 2*p_D
+    out[3] = 2*p_E
+    out[4] = 2*p_F
 
 
 def measure_point__circle__reduced(r, m, k):
@@ -174,6 +247,29 @@ def measure_point__circle__reduced(r, m, k):
     return c, C, D
 
 
+def row_measure_point__circle__reduced(r, m, k, out):
+    """Row form of ``measure_point__circle__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 4), D (1, 2), row-major, one after the other."""
+    p_A = r[0]
+    p_D = r[1]
+    p_E = r[2]
+    p_F = r[3]
+    k_f0 = k[0]
+    m_x = m[0]
+    m_y = m[1]
+    _tmp0 = m_x**2
+    _tmp1 = m_y**2
+    _tmp2 = k_f0**2
+    _tmp3 = 2*k_f0
+    _tmp4 = 2*p_A
+    out[0] = p_A*_tmp0 + p_A*_tmp1 + p_F*_tmp2 + _tmp3*(p_D*m_x + p_E*m_y)
+    out[1] = _tmp0 + _tmp1
+    out[2] = _tmp3*m_x
+    out[3] = _tmp3*m_y
+    out[4] = _tmp2
+    out[5] = p_D*_tmp3 + _tmp4*m_x
+    out[6] = p_E*_tmp3 + _tmp4*m_y
+
+
 def c0_conic(q, k):
     """Constraints c0(q) of model 'conic' and their Jacobian: shapes (1,), (1, 6)."""
     p_A = q[0]
@@ -193,6 +289,23 @@ def c0_conic(q, k):
     C0[0, 4] = 2*p_E
     C0[0, 5] = 2*p_F
     return c0, C0
+
+
+def row_c0_conic(q, k, out):
+    """Row form of ``c0_conic`` (one measure, ``m`` its whole row): ``out`` holds c0 (1,), C0 (1, 6), row-major, one after the other."""
+    p_A = q[0]
+    p_B = q[1]
+    p_C = q[2]
+    p_D = q[3]
+    p_E = q[4]
+    p_F = q[5]
+    out[0] = p_A**2 + p_B**2 + p_C**2 + p_D**2 + p_E**2 + p_F**2 - 1
+    out[1] = 2*p_A
+    out[2] = 2*p_B
+    out[3] = 2*p_C
+    out[4] = 2*p_D
+    out[5] = 2*p_E
+    out[6] = 2*p_F
 
 
 def derived(q, k):
@@ -406,6 +519,15 @@ MODELS = {
 }
 DERIVED = derived
 SLACK_MEASURES = None
+#: The row forms (one measure, every entry into one flat array: the compiled kernels'
+#: layout), by the name of the function they mirror.
+ROWS = {
+    "c0_circle": row_c0_circle,
+    "measure_point": row_measure_point,
+    "c0_circle__reduced": row_c0_circle__reduced,
+    "measure_point__circle__reduced": row_measure_point__circle__reduced,
+    "c0_conic": row_c0_conic,
+}
 KERNELS = {
     (1, 2): (whiten_1_2, correct_1_2),
 }

@@ -6,7 +6,7 @@ algebra of the projector. Load it with ``kanagen.load``.
 
 import numpy as np
 
-FORMAT = 2
+FORMAT = 3
 SPEC_SOURCE = "conic_lattice.yaml"
 SPEC_SHA256 = "db3fa90ad005c76eb6f8f41c78f5d5a0f8c7932fa10abb577be24d573558f46f"
 FAMILY = {'name': 'conic_lattice',
@@ -150,6 +150,72 @@ def c0_line(q, k):
     return c0, C0
 
 
+def row_c0_line(q, k, out):
+    """Row form of ``c0_line`` (one measure, ``m`` its whole row): ``out`` holds c0 (6,), C0 (6, 8), row-major, one after the other."""
+    p_A = q[0]
+    p_B = q[1]
+    p_C = q[2]
+    p_D = q[3]
+    p_E = q[4]
+    p_F = q[5]
+    p_s_ellipse = q[6]
+    p_s_proper = q[7]
+    out[0] = p_A
+    out[1] = p_B
+    out[2] = p_C
+    out[3] = p_A**2 + p_B**2 + p_C**2 + p_D**2 + p_E**2 + p_F**2 - 1
+    out[4] = p_s_ellipse - 1.0
+    out[5] = p_s_proper - 1.0
+    out[6] = 1
+    out[7] = 0.0
+    out[8] = 0.0
+    out[9] = 0.0
+    out[10] = 0.0
+    out[11] = 0.0
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 1
+    out[16] = 0.0
+    out[17] = 0.0
+    out[18] = 0.0
+    out[19] = 0.0
+    out[20] = 0.0
+    out[21] = 0.0
+    out[22] = 0.0
+    out[23] = 0.0
+    out[24] = 1
+    out[25] = 0.0
+    out[26] = 0.0
+    out[27] = 0.0
+    out[28] = 0.0
+    out[29] = 0.0
+    out[30] = 2*p_A
+    out[31] = 2*p_B
+    out[32] = 2*p_C
+    out[33] = 2*p_D
+    out[34] = 2*p_E
+    out[35] = 2*p_F
+    out[36] = 0.0
+    out[37] = 0.0
+    out[38] = 0.0
+    out[39] = 0.0
+    out[40] = 0.0
+    out[41] = 0.0
+    out[42] = 0.0
+    out[43] = 0.0
+    out[44] = 1
+    out[45] = 0.0
+    out[46] = 0.0
+    out[47] = 0.0
+    out[48] = 0.0
+    out[49] = 0.0
+    out[50] = 0.0
+    out[51] = 0.0
+    out[52] = 0.0
+    out[53] = 1
+
+
 def measure_point(q, m, k):
     """Equations of channel 'point', their Jacobians in q and in the corrected
     components ['x', 'y']: shapes (M, 1), (M, 1, 8), (M, 1, 2)."""
@@ -187,6 +253,37 @@ def measure_point(q, m, k):
     return c, C, D
 
 
+def row_measure_point(q, m, k, out):
+    """Row form of ``measure_point`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 8), D (1, 2), row-major, one after the other."""
+    p_A = q[0]
+    p_B = q[1]
+    p_C = q[2]
+    p_D = q[3]
+    p_E = q[4]
+    p_F = q[5]
+    k_f0 = k[0]
+    m_x = m[0]
+    m_y = m[1]
+    _tmp0 = m_x**2
+    _tmp1 = m_y**2
+    _tmp2 = k_f0**2
+    _tmp3 = 2*m_x
+    _tmp4 = _tmp3*m_y
+    _tmp5 = 2*k_f0
+    _tmp6 = 2*m_y
+    out[0] = p_A*_tmp0 + p_B*_tmp4 + p_C*_tmp1 + p_F*_tmp2 + _tmp5*(p_D*m_x + p_E*m_y)
+    out[1] = _tmp0
+    out[2] = _tmp4
+    out[3] = _tmp1
+    out[4] = _tmp5*m_x
+    out[5] = _tmp5*m_y
+    out[6] = _tmp2
+    out[7] = 0.0
+    out[8] = 0.0
+    out[9] = p_A*_tmp3 + p_B*_tmp6 + p_D*_tmp5
+    out[10] = p_B*_tmp3 + p_C*_tmp6 + p_E*_tmp5
+
+
 def c0_line__reduced(r, k):
     """Remaining constraints c0(r) of model 'line' and their Jacobian: shapes (1,), (1, 3)."""
     p_D = r[0]
@@ -200,6 +297,17 @@ def c0_line__reduced(r, k):
     C0[0, 1] = 2*p_E
     C0[0, 2] = 2*p_F
     return c0, C0
+
+
+def row_c0_line__reduced(r, k, out):
+    """Row form of ``c0_line__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (1,), C0 (1, 3), row-major, one after the other."""
+    p_D = r[0]
+    p_E = r[1]
+    p_F = r[2]
+    out[0] = p_D**2 + p_E**2 + p_F**2 - 1
+    out[1] = 2*p_D
+    out[2] = 2*p_E
+    out[3] = 2*p_F
 
 
 def measure_point__line__reduced(r, m, k):
@@ -226,6 +334,24 @@ def measure_point__line__reduced(r, m, k):
     D[:, 0, 0] = p_D*_tmp1
     D[:, 0, 1] = p_E*_tmp1
     return c, C, D
+
+
+def row_measure_point__line__reduced(r, m, k, out):
+    """Row form of ``measure_point__line__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 3), D (1, 2), row-major, one after the other."""
+    p_D = r[0]
+    p_E = r[1]
+    p_F = r[2]
+    k_f0 = k[0]
+    m_x = m[0]
+    m_y = m[1]
+    _tmp0 = k_f0**2
+    _tmp1 = 2*k_f0
+    out[0] = p_F*_tmp0 + _tmp1*(p_D*m_x + p_E*m_y)
+    out[1] = _tmp1*m_x
+    out[2] = _tmp1*m_y
+    out[3] = _tmp0
+    out[4] = p_D*_tmp1
+    out[5] = p_E*_tmp1
 
 
 def c0_circle(q, k):
@@ -260,6 +386,63 @@ def c0_circle(q, k):
     return c0, C0
 
 
+def row_c0_circle(q, k, out):
+    """Row form of ``c0_circle`` (one measure, ``m`` its whole row): ``out`` holds c0 (5,), C0 (5, 8), row-major, one after the other."""
+    p_A = q[0]
+    p_B = q[1]
+    p_C = q[2]
+    p_D = q[3]
+    p_E = q[4]
+    p_F = q[5]
+    p_s_ellipse = q[6]
+    p_s_proper = q[7]
+    out[0] = p_A - p_C
+    out[1] = p_B
+    out[2] = p_A**2 + p_B**2 + p_C**2 + p_D**2 + p_E**2 + p_F**2 - 1
+    out[3] = p_s_ellipse - 1.0
+    out[4] = p_s_proper - 1.0
+    out[5] = 1
+    out[6] = 0.0
+    out[7] = -1
+    out[8] = 0.0
+    out[9] = 0.0
+    out[10] = 0.0
+    out[11] = 0.0
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 1
+    out[15] = 0.0
+    out[16] = 0.0
+    out[17] = 0.0
+    out[18] = 0.0
+    out[19] = 0.0
+    out[20] = 0.0
+    out[21] = 2*p_A
+    out[22] = 2*p_B
+    out[23] = 2*p_C
+    out[24] = 2*p_D
+    out[25] = 2*p_E
+    out[26] = 2*p_F
+    out[27] = 0.0
+    out[28] = 0.0
+    out[29] = 0.0
+    out[30] = 0.0
+    out[31] = 0.0
+    out[32] = 0.0
+    out[33] = 0.0
+    out[34] = 0.0
+    out[35] = 1
+    out[36] = 0.0
+    out[37] = 0.0
+    out[38] = 0.0
+    out[39] = 0.0
+    out[40] = 0.0
+    out[41] = 0.0
+    out[42] = 0.0
+    out[43] = 0.0
+    out[44] = 1
+
+
 def c0_circle__reduced(r, k):
     """Remaining constraints c0(r) of model 'circle' and their Jacobian: shapes (1,), (1, 4)."""
     p_A = r[0]
@@ -275,6 +458,19 @@ def c0_circle__reduced(r, k):
     C0[0, 2] = 2*p_E
     C0[0, 3] = 2*p_F
     return c0, C0
+
+
+def row_c0_circle__reduced(r, k, out):
+    """Row form of ``c0_circle__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (1,), C0 (1, 4), row-major, one after the other."""
+    p_A = r[0]
+    p_D = r[1]
+    p_E = r[2]
+    p_F = r[3]
+    out[0] = 2*p_A**2 + p_D**2 + p_E**2 + p_F**2 - 1
+    out[1] = 4*p_A
+    out[2] = 2*p_D
+    out[3] = 2*p_E
+    out[4] = 2*p_F
 
 
 def measure_point__circle__reduced(r, m, k):
@@ -306,6 +502,29 @@ def measure_point__circle__reduced(r, m, k):
     D[:, 0, 0] = p_D*_tmp3 + _tmp4*m_x
     D[:, 0, 1] = p_E*_tmp3 + _tmp4*m_y
     return c, C, D
+
+
+def row_measure_point__circle__reduced(r, m, k, out):
+    """Row form of ``measure_point__circle__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 4), D (1, 2), row-major, one after the other."""
+    p_A = r[0]
+    p_D = r[1]
+    p_E = r[2]
+    p_F = r[3]
+    k_f0 = k[0]
+    m_x = m[0]
+    m_y = m[1]
+    _tmp0 = m_x**2
+    _tmp1 = m_y**2
+    _tmp2 = k_f0**2
+    _tmp3 = 2*k_f0
+    _tmp4 = 2*p_A
+    out[0] = p_A*_tmp0 + p_A*_tmp1 + p_F*_tmp2 + _tmp3*(p_D*m_x + p_E*m_y)
+    out[1] = _tmp0 + _tmp1
+    out[2] = _tmp3*m_x
+    out[3] = _tmp3*m_y
+    out[4] = _tmp2
+    out[5] = p_D*_tmp3 + _tmp4*m_x
+    out[6] = p_E*_tmp3 + _tmp4*m_y
 
 
 def c0_ellipse(q, k):
@@ -343,6 +562,49 @@ def c0_ellipse(q, k):
     return c0, C0
 
 
+def row_c0_ellipse(q, k, out):
+    """Row form of ``c0_ellipse`` (one measure, ``m`` its whole row): ``out`` holds c0 (3,), C0 (3, 8), row-major, one after the other."""
+    p_A = q[0]
+    p_B = q[1]
+    p_C = q[2]
+    p_D = q[3]
+    p_E = q[4]
+    p_F = q[5]
+    p_s_ellipse = q[6]
+    p_s_proper = q[7]
+    _tmp0 = p_B**2
+    _tmp1 = p_s_ellipse**2
+    _tmp2 = p_A*p_C - _tmp0
+    _tmp3 = 2*p_B
+    out[0] = p_A**2 + p_C**2 + p_D**2 + p_E**2 + p_F**2 + _tmp0 - 1
+    out[1] = _tmp1*_tmp2 - 1
+    out[2] = p_s_proper - 1.0
+    out[3] = 2*p_A
+    out[4] = _tmp3
+    out[5] = 2*p_C
+    out[6] = 2*p_D
+    out[7] = 2*p_E
+    out[8] = 2*p_F
+    out[9] = 0.0
+    out[10] = 0.0
+    out[11] = p_C*_tmp1
+    out[12] = -_tmp1*_tmp3
+    out[13] = p_A*_tmp1
+    out[14] = 0.0
+    out[15] = 0.0
+    out[16] = 0.0
+    out[17] = 2*_tmp2*p_s_ellipse
+    out[18] = 0.0
+    out[19] = 0.0
+    out[20] = 0.0
+    out[21] = 0.0
+    out[22] = 0.0
+    out[23] = 0.0
+    out[24] = 0.0
+    out[25] = 0.0
+    out[26] = 1
+
+
 def c0_ellipse__reduced(r, k):
     """Remaining constraints c0(r) of model 'ellipse' and their Jacobian: shapes (2,), (2, 7)."""
     p_A = r[0]
@@ -373,6 +635,37 @@ def c0_ellipse__reduced(r, k):
     C0[1, 2] = p_A*_tmp1
     C0[1, 6] = 2*_tmp2*p_s_ellipse
     return c0, C0
+
+
+def row_c0_ellipse__reduced(r, k, out):
+    """Row form of ``c0_ellipse__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (2,), C0 (2, 7), row-major, one after the other."""
+    p_A = r[0]
+    p_B = r[1]
+    p_C = r[2]
+    p_D = r[3]
+    p_E = r[4]
+    p_F = r[5]
+    p_s_ellipse = r[6]
+    _tmp0 = p_B**2
+    _tmp1 = p_s_ellipse**2
+    _tmp2 = p_A*p_C - _tmp0
+    _tmp3 = 2*p_B
+    out[0] = p_A**2 + p_C**2 + p_D**2 + p_E**2 + p_F**2 + _tmp0 - 1
+    out[1] = _tmp1*_tmp2 - 1
+    out[2] = 2*p_A
+    out[3] = _tmp3
+    out[4] = 2*p_C
+    out[5] = 2*p_D
+    out[6] = 2*p_E
+    out[7] = 2*p_F
+    out[8] = 0.0
+    out[9] = p_C*_tmp1
+    out[10] = -_tmp1*_tmp3
+    out[11] = p_A*_tmp1
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 2*_tmp2*p_s_ellipse
 
 
 def measure_point__ellipse__reduced(r, m, k):
@@ -410,6 +703,36 @@ def measure_point__ellipse__reduced(r, m, k):
     D[:, 0, 0] = p_A*_tmp3 + p_B*_tmp6 + p_D*_tmp5
     D[:, 0, 1] = p_B*_tmp3 + p_C*_tmp6 + p_E*_tmp5
     return c, C, D
+
+
+def row_measure_point__ellipse__reduced(r, m, k, out):
+    """Row form of ``measure_point__ellipse__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 7), D (1, 2), row-major, one after the other."""
+    p_A = r[0]
+    p_B = r[1]
+    p_C = r[2]
+    p_D = r[3]
+    p_E = r[4]
+    p_F = r[5]
+    k_f0 = k[0]
+    m_x = m[0]
+    m_y = m[1]
+    _tmp0 = m_x**2
+    _tmp1 = m_y**2
+    _tmp2 = k_f0**2
+    _tmp3 = 2*m_x
+    _tmp4 = _tmp3*m_y
+    _tmp5 = 2*k_f0
+    _tmp6 = 2*m_y
+    out[0] = p_A*_tmp0 + p_B*_tmp4 + p_C*_tmp1 + p_F*_tmp2 + _tmp5*(p_D*m_x + p_E*m_y)
+    out[1] = _tmp0
+    out[2] = _tmp4
+    out[3] = _tmp1
+    out[4] = _tmp5*m_x
+    out[5] = _tmp5*m_y
+    out[6] = _tmp2
+    out[7] = 0.0
+    out[8] = p_A*_tmp3 + p_B*_tmp6 + p_D*_tmp5
+    out[9] = p_B*_tmp3 + p_C*_tmp6 + p_E*_tmp5
 
 
 def c0_conic(q, k):
@@ -459,6 +782,58 @@ def c0_conic(q, k):
     return c0, C0
 
 
+def row_c0_conic(q, k, out):
+    """Row form of ``c0_conic`` (one measure, ``m`` its whole row): ``out`` holds c0 (3,), C0 (3, 8), row-major, one after the other."""
+    p_A = q[0]
+    p_B = q[1]
+    p_C = q[2]
+    p_D = q[3]
+    p_E = q[4]
+    p_F = q[5]
+    p_s_ellipse = q[6]
+    p_s_proper = q[7]
+    k_f0 = k[0]
+    _tmp0 = p_B**2
+    _tmp1 = p_D**2
+    _tmp2 = p_E**2
+    _tmp3 = k_f0**2
+    _tmp4 = p_F*_tmp3
+    _tmp5 = p_C*_tmp4
+    _tmp6 = 2*p_B
+    _tmp7 = p_E*_tmp3
+    _tmp8 = _tmp6*_tmp7
+    _tmp9 = p_A*_tmp2*_tmp3 - p_A*_tmp5 + p_C*_tmp1*_tmp3 - p_D*_tmp8 + p_F*_tmp0*_tmp3
+    _tmp10 = 2*p_A
+    _tmp11 = 2*p_D
+    out[0] = p_A**2 + p_C**2 + p_F**2 + _tmp0 + _tmp1 + _tmp2 - 1
+    out[1] = _tmp9*p_s_proper - 1
+    out[2] = p_s_ellipse - 1.0
+    out[3] = _tmp10
+    out[4] = _tmp6
+    out[5] = 2*p_C
+    out[6] = _tmp11
+    out[7] = 2*p_E
+    out[8] = 2*p_F
+    out[9] = 0.0
+    out[10] = 0.0
+    out[11] = p_s_proper*(_tmp2*_tmp3 - _tmp5)
+    out[12] = p_s_proper*(-_tmp11*_tmp7 + _tmp4*_tmp6)
+    out[13] = p_s_proper*(-p_A*_tmp4 + _tmp1*_tmp3)
+    out[14] = p_s_proper*(2*p_C*p_D*_tmp3 - _tmp8)
+    out[15] = p_s_proper*(-p_D*_tmp3*_tmp6 + _tmp10*_tmp7)
+    out[16] = p_s_proper*(-p_A*p_C*_tmp3 + _tmp0*_tmp3)
+    out[17] = 0.0
+    out[18] = _tmp9
+    out[19] = 0.0
+    out[20] = 0.0
+    out[21] = 0.0
+    out[22] = 0.0
+    out[23] = 0.0
+    out[24] = 0.0
+    out[25] = 1
+    out[26] = 0.0
+
+
 def c0_conic__reduced(r, k):
     """Remaining constraints c0(r) of model 'conic' and their Jacobian: shapes (2,), (2, 7)."""
     p_A = r[0]
@@ -503,6 +878,46 @@ def c0_conic__reduced(r, k):
     return c0, C0
 
 
+def row_c0_conic__reduced(r, k, out):
+    """Row form of ``c0_conic__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (2,), C0 (2, 7), row-major, one after the other."""
+    p_A = r[0]
+    p_B = r[1]
+    p_C = r[2]
+    p_D = r[3]
+    p_E = r[4]
+    p_F = r[5]
+    p_s_proper = r[6]
+    k_f0 = k[0]
+    _tmp0 = p_B**2
+    _tmp1 = p_D**2
+    _tmp2 = p_E**2
+    _tmp3 = k_f0**2
+    _tmp4 = p_F*_tmp3
+    _tmp5 = p_C*_tmp4
+    _tmp6 = 2*p_B
+    _tmp7 = p_E*_tmp3
+    _tmp8 = _tmp6*_tmp7
+    _tmp9 = p_A*_tmp2*_tmp3 - p_A*_tmp5 + p_C*_tmp1*_tmp3 - p_D*_tmp8 + p_F*_tmp0*_tmp3
+    _tmp10 = 2*p_A
+    _tmp11 = 2*p_D
+    out[0] = p_A**2 + p_C**2 + p_F**2 + _tmp0 + _tmp1 + _tmp2 - 1
+    out[1] = _tmp9*p_s_proper - 1
+    out[2] = _tmp10
+    out[3] = _tmp6
+    out[4] = 2*p_C
+    out[5] = _tmp11
+    out[6] = 2*p_E
+    out[7] = 2*p_F
+    out[8] = 0.0
+    out[9] = p_s_proper*(_tmp2*_tmp3 - _tmp5)
+    out[10] = p_s_proper*(-_tmp11*_tmp7 + _tmp4*_tmp6)
+    out[11] = p_s_proper*(-p_A*_tmp4 + _tmp1*_tmp3)
+    out[12] = p_s_proper*(2*p_C*p_D*_tmp3 - _tmp8)
+    out[13] = p_s_proper*(-p_D*_tmp3*_tmp6 + _tmp10*_tmp7)
+    out[14] = p_s_proper*(-p_A*p_C*_tmp3 + _tmp0*_tmp3)
+    out[15] = _tmp9
+
+
 def measure_point__conic__reduced(r, m, k):
     """Equations of channel 'point', their Jacobians in r and in the corrected
     components ['x', 'y']: shapes (M, 1), (M, 1, 7), (M, 1, 2)."""
@@ -538,6 +953,36 @@ def measure_point__conic__reduced(r, m, k):
     D[:, 0, 0] = p_A*_tmp3 + p_B*_tmp6 + p_D*_tmp5
     D[:, 0, 1] = p_B*_tmp3 + p_C*_tmp6 + p_E*_tmp5
     return c, C, D
+
+
+def row_measure_point__conic__reduced(r, m, k, out):
+    """Row form of ``measure_point__conic__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 7), D (1, 2), row-major, one after the other."""
+    p_A = r[0]
+    p_B = r[1]
+    p_C = r[2]
+    p_D = r[3]
+    p_E = r[4]
+    p_F = r[5]
+    k_f0 = k[0]
+    m_x = m[0]
+    m_y = m[1]
+    _tmp0 = m_x**2
+    _tmp1 = m_y**2
+    _tmp2 = k_f0**2
+    _tmp3 = 2*m_x
+    _tmp4 = _tmp3*m_y
+    _tmp5 = 2*k_f0
+    _tmp6 = 2*m_y
+    out[0] = p_A*_tmp0 + p_B*_tmp4 + p_C*_tmp1 + p_F*_tmp2 + _tmp5*(p_D*m_x + p_E*m_y)
+    out[1] = _tmp0
+    out[2] = _tmp4
+    out[3] = _tmp1
+    out[4] = _tmp5*m_x
+    out[5] = _tmp5*m_y
+    out[6] = _tmp2
+    out[7] = 0.0
+    out[8] = p_A*_tmp3 + p_B*_tmp6 + p_D*_tmp5
+    out[9] = p_B*_tmp3 + p_C*_tmp6 + p_E*_tmp5
 
 
 def derived(q, k):
@@ -719,6 +1164,23 @@ def slack_measures(q, k):
     return c
 
 
+def row_slack_measures(q, k, out):
+    """Row form of ``slack_measures`` (one measure, ``m`` its whole row): ``out`` holds c (2,), row-major, one after the other."""
+    p_A = q[0]
+    p_B = q[1]
+    p_C = q[2]
+    p_D = q[3]
+    p_E = q[4]
+    p_F = q[5]
+    k_f0 = k[0]
+    _tmp0 = p_A*p_C
+    _tmp1 = p_B**2
+    _tmp2 = k_f0**2
+    _tmp3 = p_F*_tmp2
+    out[0] = _tmp0 - _tmp1
+    out[1] = p_A*p_E**2*_tmp2 - 2*p_B*p_D*p_E*_tmp2 + p_C*p_D**2*_tmp2 - _tmp0*_tmp3 + _tmp1*_tmp3
+
+
 def whiten_1_2(D, G, B, eps):
     """Whiten B (M, 1, t) by the reduced square root of D Q+ D^T, Q+ = G^T G (unrolled).
 
@@ -783,6 +1245,24 @@ MODELS = {
 }
 DERIVED = derived
 SLACK_MEASURES = slack_measures
+#: The row forms (one measure, every entry into one flat array: the compiled kernels'
+#: layout), by the name of the function they mirror.
+ROWS = {
+    "c0_line": row_c0_line,
+    "measure_point": row_measure_point,
+    "c0_line__reduced": row_c0_line__reduced,
+    "measure_point__line__reduced": row_measure_point__line__reduced,
+    "c0_circle": row_c0_circle,
+    "c0_circle__reduced": row_c0_circle__reduced,
+    "measure_point__circle__reduced": row_measure_point__circle__reduced,
+    "c0_ellipse": row_c0_ellipse,
+    "c0_ellipse__reduced": row_c0_ellipse__reduced,
+    "measure_point__ellipse__reduced": row_measure_point__ellipse__reduced,
+    "c0_conic": row_c0_conic,
+    "c0_conic__reduced": row_c0_conic__reduced,
+    "measure_point__conic__reduced": row_measure_point__conic__reduced,
+    "slack_measures": row_slack_measures,
+}
 KERNELS = {
     (1, 2): (whiten_1_2, correct_1_2),
 }

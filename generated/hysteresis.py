@@ -6,7 +6,7 @@ algebra of the projector. Load it with ``kanagen.load``.
 
 import numpy as np
 
-FORMAT = 2
+FORMAT = 3
 SPEC_SOURCE = "hysteresis.yaml"
 SPEC_SHA256 = "bed58e6950d17582f5cee9dc9ec186320c901e8386354e1e50dbe729b333d635"
 FAMILY = {'name': 'hysteresis',
@@ -242,6 +242,306 @@ def c0_hysteresis(q, k):
     return c0, C0
 
 
+def row_c0_hysteresis(q, k, out):
+    """Row form of ``c0_hysteresis`` (one measure, ``m`` its whole row): ``out`` holds c0 (19,), C0 (19, 11), row-major, one after the other."""
+    p_y = q[0]
+    p_s = q[1]
+    p_s_switch_1 = q[2]
+    p_s_switch_2 = q[3]
+    p_s_switch_3 = q[4]
+    p_s_switch_4 = q[5]
+    p_s_switch_5 = q[6]
+    p_s_output_1 = q[7]
+    p_s_output_2 = q[8]
+    p_s_output_3 = q[9]
+    p_s_output_4 = q[10]
+    k_t = k[0]
+    k_s_prev = k[1]
+    _tmp0 = p_s - 1
+    _tmp1 = p_s + 1
+    _tmp2 = k_s_prev - 1
+    _tmp3 = _tmp2*p_s_switch_1 - 1
+    _tmp4 = k_t - 2
+    _tmp5 = -_tmp4 - p_s_switch_2**2
+    _tmp6 = _tmp3*_tmp5
+    _tmp7 = k_t + 2
+    _tmp8 = -_tmp7
+    _tmp9 = _tmp8*p_s_switch_3**2 - 1
+    _tmp10 = _tmp5*_tmp9
+    _tmp11 = _tmp4*p_s_switch_4**2 - 1
+    _tmp12 = _tmp11*_tmp3
+    _tmp13 = _tmp7 - p_s_switch_5**2
+    _tmp14 = _tmp13*_tmp2
+    _tmp15 = _tmp11*_tmp13
+    _tmp16 = _tmp2*_tmp9
+    _tmp17 = p_y - 1
+    _tmp18 = p_y + 1
+    _tmp19 = -k_t
+    _tmp20 = -_tmp0 - _tmp19 - p_s_output_1**2
+    _tmp21 = _tmp18*_tmp20
+    _tmp22 = _tmp1 + _tmp19
+    _tmp23 = _tmp22 - p_s_output_2**2
+    _tmp24 = _tmp17*_tmp18
+    _tmp25 = _tmp19 + p_s + p_y
+    _tmp26 = p_s - p_s_output_3**2 - k_t - 1
+    _tmp27 = _tmp17*_tmp20
+    _tmp28 = _tmp17*_tmp23
+    _tmp29 = _tmp17*_tmp25
+    _tmp30 = -_tmp22 - p_s_output_4**2
+    _tmp31 = _tmp18*_tmp23
+    _tmp32 = _tmp18*_tmp25
+    _tmp33 = _tmp20*_tmp26
+    _tmp34 = _tmp23*_tmp26
+    _tmp35 = _tmp25*_tmp26
+    _tmp36 = _tmp1*_tmp5
+    _tmp37 = 2*_tmp3
+    _tmp38 = _tmp1*p_s_switch_2
+    _tmp39 = 2*_tmp8*p_s_switch_3
+    _tmp40 = _tmp0*_tmp2
+    _tmp41 = _tmp0*_tmp4*p_s_switch_4
+    _tmp42 = 2*p_s_switch_5
+    _tmp43 = 2*_tmp24
+    _tmp44 = _tmp17*_tmp26
+    _tmp45 = 2*_tmp44
+    _tmp46 = 2*p_s_output_3
+    _tmp47 = _tmp20*_tmp30
+    _tmp48 = _tmp18*_tmp30
+    _tmp49 = 2*_tmp48
+    _tmp50 = 2*p_s_output_4
+    _tmp51 = _tmp23*_tmp30
+    _tmp52 = _tmp25*_tmp30
+    _tmp53 = _tmp26*_tmp30
+    _tmp54 = 2*_tmp53
+    out[0] = _tmp0*_tmp1
+    out[1] = _tmp1*_tmp6
+    out[2] = _tmp1*_tmp10
+    out[3] = _tmp0*_tmp12
+    out[4] = _tmp0*_tmp14
+    out[5] = _tmp0*_tmp15
+    out[6] = _tmp1*_tmp16
+    out[7] = _tmp17*_tmp21
+    out[8] = _tmp23*_tmp24
+    out[9] = _tmp24*_tmp25
+    out[10] = _tmp26*_tmp27
+    out[11] = _tmp26*_tmp28
+    out[12] = _tmp26*_tmp29
+    out[13] = _tmp21*_tmp30
+    out[14] = _tmp30*_tmp31
+    out[15] = _tmp30*_tmp32
+    out[16] = _tmp30*_tmp33
+    out[17] = _tmp30*_tmp34
+    out[18] = _tmp30*_tmp35
+    out[19] = 0.0
+    out[20] = 2*p_s
+    out[21] = 0.0
+    out[22] = 0.0
+    out[23] = 0.0
+    out[24] = 0.0
+    out[25] = 0.0
+    out[26] = 0.0
+    out[27] = 0.0
+    out[28] = 0.0
+    out[29] = 0.0
+    out[30] = 0.0
+    out[31] = _tmp6
+    out[32] = _tmp2*_tmp36
+    out[33] = -_tmp37*_tmp38
+    out[34] = 0.0
+    out[35] = 0.0
+    out[36] = 0.0
+    out[37] = 0.0
+    out[38] = 0.0
+    out[39] = 0.0
+    out[40] = 0.0
+    out[41] = 0.0
+    out[42] = _tmp10
+    out[43] = 0.0
+    out[44] = -2*_tmp38*_tmp9
+    out[45] = _tmp36*_tmp39
+    out[46] = 0.0
+    out[47] = 0.0
+    out[48] = 0.0
+    out[49] = 0.0
+    out[50] = 0.0
+    out[51] = 0.0
+    out[52] = 0.0
+    out[53] = _tmp12
+    out[54] = _tmp11*_tmp40
+    out[55] = 0.0
+    out[56] = 0.0
+    out[57] = _tmp37*_tmp41
+    out[58] = 0.0
+    out[59] = 0.0
+    out[60] = 0.0
+    out[61] = 0.0
+    out[62] = 0.0
+    out[63] = 0.0
+    out[64] = _tmp14
+    out[65] = 0.0
+    out[66] = 0.0
+    out[67] = 0.0
+    out[68] = 0.0
+    out[69] = -_tmp40*_tmp42
+    out[70] = 0.0
+    out[71] = 0.0
+    out[72] = 0.0
+    out[73] = 0.0
+    out[74] = 0.0
+    out[75] = _tmp15
+    out[76] = 0.0
+    out[77] = 0.0
+    out[78] = 0.0
+    out[79] = 2*_tmp13*_tmp41
+    out[80] = -_tmp0*_tmp11*_tmp42
+    out[81] = 0.0
+    out[82] = 0.0
+    out[83] = 0.0
+    out[84] = 0.0
+    out[85] = 0.0
+    out[86] = _tmp16
+    out[87] = 0.0
+    out[88] = 0.0
+    out[89] = _tmp1*_tmp2*_tmp39
+    out[90] = 0.0
+    out[91] = 0.0
+    out[92] = 0.0
+    out[93] = 0.0
+    out[94] = 0.0
+    out[95] = 0.0
+    out[96] = _tmp21 + _tmp27
+    out[97] = -_tmp24
+    out[98] = 0.0
+    out[99] = 0.0
+    out[100] = 0.0
+    out[101] = 0.0
+    out[102] = 0.0
+    out[103] = -_tmp43*p_s_output_1
+    out[104] = 0.0
+    out[105] = 0.0
+    out[106] = 0.0
+    out[107] = _tmp28 + _tmp31
+    out[108] = _tmp24
+    out[109] = 0.0
+    out[110] = 0.0
+    out[111] = 0.0
+    out[112] = 0.0
+    out[113] = 0.0
+    out[114] = 0.0
+    out[115] = -_tmp43*p_s_output_2
+    out[116] = 0.0
+    out[117] = 0.0
+    out[118] = _tmp24 + _tmp29 + _tmp32
+    out[119] = _tmp24
+    out[120] = 0.0
+    out[121] = 0.0
+    out[122] = 0.0
+    out[123] = 0.0
+    out[124] = 0.0
+    out[125] = 0.0
+    out[126] = 0.0
+    out[127] = 0.0
+    out[128] = 0.0
+    out[129] = _tmp33
+    out[130] = _tmp27 - _tmp44
+    out[131] = 0.0
+    out[132] = 0.0
+    out[133] = 0.0
+    out[134] = 0.0
+    out[135] = 0.0
+    out[136] = -_tmp45*p_s_output_1
+    out[137] = 0.0
+    out[138] = -_tmp27*_tmp46
+    out[139] = 0.0
+    out[140] = _tmp34
+    out[141] = _tmp28 + _tmp44
+    out[142] = 0.0
+    out[143] = 0.0
+    out[144] = 0.0
+    out[145] = 0.0
+    out[146] = 0.0
+    out[147] = 0.0
+    out[148] = -_tmp45*p_s_output_2
+    out[149] = -_tmp28*_tmp46
+    out[150] = 0.0
+    out[151] = _tmp35 + _tmp44
+    out[152] = _tmp29 + _tmp44
+    out[153] = 0.0
+    out[154] = 0.0
+    out[155] = 0.0
+    out[156] = 0.0
+    out[157] = 0.0
+    out[158] = 0.0
+    out[159] = 0.0
+    out[160] = -_tmp29*_tmp46
+    out[161] = 0.0
+    out[162] = _tmp47
+    out[163] = -_tmp21 - _tmp48
+    out[164] = 0.0
+    out[165] = 0.0
+    out[166] = 0.0
+    out[167] = 0.0
+    out[168] = 0.0
+    out[169] = -_tmp49*p_s_output_1
+    out[170] = 0.0
+    out[171] = 0.0
+    out[172] = -_tmp21*_tmp50
+    out[173] = _tmp51
+    out[174] = -_tmp31 + _tmp48
+    out[175] = 0.0
+    out[176] = 0.0
+    out[177] = 0.0
+    out[178] = 0.0
+    out[179] = 0.0
+    out[180] = 0.0
+    out[181] = -_tmp49*p_s_output_2
+    out[182] = 0.0
+    out[183] = -_tmp31*_tmp50
+    out[184] = _tmp48 + _tmp52
+    out[185] = -_tmp32 + _tmp48
+    out[186] = 0.0
+    out[187] = 0.0
+    out[188] = 0.0
+    out[189] = 0.0
+    out[190] = 0.0
+    out[191] = 0.0
+    out[192] = 0.0
+    out[193] = 0.0
+    out[194] = -_tmp32*_tmp50
+    out[195] = 0.0
+    out[196] = _tmp20*_tmp30 - _tmp33 - _tmp53
+    out[197] = 0.0
+    out[198] = 0.0
+    out[199] = 0.0
+    out[200] = 0.0
+    out[201] = 0.0
+    out[202] = -_tmp54*p_s_output_1
+    out[203] = 0.0
+    out[204] = -_tmp46*_tmp47
+    out[205] = -_tmp33*_tmp50
+    out[206] = 0.0
+    out[207] = -_tmp34 + _tmp51 + _tmp53
+    out[208] = 0.0
+    out[209] = 0.0
+    out[210] = 0.0
+    out[211] = 0.0
+    out[212] = 0.0
+    out[213] = 0.0
+    out[214] = -_tmp54*p_s_output_2
+    out[215] = -_tmp46*_tmp51
+    out[216] = -_tmp34*_tmp50
+    out[217] = _tmp53
+    out[218] = -_tmp35 + _tmp52 + _tmp53
+    out[219] = 0.0
+    out[220] = 0.0
+    out[221] = 0.0
+    out[222] = 0.0
+    out[223] = 0.0
+    out[224] = 0.0
+    out[225] = 0.0
+    out[226] = -_tmp46*_tmp52
+    out[227] = -_tmp35*_tmp50
+
+
 def measure_reading(q, m, k):
     """Equations of channel 'reading', their Jacobians in q and in the corrected
     components ['r']: shapes (M, 1), (M, 1, 11), (M, 1, 1)."""
@@ -256,6 +556,25 @@ def measure_reading(q, m, k):
     D = np.zeros((M, 1, 1))
     D[:, 0, 0] = 1
     return c, C, D
+
+
+def row_measure_reading(q, m, k, out):
+    """Row form of ``measure_reading`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 11), D (1, 1), row-major, one after the other."""
+    p_y = q[0]
+    m_r = m[0]
+    out[0] = m_r - p_y
+    out[1] = -1
+    out[2] = 0.0
+    out[3] = 0.0
+    out[4] = 0.0
+    out[5] = 0.0
+    out[6] = 0.0
+    out[7] = 0.0
+    out[8] = 0.0
+    out[9] = 0.0
+    out[10] = 0.0
+    out[11] = 0.0
+    out[12] = 1
 
 
 def slack_measures(q, k):
@@ -280,6 +599,26 @@ def slack_measures(q, k):
     c[7] = -_tmp2
     c[8] = -_tmp3
     return c
+
+
+def row_slack_measures(q, k, out):
+    """Row form of ``slack_measures`` (one measure, ``m`` its whole row): ``out`` holds c (9,), row-major, one after the other."""
+    p_s = q[1]
+    k_t = k[0]
+    k_s_prev = k[1]
+    _tmp0 = k_t - 2
+    _tmp1 = k_t + 2
+    _tmp2 = -p_s + k_t + 1
+    _tmp3 = p_s - k_t + 1
+    out[0] = k_s_prev - 1
+    out[1] = -_tmp0
+    out[2] = -_tmp1
+    out[3] = _tmp0
+    out[4] = _tmp1
+    out[5] = _tmp2
+    out[6] = _tmp3
+    out[7] = -_tmp2
+    out[8] = -_tmp3
 
 
 def whiten_1_1(D, G, B, eps):
@@ -327,6 +666,13 @@ MODELS = {
 }
 DERIVED = None
 SLACK_MEASURES = slack_measures
+#: The row forms (one measure, every entry into one flat array: the compiled kernels'
+#: layout), by the name of the function they mirror.
+ROWS = {
+    "c0_hysteresis": row_c0_hysteresis,
+    "measure_reading": row_measure_reading,
+    "slack_measures": row_slack_measures,
+}
 KERNELS = {
     (1, 1): (whiten_1_1, correct_1_1),
 }

@@ -6,7 +6,7 @@ algebra of the projector. Load it with ``kanagen.load``.
 
 import numpy as np
 
-FORMAT = 2
+FORMAT = 3
 SPEC_SOURCE = "line.yaml"
 SPEC_SHA256 = "0c0f4b5249f5beb13cd3ba271a3cb3ad728e3302c6d9deb57a5fcadb7b82cceb"
 FAMILY = {'name': 'line',
@@ -43,6 +43,14 @@ def c0_horizontal(q, k):
     return c0, C0
 
 
+def row_c0_horizontal(q, k, out):
+    """Row form of ``c0_horizontal`` (one measure, ``m`` its whole row): ``out`` holds c0 (1,), C0 (1, 2), row-major, one after the other."""
+    p_a = q[0]
+    out[0] = p_a
+    out[1] = 1
+    out[2] = 0.0
+
+
 def measure_point(q, m, k):
     """Equations of channel 'point', their Jacobians in q and in the corrected
     components ['x', 'y']: shapes (M, 1), (M, 1, 2), (M, 1, 2)."""
@@ -63,12 +71,29 @@ def measure_point(q, m, k):
     return c, C, D
 
 
+def row_measure_point(q, m, k, out):
+    """Row form of ``measure_point`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 2), D (1, 2), row-major, one after the other."""
+    p_a = q[0]
+    p_b = q[1]
+    m_x = m[0]
+    m_y = m[1]
+    out[0] = -p_a*m_x - p_b + m_y
+    out[1] = -m_x
+    out[2] = -1
+    out[3] = -p_a
+    out[4] = 1
+
+
 def c0_horizontal__reduced(r, k):
     """Remaining constraints c0(r) of model 'horizontal' and their Jacobian: shapes (0,), (0, 1)."""
     # Outputs
     c0 = np.zeros((0,))
     C0 = np.zeros((0, 1))
     return c0, C0
+
+
+def row_c0_horizontal__reduced(r, k, out):
+    """Row form of ``c0_horizontal__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (0,), C0 (0, 1), row-major, one after the other."""
 
 
 def measure_point__horizontal__reduced(r, m, k):
@@ -87,12 +112,26 @@ def measure_point__horizontal__reduced(r, m, k):
     return c, C, D
 
 
+def row_measure_point__horizontal__reduced(r, m, k, out):
+    """Row form of ``measure_point__horizontal__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 1), D (1, 2), row-major, one after the other."""
+    p_b = r[0]
+    m_y = m[1]
+    out[0] = -p_b + m_y
+    out[1] = -1
+    out[2] = 0.0
+    out[3] = 1
+
+
 def c0_line(q, k):
     """Constraints c0(q) of model 'line' and their Jacobian: shapes (0,), (0, 2)."""
     # Outputs
     c0 = np.zeros((0,))
     C0 = np.zeros((0, 2))
     return c0, C0
+
+
+def row_c0_line(q, k, out):
+    """Row form of ``c0_line`` (one measure, ``m`` its whole row): ``out`` holds c0 (0,), C0 (0, 2), row-major, one after the other."""
 
 
 def derived(q, k):
@@ -168,6 +207,15 @@ MODELS = {
 }
 DERIVED = derived
 SLACK_MEASURES = None
+#: The row forms (one measure, every entry into one flat array: the compiled kernels'
+#: layout), by the name of the function they mirror.
+ROWS = {
+    "c0_horizontal": row_c0_horizontal,
+    "measure_point": row_measure_point,
+    "c0_horizontal__reduced": row_c0_horizontal__reduced,
+    "measure_point__horizontal__reduced": row_measure_point__horizontal__reduced,
+    "c0_line": row_c0_line,
+}
 KERNELS = {
     (1, 2): (whiten_1_2, correct_1_2),
 }

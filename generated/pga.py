@@ -6,7 +6,7 @@ algebra of the projector. Load it with ``kanagen.load``.
 
 import numpy as np
 
-FORMAT = 2
+FORMAT = 3
 SPEC_SOURCE = "pga.yaml"
 SPEC_SHA256 = "f8c30c0d93577258c30b753b2406d64403a7e07b68a95528e8c04cc599a1126a"
 FAMILY = {'name': 'pga',
@@ -52,6 +52,21 @@ def c0_pga(q, k):
     return c0, C0
 
 
+def row_c0_pga(q, k, out):
+    """Row form of ``c0_pga`` (one measure, ``m`` its whole row): ``out`` holds c0 (1,), C0 (1, 2), row-major, one after the other."""
+    p_g = q[0]
+    _tmp0 = p_g - 2
+    _tmp1 = p_g - 4
+    _tmp2 = p_g - 1
+    _tmp3 = p_g - 8
+    _tmp4 = _tmp2*_tmp3
+    _tmp5 = _tmp1*_tmp4
+    _tmp6 = _tmp0*_tmp1
+    out[0] = _tmp0*_tmp5
+    out[1] = _tmp0*_tmp4 + _tmp2*_tmp6 + _tmp3*_tmp6 + _tmp5
+    out[2] = 0.0
+
+
 def measure_reading(q, m, k):
     """Equations of channel 'reading', their Jacobians in q and in the corrected
     components ['r']: shapes (M, 1), (M, 1, 2), (M, 1, 1)."""
@@ -71,12 +86,28 @@ def measure_reading(q, m, k):
     return c, C, D
 
 
+def row_measure_reading(q, m, k, out):
+    """Row form of ``measure_reading`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 2), D (1, 1), row-major, one after the other."""
+    p_g = q[0]
+    p_o = q[1]
+    m_v = m[0]
+    m_r = m[1]
+    out[0] = -p_g*m_v - p_o + m_r
+    out[1] = -m_v
+    out[2] = -1
+    out[3] = 1
+
+
 def c0_linear(q, k):
     """Constraints c0(q) of model 'linear' and their Jacobian: shapes (0,), (0, 2)."""
     # Outputs
     c0 = np.zeros((0,))
     C0 = np.zeros((0, 2))
     return c0, C0
+
+
+def row_c0_linear(q, k, out):
+    """Row form of ``c0_linear`` (one measure, ``m`` its whole row): ``out`` holds c0 (0,), C0 (0, 2), row-major, one after the other."""
 
 
 def whiten_1_1(D, G, B, eps):
@@ -128,6 +159,13 @@ MODELS = {
 }
 DERIVED = None
 SLACK_MEASURES = None
+#: The row forms (one measure, every entry into one flat array: the compiled kernels'
+#: layout), by the name of the function they mirror.
+ROWS = {
+    "c0_pga": row_c0_pga,
+    "measure_reading": row_measure_reading,
+    "c0_linear": row_c0_linear,
+}
 KERNELS = {
     (1, 1): (whiten_1_1, correct_1_1),
 }

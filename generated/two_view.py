@@ -6,7 +6,7 @@ algebra of the projector. Load it with ``kanagen.load``.
 
 import numpy as np
 
-FORMAT = 2
+FORMAT = 3
 SPEC_SOURCE = "two_view.yaml"
 SPEC_SHA256 = "0c6228e18bb92e65daf1155cc3b3565e7f8744b10061497f0591c5f01f762998"
 FAMILY = {'name': 'two_view',
@@ -469,6 +469,178 @@ def c0_none(q, k):
     return c0, C0
 
 
+def row_c0_none(q, k, out):
+    """Row form of ``c0_none`` (one measure, ``m`` its whole row): ``out`` holds c0 (12,), C0 (12, 12), row-major, one after the other."""
+    p_f1 = q[0]
+    p_f2 = q[1]
+    p_qw = q[2]
+    p_qx = q[3]
+    p_qy = q[4]
+    p_qz = q[5]
+    p_tx = q[6]
+    p_ty = q[7]
+    p_tz = q[8]
+    p_wx = q[9]
+    p_wy = q[10]
+    p_wz = q[11]
+    out[0] = p_f1 - 1
+    out[1] = p_f2 - 1
+    out[2] = p_qx
+    out[3] = p_qy
+    out[4] = p_qz
+    out[5] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[6] = p_tx - 1
+    out[7] = p_ty
+    out[8] = p_tz
+    out[9] = p_wx
+    out[10] = p_wy
+    out[11] = p_wz
+    out[12] = 1
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 0.0
+    out[16] = 0.0
+    out[17] = 0.0
+    out[18] = 0.0
+    out[19] = 0.0
+    out[20] = 0.0
+    out[21] = 0.0
+    out[22] = 0.0
+    out[23] = 0.0
+    out[24] = 0.0
+    out[25] = 1
+    out[26] = 0.0
+    out[27] = 0.0
+    out[28] = 0.0
+    out[29] = 0.0
+    out[30] = 0.0
+    out[31] = 0.0
+    out[32] = 0.0
+    out[33] = 0.0
+    out[34] = 0.0
+    out[35] = 0.0
+    out[36] = 0.0
+    out[37] = 0.0
+    out[38] = 0.0
+    out[39] = 1
+    out[40] = 0.0
+    out[41] = 0.0
+    out[42] = 0.0
+    out[43] = 0.0
+    out[44] = 0.0
+    out[45] = 0.0
+    out[46] = 0.0
+    out[47] = 0.0
+    out[48] = 0.0
+    out[49] = 0.0
+    out[50] = 0.0
+    out[51] = 0.0
+    out[52] = 1
+    out[53] = 0.0
+    out[54] = 0.0
+    out[55] = 0.0
+    out[56] = 0.0
+    out[57] = 0.0
+    out[58] = 0.0
+    out[59] = 0.0
+    out[60] = 0.0
+    out[61] = 0.0
+    out[62] = 0.0
+    out[63] = 0.0
+    out[64] = 0.0
+    out[65] = 1
+    out[66] = 0.0
+    out[67] = 0.0
+    out[68] = 0.0
+    out[69] = 0.0
+    out[70] = 0.0
+    out[71] = 0.0
+    out[72] = 0.0
+    out[73] = 0.0
+    out[74] = 2*p_qw
+    out[75] = 2*p_qx
+    out[76] = 2*p_qy
+    out[77] = 2*p_qz
+    out[78] = 0.0
+    out[79] = 0.0
+    out[80] = 0.0
+    out[81] = 0.0
+    out[82] = 0.0
+    out[83] = 0.0
+    out[84] = 0.0
+    out[85] = 0.0
+    out[86] = 0.0
+    out[87] = 0.0
+    out[88] = 0.0
+    out[89] = 0.0
+    out[90] = 1
+    out[91] = 0.0
+    out[92] = 0.0
+    out[93] = 0.0
+    out[94] = 0.0
+    out[95] = 0.0
+    out[96] = 0.0
+    out[97] = 0.0
+    out[98] = 0.0
+    out[99] = 0.0
+    out[100] = 0.0
+    out[101] = 0.0
+    out[102] = 0.0
+    out[103] = 1
+    out[104] = 0.0
+    out[105] = 0.0
+    out[106] = 0.0
+    out[107] = 0.0
+    out[108] = 0.0
+    out[109] = 0.0
+    out[110] = 0.0
+    out[111] = 0.0
+    out[112] = 0.0
+    out[113] = 0.0
+    out[114] = 0.0
+    out[115] = 0.0
+    out[116] = 1
+    out[117] = 0.0
+    out[118] = 0.0
+    out[119] = 0.0
+    out[120] = 0.0
+    out[121] = 0.0
+    out[122] = 0.0
+    out[123] = 0.0
+    out[124] = 0.0
+    out[125] = 0.0
+    out[126] = 0.0
+    out[127] = 0.0
+    out[128] = 0.0
+    out[129] = 1
+    out[130] = 0.0
+    out[131] = 0.0
+    out[132] = 0.0
+    out[133] = 0.0
+    out[134] = 0.0
+    out[135] = 0.0
+    out[136] = 0.0
+    out[137] = 0.0
+    out[138] = 0.0
+    out[139] = 0.0
+    out[140] = 0.0
+    out[141] = 0.0
+    out[142] = 1
+    out[143] = 0.0
+    out[144] = 0.0
+    out[145] = 0.0
+    out[146] = 0.0
+    out[147] = 0.0
+    out[148] = 0.0
+    out[149] = 0.0
+    out[150] = 0.0
+    out[151] = 0.0
+    out[152] = 0.0
+    out[153] = 0.0
+    out[154] = 0.0
+    out[155] = 1
+
+
 def measure_match__none(q, m, k):
     """Equations of channel 'match', their Jacobians in q and in the corrected
     components ['u', 'v', 'u2', 'v2']: shapes (M, 3), (M, 3, 12), (M, 3, 4)."""
@@ -612,6 +784,147 @@ def measure_match__none(q, m, k):
     return c, C, D
 
 
+def row_measure_match__none(q, m, k, out):
+    """Row form of ``measure_match__none`` (one measure, ``m`` its whole row): ``out`` holds c (3,), C (3, 12), D (3, 4), row-major, one after the other."""
+    p_f1 = q[0]
+    p_f2 = q[1]
+    p_qw = q[2]
+    p_qx = q[3]
+    p_qy = q[4]
+    p_qz = q[5]
+    p_tx = q[6]
+    p_ty = q[7]
+    p_tz = q[8]
+    p_wx = q[9]
+    p_wy = q[10]
+    p_wz = q[11]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 2*p_qw
+    _tmp1 = _tmp0*p_qx
+    _tmp2 = 2*p_qy
+    _tmp3 = _tmp2*p_qz
+    _tmp4 = -_tmp1 + _tmp3 + p_ty*p_wz
+    _tmp5 = _tmp0*p_qz
+    _tmp6 = _tmp2*p_qx
+    _tmp7 = _tmp5 + _tmp6 + p_ty*p_wx
+    _tmp8 = 1/k_f0
+    _tmp9 = -k_cx + m_u
+    _tmp10 = _tmp8*_tmp9
+    _tmp11 = p_qy**2
+    _tmp12 = p_qz**2
+    _tmp13 = -_tmp12
+    _tmp14 = p_qw**2
+    _tmp15 = p_qx**2
+    _tmp16 = _tmp14 - _tmp15
+    _tmp17 = _tmp11 + _tmp13 + _tmp16 + p_ty*p_wy
+    _tmp18 = -k_cy + m_v
+    _tmp19 = _tmp18*_tmp8
+    _tmp20 = _tmp10*_tmp7 + _tmp17*_tmp19 + _tmp4*p_f1
+    _tmp21 = -k_cy + m_v2
+    _tmp22 = _tmp0*p_qy
+    _tmp23 = 2*p_qx
+    _tmp24 = _tmp23*p_qz
+    _tmp25 = -_tmp22 + _tmp24 + p_tz*p_wx
+    _tmp26 = _tmp1 + _tmp3 + p_tz*p_wy
+    _tmp27 = -_tmp11
+    _tmp28 = _tmp12 + _tmp16 + _tmp27 + p_tz*p_wz
+    _tmp29 = _tmp10*_tmp25 + _tmp19*_tmp26 + _tmp28*p_f1
+    _tmp30 = _tmp22 + _tmp24 + p_tx*p_wz
+    _tmp31 = -_tmp5 + _tmp6 + p_tx*p_wy
+    _tmp32 = _tmp13 + _tmp14 + _tmp15 + _tmp27 + p_tx*p_wx
+    _tmp33 = _tmp10*_tmp32 + _tmp19*_tmp31 + _tmp30*p_f1
+    _tmp34 = -k_cx + m_u2
+    _tmp35 = _tmp29*_tmp8
+    _tmp36 = _tmp20*_tmp8
+    _tmp37 = _tmp33*_tmp8
+    _tmp38 = 2*p_qz
+    _tmp39 = _tmp0*_tmp19 + _tmp10*_tmp38 - _tmp23*p_f1
+    _tmp40 = _tmp0*p_f1 - _tmp10*_tmp2 + _tmp19*_tmp23
+    _tmp41 = _tmp21*_tmp8
+    _tmp42 = -_tmp40*_tmp41
+    _tmp43 = -_tmp40
+    _tmp44 = _tmp10*_tmp23 + _tmp19*_tmp2 + _tmp38*p_f1
+    _tmp45 = _tmp44*p_f2
+    _tmp46 = _tmp0*_tmp10 - 2*_tmp18*_tmp8*p_qz + _tmp2*p_f1
+    _tmp47 = -_tmp46
+    _tmp48 = _tmp46*p_f2
+    _tmp49 = -_tmp41*_tmp44
+    _tmp50 = _tmp10*p_wx + _tmp19*p_wy + p_f1*p_wz
+    _tmp51 = _tmp50*p_f2
+    _tmp52 = _tmp41*_tmp50
+    _tmp53 = p_f2*p_ty
+    _tmp54 = k_f0**(-2)
+    _tmp55 = p_f1*p_f2
+    _tmp56 = _tmp34*_tmp8
+    _tmp57 = _tmp39*_tmp56
+    _tmp58 = -_tmp39
+    _tmp59 = _tmp44*_tmp56
+    _tmp60 = _tmp50*_tmp56
+    _tmp61 = p_f2*p_tx
+    _tmp62 = _tmp34*_tmp54
+    _tmp63 = _tmp62*p_tz
+    _tmp64 = _tmp21*_tmp54
+    _tmp65 = _tmp64*p_tx
+    _tmp66 = _tmp8*p_f2
+    out[0] = -_tmp20*p_f2 + _tmp21*_tmp29*_tmp8
+    out[1] = _tmp33*p_f2 - _tmp34*_tmp35
+    out[2] = -_tmp21*_tmp37 + _tmp34*_tmp36
+    out[3] = _tmp21*_tmp28*_tmp8 - _tmp4*p_f2
+    out[4] = -_tmp20
+    out[5] = -_tmp39*p_f2 - _tmp42
+    out[6] = _tmp21*_tmp39*_tmp8 - _tmp43*p_f2
+    out[7] = _tmp21*_tmp47*_tmp8 - _tmp45
+    out[8] = -_tmp48 - _tmp49
+    out[9] = 0.0
+    out[10] = -_tmp51
+    out[11] = _tmp52
+    out[12] = -_tmp10*_tmp53 + _tmp21*_tmp54*_tmp9*p_tz
+    out[13] = _tmp18*_tmp21*_tmp54*p_tz - _tmp19*_tmp53
+    out[14] = _tmp21*_tmp8*p_f1*p_tz - _tmp55*p_ty
+    out[15] = -_tmp28*_tmp56 + _tmp30*p_f2
+    out[16] = _tmp33
+    out[17] = -_tmp40*_tmp56 + _tmp48
+    out[18] = _tmp45 - _tmp57
+    out[19] = _tmp40*p_f2 - _tmp47*_tmp56
+    out[20] = _tmp58*p_f2 - _tmp59
+    out[21] = _tmp51
+    out[22] = 0.0
+    out[23] = -_tmp60
+    out[24] = _tmp10*_tmp61 - _tmp63*_tmp9
+    out[25] = -_tmp18*_tmp63 + _tmp19*_tmp61
+    out[26] = _tmp55*p_tx - _tmp56*p_f1*p_tz
+    out[27] = -_tmp30*_tmp41 + _tmp4*_tmp56
+    out[28] = 0.0
+    out[29] = -_tmp41*_tmp46 + _tmp57
+    out[30] = _tmp43*_tmp56 + _tmp49
+    out[31] = _tmp42 + _tmp59
+    out[32] = -_tmp41*_tmp58 + _tmp46*_tmp56
+    out[33] = -_tmp52
+    out[34] = _tmp60
+    out[35] = 0.0
+    out[36] = _tmp34*_tmp54*_tmp9*p_ty - _tmp65*_tmp9
+    out[37] = _tmp18*_tmp34*_tmp54*p_ty - _tmp18*_tmp65
+    out[38] = _tmp34*_tmp8*p_f1*p_ty - _tmp41*p_f1*p_tx
+    out[39] = _tmp21*_tmp25*_tmp54 - _tmp66*_tmp7
+    out[40] = -_tmp17*_tmp66 + _tmp21*_tmp26*_tmp54
+    out[41] = 0.0
+    out[42] = _tmp35
+    out[43] = -_tmp25*_tmp62 + _tmp32*_tmp66
+    out[44] = -_tmp26*_tmp62 + _tmp31*_tmp66
+    out[45] = -_tmp35
+    out[46] = 0.0
+    out[47] = -_tmp32*_tmp64 + _tmp62*_tmp7
+    out[48] = _tmp17*_tmp62 - _tmp31*_tmp64
+    out[49] = _tmp36
+    out[50] = -_tmp37
+
+
 def c0_none__reduced(r, k):
     """Remaining constraints c0(r) of model 'none' and their Jacobian: shapes (1,), (1, 1)."""
     p_qw = r[0]
@@ -621,6 +934,13 @@ def c0_none__reduced(r, k):
     C0 = np.zeros((1, 1))
     C0[0, 0] = 2*p_qw
     return c0, C0
+
+
+def row_c0_none__reduced(r, k, out):
+    """Row form of ``c0_none__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (1,), C0 (1, 1), row-major, one after the other."""
+    p_qw = r[0]
+    out[0] = p_qw**2 - 1
+    out[1] = 2*p_qw
 
 
 def measure_match__none__reduced(r, m, k):
@@ -670,6 +990,49 @@ def measure_match__none__reduced(r, m, k):
     return c, C, D
 
 
+def row_measure_match__none__reduced(r, m, k, out):
+    """Row form of ``measure_match__none__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (3,), C (3, 1), D (3, 4), row-major, one after the other."""
+    p_qw = r[0]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = -k_cy + m_v
+    _tmp1 = 1/k_f0
+    _tmp2 = p_qw**2
+    _tmp3 = _tmp1*_tmp2
+    _tmp4 = -k_cy + m_v2
+    _tmp5 = -k_cx + m_u
+    _tmp6 = -k_cx + m_u2
+    _tmp7 = k_f0**(-2)
+    _tmp8 = _tmp2*_tmp7
+    _tmp9 = _tmp4*_tmp8
+    _tmp10 = 2*p_qw
+    _tmp11 = _tmp1*_tmp10
+    _tmp12 = -_tmp3
+    out[0] = -_tmp0*_tmp3 + _tmp1*_tmp2*_tmp4
+    out[1] = _tmp3*_tmp5 - _tmp3*_tmp6
+    out[2] = _tmp0*_tmp2*_tmp6*_tmp7 - _tmp5*_tmp9
+    out[3] = -_tmp0*_tmp11 + 2*_tmp1*_tmp4*p_qw
+    out[4] = _tmp11*_tmp5 - _tmp11*_tmp6
+    out[5] = 2*_tmp0*_tmp6*_tmp7*p_qw - _tmp10*_tmp4*_tmp5*_tmp7
+    out[6] = 0.0
+    out[7] = _tmp12
+    out[8] = 0.0
+    out[9] = _tmp3
+    out[10] = _tmp3
+    out[11] = 0.0
+    out[12] = _tmp12
+    out[13] = 0.0
+    out[14] = -_tmp9
+    out[15] = _tmp6*_tmp8
+    out[16] = _tmp0*_tmp8
+    out[17] = -_tmp5*_tmp8
+
+
 def c0_zoom(q, k):
     """Constraints c0(q) of model 'zoom' and their Jacobian: shapes (11,), (11, 12)."""
     p_f1 = q[0]
@@ -714,6 +1077,164 @@ def c0_zoom(q, k):
     return c0, C0
 
 
+def row_c0_zoom(q, k, out):
+    """Row form of ``c0_zoom`` (one measure, ``m`` its whole row): ``out`` holds c0 (11,), C0 (11, 12), row-major, one after the other."""
+    p_f1 = q[0]
+    p_qw = q[2]
+    p_qx = q[3]
+    p_qy = q[4]
+    p_qz = q[5]
+    p_tx = q[6]
+    p_ty = q[7]
+    p_tz = q[8]
+    p_wx = q[9]
+    p_wy = q[10]
+    p_wz = q[11]
+    out[0] = p_f1 - 1
+    out[1] = p_qx
+    out[2] = p_qy
+    out[3] = p_qz
+    out[4] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[5] = p_tx - 1
+    out[6] = p_ty
+    out[7] = p_tz
+    out[8] = p_wx
+    out[9] = p_wy
+    out[10] = p_wz
+    out[11] = 1
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 0.0
+    out[16] = 0.0
+    out[17] = 0.0
+    out[18] = 0.0
+    out[19] = 0.0
+    out[20] = 0.0
+    out[21] = 0.0
+    out[22] = 0.0
+    out[23] = 0.0
+    out[24] = 0.0
+    out[25] = 0.0
+    out[26] = 1
+    out[27] = 0.0
+    out[28] = 0.0
+    out[29] = 0.0
+    out[30] = 0.0
+    out[31] = 0.0
+    out[32] = 0.0
+    out[33] = 0.0
+    out[34] = 0.0
+    out[35] = 0.0
+    out[36] = 0.0
+    out[37] = 0.0
+    out[38] = 0.0
+    out[39] = 1
+    out[40] = 0.0
+    out[41] = 0.0
+    out[42] = 0.0
+    out[43] = 0.0
+    out[44] = 0.0
+    out[45] = 0.0
+    out[46] = 0.0
+    out[47] = 0.0
+    out[48] = 0.0
+    out[49] = 0.0
+    out[50] = 0.0
+    out[51] = 0.0
+    out[52] = 1
+    out[53] = 0.0
+    out[54] = 0.0
+    out[55] = 0.0
+    out[56] = 0.0
+    out[57] = 0.0
+    out[58] = 0.0
+    out[59] = 0.0
+    out[60] = 0.0
+    out[61] = 2*p_qw
+    out[62] = 2*p_qx
+    out[63] = 2*p_qy
+    out[64] = 2*p_qz
+    out[65] = 0.0
+    out[66] = 0.0
+    out[67] = 0.0
+    out[68] = 0.0
+    out[69] = 0.0
+    out[70] = 0.0
+    out[71] = 0.0
+    out[72] = 0.0
+    out[73] = 0.0
+    out[74] = 0.0
+    out[75] = 0.0
+    out[76] = 0.0
+    out[77] = 1
+    out[78] = 0.0
+    out[79] = 0.0
+    out[80] = 0.0
+    out[81] = 0.0
+    out[82] = 0.0
+    out[83] = 0.0
+    out[84] = 0.0
+    out[85] = 0.0
+    out[86] = 0.0
+    out[87] = 0.0
+    out[88] = 0.0
+    out[89] = 0.0
+    out[90] = 1
+    out[91] = 0.0
+    out[92] = 0.0
+    out[93] = 0.0
+    out[94] = 0.0
+    out[95] = 0.0
+    out[96] = 0.0
+    out[97] = 0.0
+    out[98] = 0.0
+    out[99] = 0.0
+    out[100] = 0.0
+    out[101] = 0.0
+    out[102] = 0.0
+    out[103] = 1
+    out[104] = 0.0
+    out[105] = 0.0
+    out[106] = 0.0
+    out[107] = 0.0
+    out[108] = 0.0
+    out[109] = 0.0
+    out[110] = 0.0
+    out[111] = 0.0
+    out[112] = 0.0
+    out[113] = 0.0
+    out[114] = 0.0
+    out[115] = 0.0
+    out[116] = 1
+    out[117] = 0.0
+    out[118] = 0.0
+    out[119] = 0.0
+    out[120] = 0.0
+    out[121] = 0.0
+    out[122] = 0.0
+    out[123] = 0.0
+    out[124] = 0.0
+    out[125] = 0.0
+    out[126] = 0.0
+    out[127] = 0.0
+    out[128] = 0.0
+    out[129] = 1
+    out[130] = 0.0
+    out[131] = 0.0
+    out[132] = 0.0
+    out[133] = 0.0
+    out[134] = 0.0
+    out[135] = 0.0
+    out[136] = 0.0
+    out[137] = 0.0
+    out[138] = 0.0
+    out[139] = 0.0
+    out[140] = 0.0
+    out[141] = 0.0
+    out[142] = 1
+
+
 def c0_zoom__reduced(r, k):
     """Remaining constraints c0(r) of model 'zoom' and their Jacobian: shapes (1,), (1, 2)."""
     p_qw = r[1]
@@ -723,6 +1244,14 @@ def c0_zoom__reduced(r, k):
     C0 = np.zeros((1, 2))
     C0[0, 1] = 2*p_qw
     return c0, C0
+
+
+def row_c0_zoom__reduced(r, k, out):
+    """Row form of ``c0_zoom__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (1,), C0 (1, 2), row-major, one after the other."""
+    p_qw = r[1]
+    out[0] = p_qw**2 - 1
+    out[1] = 0.0
+    out[2] = 2*p_qw
 
 
 def measure_match__zoom__reduced(r, m, k):
@@ -778,6 +1307,56 @@ def measure_match__zoom__reduced(r, m, k):
     return c, C, D
 
 
+def row_measure_match__zoom__reduced(r, m, k, out):
+    """Row form of ``measure_match__zoom__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (3,), C (3, 2), D (3, 4), row-major, one after the other."""
+    p_f2 = r[0]
+    p_qw = r[1]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 1/k_f0
+    _tmp1 = p_qw**2
+    _tmp2 = -k_cy + m_v2
+    _tmp3 = -k_cy + m_v
+    _tmp4 = _tmp0*_tmp1
+    _tmp5 = _tmp3*_tmp4
+    _tmp6 = -k_cx + m_u2
+    _tmp7 = -k_cx + m_u
+    _tmp8 = _tmp4*_tmp7
+    _tmp9 = k_f0**(-2)
+    _tmp10 = _tmp1*_tmp9
+    _tmp11 = _tmp10*_tmp2
+    _tmp12 = 2*p_qw
+    _tmp13 = _tmp0*_tmp12
+    _tmp14 = _tmp13*p_f2
+    _tmp15 = _tmp4*p_f2
+    out[0] = _tmp0*_tmp1*_tmp2 - _tmp5*p_f2
+    out[1] = -_tmp4*_tmp6 + _tmp8*p_f2
+    out[2] = _tmp1*_tmp3*_tmp6*_tmp9 - _tmp11*_tmp7
+    out[3] = -_tmp5
+    out[4] = 2*_tmp0*_tmp2*p_qw - _tmp14*_tmp3
+    out[5] = _tmp8
+    out[6] = -_tmp13*_tmp6 + _tmp14*_tmp7
+    out[7] = 0.0
+    out[8] = -_tmp12*_tmp2*_tmp7*_tmp9 + 2*_tmp3*_tmp6*_tmp9*p_qw
+    out[9] = 0.0
+    out[10] = -_tmp15
+    out[11] = 0.0
+    out[12] = _tmp4
+    out[13] = _tmp15
+    out[14] = 0.0
+    out[15] = -_tmp4
+    out[16] = 0.0
+    out[17] = -_tmp11
+    out[18] = _tmp10*_tmp6
+    out[19] = _tmp10*_tmp3
+    out[20] = -_tmp10*_tmp7
+
+
 def c0_rotation(q, k):
     """Constraints c0(q) of model 'rotation' and their Jacobian: shapes (8,), (8, 12)."""
     p_f1 = q[0]
@@ -818,6 +1397,126 @@ def c0_rotation(q, k):
     return c0, C0
 
 
+def row_c0_rotation(q, k, out):
+    """Row form of ``c0_rotation`` (one measure, ``m`` its whole row): ``out`` holds c0 (8,), C0 (8, 12), row-major, one after the other."""
+    p_f1 = q[0]
+    p_f2 = q[1]
+    p_qw = q[2]
+    p_qx = q[3]
+    p_qy = q[4]
+    p_qz = q[5]
+    p_tx = q[6]
+    p_ty = q[7]
+    p_tz = q[8]
+    p_wx = q[9]
+    p_wy = q[10]
+    p_wz = q[11]
+    out[0] = p_f1 - p_f2
+    out[1] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[2] = p_tx - 1
+    out[3] = p_ty
+    out[4] = p_tz
+    out[5] = p_wx
+    out[6] = p_wy
+    out[7] = p_wz
+    out[8] = 1
+    out[9] = -1
+    out[10] = 0.0
+    out[11] = 0.0
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 0.0
+    out[16] = 0.0
+    out[17] = 0.0
+    out[18] = 0.0
+    out[19] = 0.0
+    out[20] = 0.0
+    out[21] = 0.0
+    out[22] = 2*p_qw
+    out[23] = 2*p_qx
+    out[24] = 2*p_qy
+    out[25] = 2*p_qz
+    out[26] = 0.0
+    out[27] = 0.0
+    out[28] = 0.0
+    out[29] = 0.0
+    out[30] = 0.0
+    out[31] = 0.0
+    out[32] = 0.0
+    out[33] = 0.0
+    out[34] = 0.0
+    out[35] = 0.0
+    out[36] = 0.0
+    out[37] = 0.0
+    out[38] = 1
+    out[39] = 0.0
+    out[40] = 0.0
+    out[41] = 0.0
+    out[42] = 0.0
+    out[43] = 0.0
+    out[44] = 0.0
+    out[45] = 0.0
+    out[46] = 0.0
+    out[47] = 0.0
+    out[48] = 0.0
+    out[49] = 0.0
+    out[50] = 0.0
+    out[51] = 1
+    out[52] = 0.0
+    out[53] = 0.0
+    out[54] = 0.0
+    out[55] = 0.0
+    out[56] = 0.0
+    out[57] = 0.0
+    out[58] = 0.0
+    out[59] = 0.0
+    out[60] = 0.0
+    out[61] = 0.0
+    out[62] = 0.0
+    out[63] = 0.0
+    out[64] = 1
+    out[65] = 0.0
+    out[66] = 0.0
+    out[67] = 0.0
+    out[68] = 0.0
+    out[69] = 0.0
+    out[70] = 0.0
+    out[71] = 0.0
+    out[72] = 0.0
+    out[73] = 0.0
+    out[74] = 0.0
+    out[75] = 0.0
+    out[76] = 0.0
+    out[77] = 1
+    out[78] = 0.0
+    out[79] = 0.0
+    out[80] = 0.0
+    out[81] = 0.0
+    out[82] = 0.0
+    out[83] = 0.0
+    out[84] = 0.0
+    out[85] = 0.0
+    out[86] = 0.0
+    out[87] = 0.0
+    out[88] = 0.0
+    out[89] = 0.0
+    out[90] = 1
+    out[91] = 0.0
+    out[92] = 0.0
+    out[93] = 0.0
+    out[94] = 0.0
+    out[95] = 0.0
+    out[96] = 0.0
+    out[97] = 0.0
+    out[98] = 0.0
+    out[99] = 0.0
+    out[100] = 0.0
+    out[101] = 0.0
+    out[102] = 0.0
+    out[103] = 1
+
+
 def c0_rotation__reduced(r, k):
     """Remaining constraints c0(r) of model 'rotation' and their Jacobian: shapes (1,), (1, 5)."""
     p_qw = r[1]
@@ -833,6 +1532,20 @@ def c0_rotation__reduced(r, k):
     C0[0, 3] = 2*p_qy
     C0[0, 4] = 2*p_qz
     return c0, C0
+
+
+def row_c0_rotation__reduced(r, k, out):
+    """Row form of ``c0_rotation__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (1,), C0 (1, 5), row-major, one after the other."""
+    p_qw = r[1]
+    p_qx = r[2]
+    p_qy = r[3]
+    p_qz = r[4]
+    out[0] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[1] = 0.0
+    out[2] = 2*p_qw
+    out[3] = 2*p_qx
+    out[4] = 2*p_qy
+    out[5] = 2*p_qz
 
 
 def measure_match__rotation__reduced(r, m, k):
@@ -945,6 +1658,110 @@ def measure_match__rotation__reduced(r, m, k):
     return c, C, D
 
 
+def row_measure_match__rotation__reduced(r, m, k, out):
+    """Row form of ``measure_match__rotation__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (3,), C (3, 5), D (3, 4), row-major, one after the other."""
+    p_f1 = r[0]
+    p_qw = r[1]
+    p_qx = r[2]
+    p_qy = r[3]
+    p_qz = r[4]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 2*p_qw
+    _tmp1 = _tmp0*p_qx
+    _tmp2 = -_tmp1 + 2*p_qy*p_qz
+    _tmp3 = _tmp2*p_f1
+    _tmp4 = _tmp0*p_qz
+    _tmp5 = 2*p_qy
+    _tmp6 = _tmp4 + _tmp5*p_qx
+    _tmp7 = 1/k_f0
+    _tmp8 = _tmp7*(-k_cx + m_u)
+    _tmp9 = p_qy**2
+    _tmp10 = p_qz**2
+    _tmp11 = -_tmp10
+    _tmp12 = p_qw**2
+    _tmp13 = p_qx**2
+    _tmp14 = _tmp12 - _tmp13
+    _tmp15 = _tmp11 + _tmp14 + _tmp9
+    _tmp16 = -k_cy + m_v
+    _tmp17 = _tmp16*_tmp7
+    _tmp18 = _tmp15*_tmp17 + _tmp6*_tmp8
+    _tmp19 = _tmp18 + _tmp3
+    _tmp20 = -k_cy + m_v2
+    _tmp21 = _tmp0*p_qy
+    _tmp22 = -_tmp21 + 2*p_qx*p_qz
+    _tmp23 = _tmp1 + _tmp5*p_qz
+    _tmp24 = -_tmp9
+    _tmp25 = _tmp10 + _tmp14 + _tmp24
+    _tmp26 = _tmp17*_tmp23 + _tmp22*_tmp8 + _tmp25*p_f1
+    _tmp27 = 2*p_qx
+    _tmp28 = _tmp21 + _tmp27*p_qz
+    _tmp29 = _tmp28*p_f1
+    _tmp30 = _tmp11 + _tmp12 + _tmp13 + _tmp24
+    _tmp31 = -_tmp4 + 2*p_qx*p_qy
+    _tmp32 = _tmp17*_tmp31 + _tmp30*_tmp8
+    _tmp33 = _tmp29 + _tmp32
+    _tmp34 = -k_cx + m_u2
+    _tmp35 = _tmp26*_tmp7
+    _tmp36 = _tmp19*_tmp7
+    _tmp37 = _tmp33*_tmp7
+    _tmp38 = 2*p_qz
+    _tmp39 = _tmp0*_tmp17 - _tmp27*p_f1 + _tmp38*_tmp8
+    _tmp40 = _tmp0*p_f1 + _tmp17*_tmp27 - _tmp5*_tmp8
+    _tmp41 = _tmp20*_tmp7
+    _tmp42 = -_tmp40*_tmp41
+    _tmp43 = -_tmp40
+    _tmp44 = _tmp17*_tmp5 + _tmp27*_tmp8 + _tmp38*p_f1
+    _tmp45 = _tmp44*p_f1
+    _tmp46 = _tmp0*_tmp8 - 2*_tmp16*_tmp7*p_qz + _tmp5*p_f1
+    _tmp47 = -_tmp46
+    _tmp48 = _tmp46*p_f1
+    _tmp49 = -_tmp41*_tmp44
+    _tmp50 = _tmp34*_tmp7
+    _tmp51 = _tmp39*_tmp50
+    _tmp52 = -_tmp39
+    _tmp53 = _tmp44*_tmp50
+    _tmp54 = _tmp7*p_f1
+    _tmp55 = k_f0**(-2)
+    _tmp56 = _tmp34*_tmp55
+    _tmp57 = _tmp20*_tmp55
+    out[0] = -_tmp19*p_f1 + _tmp20*_tmp26*_tmp7
+    out[1] = _tmp33*p_f1 - _tmp34*_tmp35
+    out[2] = -_tmp20*_tmp37 + _tmp34*_tmp36
+    out[3] = -_tmp18 + _tmp20*_tmp25*_tmp7 - 2*_tmp3
+    out[4] = -_tmp39*p_f1 - _tmp42
+    out[5] = _tmp20*_tmp39*_tmp7 - _tmp43*p_f1
+    out[6] = _tmp20*_tmp47*_tmp7 - _tmp45
+    out[7] = -_tmp48 - _tmp49
+    out[8] = -_tmp25*_tmp50 + 2*_tmp29 + _tmp32
+    out[9] = -_tmp40*_tmp50 + _tmp48
+    out[10] = _tmp45 - _tmp51
+    out[11] = _tmp40*p_f1 - _tmp47*_tmp50
+    out[12] = _tmp52*p_f1 - _tmp53
+    out[13] = _tmp2*_tmp50 - _tmp28*_tmp41
+    out[14] = -_tmp41*_tmp46 + _tmp51
+    out[15] = _tmp43*_tmp50 + _tmp49
+    out[16] = _tmp42 + _tmp53
+    out[17] = -_tmp41*_tmp52 + _tmp46*_tmp50
+    out[18] = _tmp20*_tmp22*_tmp55 - _tmp54*_tmp6
+    out[19] = -_tmp15*_tmp54 + _tmp20*_tmp23*_tmp55
+    out[20] = 0.0
+    out[21] = _tmp35
+    out[22] = -_tmp22*_tmp56 + _tmp30*_tmp54
+    out[23] = -_tmp23*_tmp56 + _tmp31*_tmp54
+    out[24] = -_tmp35
+    out[25] = 0.0
+    out[26] = -_tmp30*_tmp57 + _tmp56*_tmp6
+    out[27] = _tmp15*_tmp56 - _tmp31*_tmp57
+    out[28] = _tmp36
+    out[29] = -_tmp37
+
+
 def c0_retinal_translation(q, k):
     """Constraints c0(q) of model 'retinal_translation' and their Jacobian: shapes (11,), (11, 12)."""
     p_f1 = q[0]
@@ -990,6 +1807,165 @@ def c0_retinal_translation(q, k):
     C0[9, 10] = 1
     C0[10, 11] = 1
     return c0, C0
+
+
+def row_c0_retinal_translation(q, k, out):
+    """Row form of ``c0_retinal_translation`` (one measure, ``m`` its whole row): ``out`` holds c0 (11,), C0 (11, 12), row-major, one after the other."""
+    p_f1 = q[0]
+    p_f2 = q[1]
+    p_qw = q[2]
+    p_qx = q[3]
+    p_qy = q[4]
+    p_qz = q[5]
+    p_tx = q[6]
+    p_ty = q[7]
+    p_tz = q[8]
+    p_wx = q[9]
+    p_wy = q[10]
+    p_wz = q[11]
+    out[0] = p_f1 - 1
+    out[1] = p_f2 - 1
+    out[2] = p_qx
+    out[3] = p_qy
+    out[4] = p_qz
+    out[5] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[6] = p_tz
+    out[7] = p_tx**2 + p_ty**2 + p_tz**2 - 1
+    out[8] = p_wx
+    out[9] = p_wy
+    out[10] = p_wz
+    out[11] = 1
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 0.0
+    out[16] = 0.0
+    out[17] = 0.0
+    out[18] = 0.0
+    out[19] = 0.0
+    out[20] = 0.0
+    out[21] = 0.0
+    out[22] = 0.0
+    out[23] = 0.0
+    out[24] = 1
+    out[25] = 0.0
+    out[26] = 0.0
+    out[27] = 0.0
+    out[28] = 0.0
+    out[29] = 0.0
+    out[30] = 0.0
+    out[31] = 0.0
+    out[32] = 0.0
+    out[33] = 0.0
+    out[34] = 0.0
+    out[35] = 0.0
+    out[36] = 0.0
+    out[37] = 0.0
+    out[38] = 1
+    out[39] = 0.0
+    out[40] = 0.0
+    out[41] = 0.0
+    out[42] = 0.0
+    out[43] = 0.0
+    out[44] = 0.0
+    out[45] = 0.0
+    out[46] = 0.0
+    out[47] = 0.0
+    out[48] = 0.0
+    out[49] = 0.0
+    out[50] = 0.0
+    out[51] = 1
+    out[52] = 0.0
+    out[53] = 0.0
+    out[54] = 0.0
+    out[55] = 0.0
+    out[56] = 0.0
+    out[57] = 0.0
+    out[58] = 0.0
+    out[59] = 0.0
+    out[60] = 0.0
+    out[61] = 0.0
+    out[62] = 0.0
+    out[63] = 0.0
+    out[64] = 1
+    out[65] = 0.0
+    out[66] = 0.0
+    out[67] = 0.0
+    out[68] = 0.0
+    out[69] = 0.0
+    out[70] = 0.0
+    out[71] = 0.0
+    out[72] = 0.0
+    out[73] = 2*p_qw
+    out[74] = 2*p_qx
+    out[75] = 2*p_qy
+    out[76] = 2*p_qz
+    out[77] = 0.0
+    out[78] = 0.0
+    out[79] = 0.0
+    out[80] = 0.0
+    out[81] = 0.0
+    out[82] = 0.0
+    out[83] = 0.0
+    out[84] = 0.0
+    out[85] = 0.0
+    out[86] = 0.0
+    out[87] = 0.0
+    out[88] = 0.0
+    out[89] = 0.0
+    out[90] = 0.0
+    out[91] = 1
+    out[92] = 0.0
+    out[93] = 0.0
+    out[94] = 0.0
+    out[95] = 0.0
+    out[96] = 0.0
+    out[97] = 0.0
+    out[98] = 0.0
+    out[99] = 0.0
+    out[100] = 0.0
+    out[101] = 2*p_tx
+    out[102] = 2*p_ty
+    out[103] = 2*p_tz
+    out[104] = 0.0
+    out[105] = 0.0
+    out[106] = 0.0
+    out[107] = 0.0
+    out[108] = 0.0
+    out[109] = 0.0
+    out[110] = 0.0
+    out[111] = 0.0
+    out[112] = 0.0
+    out[113] = 0.0
+    out[114] = 0.0
+    out[115] = 0.0
+    out[116] = 1
+    out[117] = 0.0
+    out[118] = 0.0
+    out[119] = 0.0
+    out[120] = 0.0
+    out[121] = 0.0
+    out[122] = 0.0
+    out[123] = 0.0
+    out[124] = 0.0
+    out[125] = 0.0
+    out[126] = 0.0
+    out[127] = 0.0
+    out[128] = 0.0
+    out[129] = 1
+    out[130] = 0.0
+    out[131] = 0.0
+    out[132] = 0.0
+    out[133] = 0.0
+    out[134] = 0.0
+    out[135] = 0.0
+    out[136] = 0.0
+    out[137] = 0.0
+    out[138] = 0.0
+    out[139] = 0.0
+    out[140] = 0.0
+    out[141] = 0.0
+    out[142] = 1
 
 
 def measure_match(q, m, k):
@@ -1116,6 +2092,125 @@ def measure_match(q, m, k):
     return c, C, D
 
 
+def row_measure_match(q, m, k, out):
+    """Row form of ``measure_match`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 12), D (1, 4), row-major, one after the other."""
+    p_f1 = q[0]
+    p_f2 = q[1]
+    p_qw = q[2]
+    p_qx = q[3]
+    p_qy = q[4]
+    p_qz = q[5]
+    p_tx = q[6]
+    p_ty = q[7]
+    p_tz = q[8]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 2*p_qw
+    _tmp1 = _tmp0*p_qx
+    _tmp2 = 2*p_qz
+    _tmp3 = _tmp2*p_qy
+    _tmp4 = _tmp1 - _tmp3
+    _tmp5 = -_tmp4
+    _tmp6 = _tmp0*p_qy
+    _tmp7 = _tmp2*p_qx
+    _tmp8 = _tmp6 + _tmp7
+    _tmp9 = _tmp5*p_tx - _tmp8*p_ty
+    _tmp10 = _tmp0*p_qz
+    _tmp11 = 2*p_qx
+    _tmp12 = _tmp11*p_qy
+    _tmp13 = _tmp10 + _tmp12
+    _tmp14 = p_qx**2
+    _tmp15 = p_qy**2
+    _tmp16 = -_tmp15
+    _tmp17 = p_qw**2
+    _tmp18 = p_qz**2
+    _tmp19 = _tmp17 - _tmp18
+    _tmp20 = _tmp14 + _tmp16 + _tmp19
+    _tmp21 = _tmp13*p_tx - _tmp20*p_ty
+    _tmp22 = 1/k_f0
+    _tmp23 = _tmp22*(-k_cx + m_u)
+    _tmp24 = _tmp10 - _tmp12
+    _tmp25 = -_tmp24
+    _tmp26 = -_tmp14
+    _tmp27 = _tmp15 + _tmp19 + _tmp26
+    _tmp28 = -_tmp25*p_ty + _tmp27*p_tx
+    _tmp29 = _tmp22*(-k_cy + m_v)
+    _tmp30 = _tmp21*_tmp23 + _tmp28*_tmp29 + _tmp9*p_f1
+    _tmp31 = -k_cx + m_u2
+    _tmp32 = _tmp6 - _tmp7
+    _tmp33 = -_tmp32
+    _tmp34 = -_tmp13*p_tz + _tmp33*p_ty
+    _tmp35 = _tmp16 + _tmp17 + _tmp18 + _tmp26
+    _tmp36 = _tmp35*p_ty - _tmp5*p_tz
+    _tmp37 = _tmp1 + _tmp3
+    _tmp38 = -_tmp27*p_tz + _tmp37*p_ty
+    _tmp39 = _tmp22*(_tmp23*_tmp34 + _tmp29*_tmp38 + _tmp36*p_f1)
+    _tmp40 = -k_cy + m_v2
+    _tmp41 = _tmp25*p_tz - _tmp37*p_tx
+    _tmp42 = -_tmp35*p_tx + _tmp8*p_tz
+    _tmp43 = _tmp20*p_tz - _tmp33*p_tx
+    _tmp44 = _tmp22*(_tmp23*_tmp43 + _tmp29*_tmp41 + _tmp42*p_f1)
+    _tmp45 = _tmp22*_tmp31
+    _tmp46 = _tmp22*_tmp40
+    _tmp47 = _tmp11*p_tx
+    _tmp48 = 2*p_qy
+    _tmp49 = _tmp48*p_ty
+    _tmp50 = _tmp47 + _tmp49
+    _tmp51 = -_tmp50
+    _tmp52 = _tmp0*p_ty
+    _tmp53 = -_tmp2*p_tx
+    _tmp54 = _tmp52 + _tmp53
+    _tmp55 = -_tmp54
+    _tmp56 = _tmp0*p_tx
+    _tmp57 = _tmp2*p_ty
+    _tmp58 = _tmp56 + _tmp57
+    _tmp59 = _tmp11*p_tz
+    _tmp60 = _tmp52 + _tmp59
+    _tmp61 = _tmp2*p_tz
+    _tmp62 = _tmp49 + _tmp61
+    _tmp63 = -_tmp62
+    _tmp64 = _tmp0*p_tz
+    _tmp65 = _tmp11*p_ty
+    _tmp66 = _tmp64 - _tmp65
+    _tmp67 = -_tmp66
+    _tmp68 = _tmp48*p_tz
+    _tmp69 = _tmp56 - _tmp68
+    _tmp70 = -_tmp69
+    _tmp71 = _tmp48*p_tx
+    _tmp72 = _tmp64 + _tmp71
+    _tmp73 = _tmp47 + _tmp61
+    _tmp74 = -_tmp73
+    _tmp75 = -_tmp65 + _tmp71
+    _tmp76 = _tmp57 - _tmp68
+    _tmp77 = _tmp53 + _tmp59
+    _tmp78 = k_f0**(-2)
+    _tmp79 = _tmp31*_tmp78
+    _tmp80 = _tmp22*p_f2
+    _tmp81 = _tmp40*_tmp78
+    out[0] = _tmp30*p_f2 + _tmp31*_tmp39 + _tmp40*_tmp44
+    out[1] = _tmp36*_tmp45 + _tmp42*_tmp46 + _tmp9*p_f2
+    out[2] = _tmp30
+    out[3] = _tmp45*(_tmp23*_tmp63 + _tmp29*_tmp67 + _tmp60*p_f1) + _tmp46*(_tmp23*_tmp72 + _tmp29*_tmp74 + _tmp70*p_f1) + p_f2*(_tmp23*_tmp55 + _tmp29*_tmp58 + _tmp51*p_f1)
+    out[4] = _tmp45*(_tmp23*_tmp76 + _tmp29*_tmp60 + _tmp66*p_f1) + _tmp46*(_tmp23*_tmp77 + _tmp29*_tmp70 + _tmp73*p_f1) + p_f2*(_tmp23*_tmp75 + _tmp29*_tmp51 - _tmp58*p_f1)
+    out[5] = _tmp45*(-_tmp23*_tmp60 + _tmp29*_tmp76 + _tmp63*p_f1) + _tmp46*(_tmp23*_tmp69 + _tmp29*_tmp77 + _tmp72*p_f1) + p_f2*(_tmp23*_tmp50 + _tmp29*_tmp75 + _tmp55*p_f1)
+    out[6] = _tmp45*(_tmp23*_tmp67 + _tmp29*_tmp62 + _tmp76*p_f1) + _tmp46*(_tmp23*_tmp74 - _tmp29*_tmp72 + _tmp77*p_f1) + p_f2*(_tmp23*_tmp58 + _tmp29*_tmp54 + _tmp75*p_f1)
+    out[7] = _tmp46*(_tmp23*_tmp32 - _tmp29*_tmp37 - _tmp35*p_f1) + p_f2*(_tmp13*_tmp23 + _tmp27*_tmp29 + _tmp5*p_f1)
+    out[8] = _tmp45*(_tmp23*_tmp33 + _tmp29*_tmp37 + _tmp35*p_f1) + p_f2*(-_tmp20*_tmp23 + _tmp24*_tmp29 - _tmp8*p_f1)
+    out[9] = _tmp45*(-_tmp13*_tmp23 - _tmp27*_tmp29 + _tmp4*p_f1) + _tmp46*(_tmp20*_tmp23 + _tmp25*_tmp29 + _tmp8*p_f1)
+    out[10] = 0.0
+    out[11] = 0.0
+    out[12] = 0.0
+    out[13] = _tmp21*_tmp80 + _tmp34*_tmp79 + _tmp43*_tmp81
+    out[14] = _tmp28*_tmp80 + _tmp38*_tmp79 + _tmp41*_tmp81
+    out[15] = _tmp39
+    out[16] = _tmp44
+
+
 def c0_retinal_translation__reduced(r, k):
     """Remaining constraints c0(r) of model 'retinal_translation' and their Jacobian: shapes (2,), (2, 3)."""
     p_qw = r[0]
@@ -1130,6 +2225,21 @@ def c0_retinal_translation__reduced(r, k):
     C0[1, 1] = 2*p_tx
     C0[1, 2] = 2*p_ty
     return c0, C0
+
+
+def row_c0_retinal_translation__reduced(r, k, out):
+    """Row form of ``c0_retinal_translation__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (2,), C0 (2, 3), row-major, one after the other."""
+    p_qw = r[0]
+    p_tx = r[1]
+    p_ty = r[2]
+    out[0] = p_qw**2 - 1
+    out[1] = p_tx**2 + p_ty**2 - 1
+    out[2] = 2*p_qw
+    out[3] = 0.0
+    out[4] = 0.0
+    out[5] = 0.0
+    out[6] = 2*p_tx
+    out[7] = 2*p_ty
 
 
 def measure_match__retinal_translation__reduced(r, m, k):
@@ -1177,6 +2287,43 @@ def measure_match__retinal_translation__reduced(r, m, k):
     return c, C, D
 
 
+def row_measure_match__retinal_translation__reduced(r, m, k, out):
+    """Row form of ``measure_match__retinal_translation__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 3), D (1, 4), row-major, one after the other."""
+    p_qw = r[0]
+    p_tx = r[1]
+    p_ty = r[2]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = -k_cy + m_v
+    _tmp1 = 1/k_f0
+    _tmp2 = p_qw**2
+    _tmp3 = _tmp1*_tmp2
+    _tmp4 = _tmp0*_tmp3
+    _tmp5 = -k_cx + m_u2
+    _tmp6 = -k_cy + m_v2
+    _tmp7 = _tmp3*_tmp6
+    _tmp8 = -k_cx + m_u
+    _tmp9 = _tmp3*_tmp8
+    _tmp10 = 2*_tmp1*p_qw
+    _tmp11 = _tmp10*p_tx
+    _tmp12 = _tmp10*p_ty
+    _tmp13 = _tmp3*p_ty
+    _tmp14 = _tmp3*p_tx
+    out[0] = _tmp3*_tmp5*p_ty + _tmp4*p_tx - _tmp7*p_tx - _tmp9*p_ty
+    out[1] = _tmp0*_tmp11 - _tmp11*_tmp6 + _tmp12*_tmp5 - _tmp12*_tmp8
+    out[2] = _tmp4 - _tmp7
+    out[3] = _tmp1*_tmp2*_tmp5 - _tmp9
+    out[4] = -_tmp13
+    out[5] = _tmp14
+    out[6] = _tmp13
+    out[7] = -_tmp14
+
+
 def c0_retinal_displacement(q, k):
     """Constraints c0(q) of model 'retinal_displacement' and their Jacobian: shapes (10,), (10, 12)."""
     p_f1 = q[0]
@@ -1222,6 +2369,152 @@ def c0_retinal_displacement(q, k):
     return c0, C0
 
 
+def row_c0_retinal_displacement(q, k, out):
+    """Row form of ``c0_retinal_displacement`` (one measure, ``m`` its whole row): ``out`` holds c0 (10,), C0 (10, 12), row-major, one after the other."""
+    p_f1 = q[0]
+    p_f2 = q[1]
+    p_qw = q[2]
+    p_qx = q[3]
+    p_qy = q[4]
+    p_qz = q[5]
+    p_tx = q[6]
+    p_ty = q[7]
+    p_tz = q[8]
+    p_wx = q[9]
+    p_wy = q[10]
+    p_wz = q[11]
+    out[0] = p_f1 - 1
+    out[1] = p_f2 - 1
+    out[2] = p_qx
+    out[3] = p_qy
+    out[4] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[5] = p_tz
+    out[6] = p_tx**2 + p_ty**2 + p_tz**2 - 1
+    out[7] = p_wx
+    out[8] = p_wy
+    out[9] = p_wz
+    out[10] = 1
+    out[11] = 0.0
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 0.0
+    out[16] = 0.0
+    out[17] = 0.0
+    out[18] = 0.0
+    out[19] = 0.0
+    out[20] = 0.0
+    out[21] = 0.0
+    out[22] = 0.0
+    out[23] = 1
+    out[24] = 0.0
+    out[25] = 0.0
+    out[26] = 0.0
+    out[27] = 0.0
+    out[28] = 0.0
+    out[29] = 0.0
+    out[30] = 0.0
+    out[31] = 0.0
+    out[32] = 0.0
+    out[33] = 0.0
+    out[34] = 0.0
+    out[35] = 0.0
+    out[36] = 0.0
+    out[37] = 1
+    out[38] = 0.0
+    out[39] = 0.0
+    out[40] = 0.0
+    out[41] = 0.0
+    out[42] = 0.0
+    out[43] = 0.0
+    out[44] = 0.0
+    out[45] = 0.0
+    out[46] = 0.0
+    out[47] = 0.0
+    out[48] = 0.0
+    out[49] = 0.0
+    out[50] = 1
+    out[51] = 0.0
+    out[52] = 0.0
+    out[53] = 0.0
+    out[54] = 0.0
+    out[55] = 0.0
+    out[56] = 0.0
+    out[57] = 0.0
+    out[58] = 0.0
+    out[59] = 0.0
+    out[60] = 2*p_qw
+    out[61] = 2*p_qx
+    out[62] = 2*p_qy
+    out[63] = 2*p_qz
+    out[64] = 0.0
+    out[65] = 0.0
+    out[66] = 0.0
+    out[67] = 0.0
+    out[68] = 0.0
+    out[69] = 0.0
+    out[70] = 0.0
+    out[71] = 0.0
+    out[72] = 0.0
+    out[73] = 0.0
+    out[74] = 0.0
+    out[75] = 0.0
+    out[76] = 0.0
+    out[77] = 0.0
+    out[78] = 1
+    out[79] = 0.0
+    out[80] = 0.0
+    out[81] = 0.0
+    out[82] = 0.0
+    out[83] = 0.0
+    out[84] = 0.0
+    out[85] = 0.0
+    out[86] = 0.0
+    out[87] = 0.0
+    out[88] = 2*p_tx
+    out[89] = 2*p_ty
+    out[90] = 2*p_tz
+    out[91] = 0.0
+    out[92] = 0.0
+    out[93] = 0.0
+    out[94] = 0.0
+    out[95] = 0.0
+    out[96] = 0.0
+    out[97] = 0.0
+    out[98] = 0.0
+    out[99] = 0.0
+    out[100] = 0.0
+    out[101] = 0.0
+    out[102] = 0.0
+    out[103] = 1
+    out[104] = 0.0
+    out[105] = 0.0
+    out[106] = 0.0
+    out[107] = 0.0
+    out[108] = 0.0
+    out[109] = 0.0
+    out[110] = 0.0
+    out[111] = 0.0
+    out[112] = 0.0
+    out[113] = 0.0
+    out[114] = 0.0
+    out[115] = 0.0
+    out[116] = 1
+    out[117] = 0.0
+    out[118] = 0.0
+    out[119] = 0.0
+    out[120] = 0.0
+    out[121] = 0.0
+    out[122] = 0.0
+    out[123] = 0.0
+    out[124] = 0.0
+    out[125] = 0.0
+    out[126] = 0.0
+    out[127] = 0.0
+    out[128] = 0.0
+    out[129] = 1
+
+
 def c0_retinal_displacement__reduced(r, k):
     """Remaining constraints c0(r) of model 'retinal_displacement' and their Jacobian: shapes (2,), (2, 4)."""
     p_qw = r[0]
@@ -1238,6 +2531,24 @@ def c0_retinal_displacement__reduced(r, k):
     C0[1, 2] = 2*p_tx
     C0[1, 3] = 2*p_ty
     return c0, C0
+
+
+def row_c0_retinal_displacement__reduced(r, k, out):
+    """Row form of ``c0_retinal_displacement__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (2,), C0 (2, 4), row-major, one after the other."""
+    p_qw = r[0]
+    p_qz = r[1]
+    p_tx = r[2]
+    p_ty = r[3]
+    out[0] = p_qw**2 + p_qz**2 - 1
+    out[1] = p_tx**2 + p_ty**2 - 1
+    out[2] = 2*p_qw
+    out[3] = 2*p_qz
+    out[4] = 0.0
+    out[5] = 0.0
+    out[6] = 0.0
+    out[7] = 0.0
+    out[8] = 2*p_tx
+    out[9] = 2*p_ty
 
 
 def measure_match__retinal_displacement__reduced(r, m, k):
@@ -1297,6 +2608,55 @@ def measure_match__retinal_displacement__reduced(r, m, k):
     return c, C, D
 
 
+def row_measure_match__retinal_displacement__reduced(r, m, k, out):
+    """Row form of ``measure_match__retinal_displacement__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 4), D (1, 4), row-major, one after the other."""
+    p_qw = r[0]
+    p_qz = r[1]
+    p_tx = r[2]
+    p_ty = r[3]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = -k_cx + m_u2
+    _tmp1 = 1/k_f0
+    _tmp2 = p_qw**2
+    _tmp3 = p_qz**2
+    _tmp4 = _tmp1*(_tmp2 + _tmp3)
+    _tmp5 = _tmp0*_tmp4
+    _tmp6 = -k_cy + m_v2
+    _tmp7 = _tmp4*_tmp6
+    _tmp8 = -k_cy + m_v
+    _tmp9 = 2*p_qw
+    _tmp10 = _tmp9*p_ty
+    _tmp11 = _tmp2 - _tmp3
+    _tmp12 = _tmp1*(_tmp10*p_qz + _tmp11*p_tx)
+    _tmp13 = -k_cx + m_u
+    _tmp14 = _tmp9*p_tx
+    _tmp15 = _tmp1*(-_tmp11*p_ty + _tmp14*p_qz)
+    _tmp16 = _tmp1*_tmp6
+    _tmp17 = _tmp0*_tmp1
+    _tmp18 = _tmp10 - 2*p_qz*p_tx
+    _tmp19 = _tmp1*_tmp13
+    _tmp20 = 2*p_qz
+    _tmp21 = _tmp20*p_ty
+    _tmp22 = _tmp14 + _tmp21
+    _tmp23 = _tmp1*_tmp8
+    _tmp24 = _tmp9*p_qz
+    out[0] = _tmp12*_tmp8 + _tmp13*_tmp15 + _tmp5*p_ty - _tmp7*p_tx
+    out[1] = _tmp10*_tmp17 - _tmp14*_tmp16 - _tmp18*_tmp19 + _tmp22*_tmp23
+    out[2] = -_tmp16*_tmp20*p_tx + _tmp17*_tmp21 + _tmp18*_tmp23 + _tmp19*_tmp22
+    out[3] = _tmp11*_tmp23 + _tmp19*_tmp24 - _tmp7
+    out[4] = -_tmp11*_tmp19 + _tmp23*_tmp24 + _tmp5
+    out[5] = _tmp15
+    out[6] = _tmp12
+    out[7] = _tmp4*p_ty
+    out[8] = -_tmp4*p_tx
+
+
 def c0_translation(q, k):
     """Constraints c0(q) of model 'translation' and their Jacobian: shapes (10,), (10, 12)."""
     p_f1 = q[0]
@@ -1342,6 +2702,152 @@ def c0_translation(q, k):
     return c0, C0
 
 
+def row_c0_translation(q, k, out):
+    """Row form of ``c0_translation`` (one measure, ``m`` its whole row): ``out`` holds c0 (10,), C0 (10, 12), row-major, one after the other."""
+    p_f1 = q[0]
+    p_f2 = q[1]
+    p_qw = q[2]
+    p_qx = q[3]
+    p_qy = q[4]
+    p_qz = q[5]
+    p_tx = q[6]
+    p_ty = q[7]
+    p_tz = q[8]
+    p_wx = q[9]
+    p_wy = q[10]
+    p_wz = q[11]
+    out[0] = p_f1 - 1
+    out[1] = p_f2 - 1
+    out[2] = p_qx
+    out[3] = p_qy
+    out[4] = p_qz
+    out[5] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[6] = p_tx**2 + p_ty**2 + p_tz**2 - 1
+    out[7] = p_wx
+    out[8] = p_wy
+    out[9] = p_wz
+    out[10] = 1
+    out[11] = 0.0
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 0.0
+    out[16] = 0.0
+    out[17] = 0.0
+    out[18] = 0.0
+    out[19] = 0.0
+    out[20] = 0.0
+    out[21] = 0.0
+    out[22] = 0.0
+    out[23] = 1
+    out[24] = 0.0
+    out[25] = 0.0
+    out[26] = 0.0
+    out[27] = 0.0
+    out[28] = 0.0
+    out[29] = 0.0
+    out[30] = 0.0
+    out[31] = 0.0
+    out[32] = 0.0
+    out[33] = 0.0
+    out[34] = 0.0
+    out[35] = 0.0
+    out[36] = 0.0
+    out[37] = 1
+    out[38] = 0.0
+    out[39] = 0.0
+    out[40] = 0.0
+    out[41] = 0.0
+    out[42] = 0.0
+    out[43] = 0.0
+    out[44] = 0.0
+    out[45] = 0.0
+    out[46] = 0.0
+    out[47] = 0.0
+    out[48] = 0.0
+    out[49] = 0.0
+    out[50] = 1
+    out[51] = 0.0
+    out[52] = 0.0
+    out[53] = 0.0
+    out[54] = 0.0
+    out[55] = 0.0
+    out[56] = 0.0
+    out[57] = 0.0
+    out[58] = 0.0
+    out[59] = 0.0
+    out[60] = 0.0
+    out[61] = 0.0
+    out[62] = 0.0
+    out[63] = 1
+    out[64] = 0.0
+    out[65] = 0.0
+    out[66] = 0.0
+    out[67] = 0.0
+    out[68] = 0.0
+    out[69] = 0.0
+    out[70] = 0.0
+    out[71] = 0.0
+    out[72] = 2*p_qw
+    out[73] = 2*p_qx
+    out[74] = 2*p_qy
+    out[75] = 2*p_qz
+    out[76] = 0.0
+    out[77] = 0.0
+    out[78] = 0.0
+    out[79] = 0.0
+    out[80] = 0.0
+    out[81] = 0.0
+    out[82] = 0.0
+    out[83] = 0.0
+    out[84] = 0.0
+    out[85] = 0.0
+    out[86] = 0.0
+    out[87] = 0.0
+    out[88] = 2*p_tx
+    out[89] = 2*p_ty
+    out[90] = 2*p_tz
+    out[91] = 0.0
+    out[92] = 0.0
+    out[93] = 0.0
+    out[94] = 0.0
+    out[95] = 0.0
+    out[96] = 0.0
+    out[97] = 0.0
+    out[98] = 0.0
+    out[99] = 0.0
+    out[100] = 0.0
+    out[101] = 0.0
+    out[102] = 0.0
+    out[103] = 1
+    out[104] = 0.0
+    out[105] = 0.0
+    out[106] = 0.0
+    out[107] = 0.0
+    out[108] = 0.0
+    out[109] = 0.0
+    out[110] = 0.0
+    out[111] = 0.0
+    out[112] = 0.0
+    out[113] = 0.0
+    out[114] = 0.0
+    out[115] = 0.0
+    out[116] = 1
+    out[117] = 0.0
+    out[118] = 0.0
+    out[119] = 0.0
+    out[120] = 0.0
+    out[121] = 0.0
+    out[122] = 0.0
+    out[123] = 0.0
+    out[124] = 0.0
+    out[125] = 0.0
+    out[126] = 0.0
+    out[127] = 0.0
+    out[128] = 0.0
+    out[129] = 1
+
+
 def c0_translation__reduced(r, k):
     """Remaining constraints c0(r) of model 'translation' and their Jacobian: shapes (2,), (2, 4)."""
     p_qw = r[0]
@@ -1358,6 +2864,24 @@ def c0_translation__reduced(r, k):
     C0[1, 2] = 2*p_ty
     C0[1, 3] = 2*p_tz
     return c0, C0
+
+
+def row_c0_translation__reduced(r, k, out):
+    """Row form of ``c0_translation__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (2,), C0 (2, 4), row-major, one after the other."""
+    p_qw = r[0]
+    p_tx = r[1]
+    p_ty = r[2]
+    p_tz = r[3]
+    out[0] = p_qw**2 - 1
+    out[1] = p_tx**2 + p_ty**2 + p_tz**2 - 1
+    out[2] = 2*p_qw
+    out[3] = 0.0
+    out[4] = 0.0
+    out[5] = 0.0
+    out[6] = 0.0
+    out[7] = 2*p_tx
+    out[8] = 2*p_ty
+    out[9] = 2*p_tz
 
 
 def measure_match__translation__reduced(r, m, k):
@@ -1414,6 +2938,52 @@ def measure_match__translation__reduced(r, m, k):
     return c, C, D
 
 
+def row_measure_match__translation__reduced(r, m, k, out):
+    """Row form of ``measure_match__translation__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 4), D (1, 4), row-major, one after the other."""
+    p_qw = r[0]
+    p_tx = r[1]
+    p_ty = r[2]
+    p_tz = r[3]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = -k_cy + m_v
+    _tmp1 = 1/k_f0
+    _tmp2 = p_qw**2
+    _tmp3 = _tmp2*p_tx
+    _tmp4 = _tmp1*_tmp3
+    _tmp5 = -k_cx + m_u
+    _tmp6 = _tmp2*p_ty
+    _tmp7 = _tmp1*_tmp6
+    _tmp8 = -k_cx + m_u2
+    _tmp9 = _tmp1*_tmp2
+    _tmp10 = _tmp0*_tmp9
+    _tmp11 = _tmp1*(-_tmp10*p_tz + _tmp6)
+    _tmp12 = -k_cy + m_v2
+    _tmp13 = _tmp1*(_tmp1*_tmp2*_tmp5*p_tz - _tmp3)
+    _tmp14 = 2*p_qw
+    _tmp15 = _tmp14*p_tx
+    _tmp16 = _tmp0*_tmp1
+    _tmp17 = _tmp14*p_ty
+    _tmp18 = _tmp1*_tmp12
+    _tmp19 = k_f0**(-2)
+    _tmp20 = _tmp19*_tmp2
+    _tmp21 = _tmp20*_tmp8
+    out[0] = _tmp0*_tmp4 + _tmp11*_tmp8 + _tmp12*_tmp13 - _tmp5*_tmp7
+    out[1] = -_tmp1*_tmp17*_tmp5 + _tmp1*_tmp8*(-_tmp14*_tmp16*p_tz + _tmp17) + _tmp15*_tmp16 + _tmp18*(2*_tmp1*_tmp5*p_qw*p_tz - _tmp15)
+    out[2] = _tmp10 - _tmp18*_tmp2
+    out[3] = _tmp1*_tmp2*_tmp8 - _tmp5*_tmp9
+    out[4] = -_tmp0*_tmp21 + _tmp12*_tmp20*_tmp5
+    out[5] = _tmp12*_tmp19*_tmp2*p_tz - _tmp7
+    out[6] = -_tmp21*p_tz + _tmp4
+    out[7] = _tmp11
+    out[8] = _tmp13
+
+
 def c0_planar(q, k):
     """Constraints c0(q) of model 'planar' and their Jacobian: shapes (4,), (4, 12)."""
     p_f1 = q[0]
@@ -1444,6 +3014,71 @@ def c0_planar(q, k):
     return c0, C0
 
 
+def row_c0_planar(q, k, out):
+    """Row form of ``c0_planar`` (one measure, ``m`` its whole row): ``out`` holds c0 (4,), C0 (4, 12), row-major, one after the other."""
+    p_f1 = q[0]
+    p_f2 = q[1]
+    p_qw = q[2]
+    p_qx = q[3]
+    p_qy = q[4]
+    p_qz = q[5]
+    p_tx = q[6]
+    p_ty = q[7]
+    p_tz = q[8]
+    out[0] = p_f1 - 1
+    out[1] = p_f2 - 1
+    out[2] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[3] = p_tx**2 + p_ty**2 + p_tz**2 - 1
+    out[4] = 1
+    out[5] = 0.0
+    out[6] = 0.0
+    out[7] = 0.0
+    out[8] = 0.0
+    out[9] = 0.0
+    out[10] = 0.0
+    out[11] = 0.0
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 0.0
+    out[16] = 0.0
+    out[17] = 1
+    out[18] = 0.0
+    out[19] = 0.0
+    out[20] = 0.0
+    out[21] = 0.0
+    out[22] = 0.0
+    out[23] = 0.0
+    out[24] = 0.0
+    out[25] = 0.0
+    out[26] = 0.0
+    out[27] = 0.0
+    out[28] = 0.0
+    out[29] = 0.0
+    out[30] = 2*p_qw
+    out[31] = 2*p_qx
+    out[32] = 2*p_qy
+    out[33] = 2*p_qz
+    out[34] = 0.0
+    out[35] = 0.0
+    out[36] = 0.0
+    out[37] = 0.0
+    out[38] = 0.0
+    out[39] = 0.0
+    out[40] = 0.0
+    out[41] = 0.0
+    out[42] = 0.0
+    out[43] = 0.0
+    out[44] = 0.0
+    out[45] = 0.0
+    out[46] = 2*p_tx
+    out[47] = 2*p_ty
+    out[48] = 2*p_tz
+    out[49] = 0.0
+    out[50] = 0.0
+    out[51] = 0.0
+
+
 def c0_planar__reduced(r, k):
     """Remaining constraints c0(r) of model 'planar' and their Jacobian: shapes (2,), (2, 10)."""
     p_qw = r[0]
@@ -1466,6 +3101,39 @@ def c0_planar__reduced(r, k):
     C0[1, 5] = 2*p_ty
     C0[1, 6] = 2*p_tz
     return c0, C0
+
+
+def row_c0_planar__reduced(r, k, out):
+    """Row form of ``c0_planar__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (2,), C0 (2, 10), row-major, one after the other."""
+    p_qw = r[0]
+    p_qx = r[1]
+    p_qy = r[2]
+    p_qz = r[3]
+    p_tx = r[4]
+    p_ty = r[5]
+    p_tz = r[6]
+    out[0] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[1] = p_tx**2 + p_ty**2 + p_tz**2 - 1
+    out[2] = 2*p_qw
+    out[3] = 2*p_qx
+    out[4] = 2*p_qy
+    out[5] = 2*p_qz
+    out[6] = 0.0
+    out[7] = 0.0
+    out[8] = 0.0
+    out[9] = 0.0
+    out[10] = 0.0
+    out[11] = 0.0
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 0.0
+    out[16] = 2*p_tx
+    out[17] = 2*p_ty
+    out[18] = 2*p_tz
+    out[19] = 0.0
+    out[20] = 0.0
+    out[21] = 0.0
 
 
 def measure_match__planar__reduced(r, m, k):
@@ -1598,6 +3266,133 @@ def measure_match__planar__reduced(r, m, k):
     return c, C, D
 
 
+def row_measure_match__planar__reduced(r, m, k, out):
+    """Row form of ``measure_match__planar__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (3,), C (3, 10), D (3, 4), row-major, one after the other."""
+    p_qw = r[0]
+    p_qx = r[1]
+    p_qy = r[2]
+    p_qz = r[3]
+    p_tx = r[4]
+    p_ty = r[5]
+    p_tz = r[6]
+    p_wx = r[7]
+    p_wy = r[8]
+    p_wz = r[9]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 1/k_f0
+    _tmp1 = -k_cy + m_v2
+    _tmp2 = p_qw**2
+    _tmp3 = p_qz**2
+    _tmp4 = p_qx**2
+    _tmp5 = -_tmp4
+    _tmp6 = p_qy**2
+    _tmp7 = -_tmp6
+    _tmp8 = 2*p_qw
+    _tmp9 = _tmp8*p_qy
+    _tmp10 = 2*p_qx
+    _tmp11 = _tmp10*p_qz
+    _tmp12 = _tmp11 - _tmp9 + p_tz*p_wx
+    _tmp13 = -k_cx + m_u
+    _tmp14 = _tmp0*_tmp13
+    _tmp15 = _tmp10*p_qw
+    _tmp16 = 2*p_qz
+    _tmp17 = _tmp16*p_qy
+    _tmp18 = _tmp15 + _tmp17 + p_tz*p_wy
+    _tmp19 = -k_cy + m_v
+    _tmp20 = _tmp0*_tmp19
+    _tmp21 = _tmp12*_tmp14 + _tmp18*_tmp20 + _tmp2 + _tmp3 + _tmp5 + _tmp7 + p_tz*p_wz
+    _tmp22 = _tmp8*p_qz
+    _tmp23 = _tmp10*p_qy
+    _tmp24 = _tmp22 + _tmp23 + p_ty*p_wx
+    _tmp25 = _tmp0*_tmp24
+    _tmp26 = _tmp2 - _tmp3
+    _tmp27 = _tmp26 + _tmp5 + _tmp6 + p_ty*p_wy
+    _tmp28 = _tmp0*_tmp27
+    _tmp29 = _tmp13*_tmp25 - _tmp15 + _tmp17 + _tmp19*_tmp28 + p_ty*p_wz
+    _tmp30 = -k_cx + m_u2
+    _tmp31 = _tmp0*_tmp21
+    _tmp32 = -_tmp22 + _tmp23 + p_tx*p_wy
+    _tmp33 = _tmp0*_tmp32
+    _tmp34 = _tmp26 + _tmp4 + _tmp7 + p_tx*p_wx
+    _tmp35 = _tmp0*_tmp34
+    _tmp36 = _tmp11 + _tmp13*_tmp35 + _tmp19*_tmp33 + _tmp9 + p_tx*p_wz
+    _tmp37 = _tmp0*_tmp29
+    _tmp38 = _tmp0*_tmp36
+    _tmp39 = _tmp20*_tmp8
+    _tmp40 = _tmp14*_tmp16
+    _tmp41 = 2*p_qy
+    _tmp42 = _tmp10*_tmp20 - _tmp14*_tmp41 + _tmp8
+    _tmp43 = _tmp0*_tmp1
+    _tmp44 = _tmp42*_tmp43
+    _tmp45 = -_tmp10 + _tmp39 + _tmp40
+    _tmp46 = _tmp14*_tmp8 - _tmp16*_tmp20 + _tmp41
+    _tmp47 = -_tmp46
+    _tmp48 = _tmp10*_tmp14 + _tmp16 + _tmp20*_tmp41
+    _tmp49 = -_tmp43*_tmp48
+    _tmp50 = _tmp14*p_wx + _tmp20*p_wy + p_wz
+    _tmp51 = _tmp43*_tmp50
+    _tmp52 = k_f0**(-2)
+    _tmp53 = _tmp0*_tmp30
+    _tmp54 = _tmp45*_tmp53
+    _tmp55 = _tmp48*_tmp53
+    _tmp56 = _tmp50*_tmp53
+    _tmp57 = _tmp30*_tmp52
+    _tmp58 = _tmp57*p_tz
+    _tmp59 = _tmp1*_tmp52
+    _tmp60 = _tmp59*p_tx
+    out[0] = _tmp0*_tmp1*_tmp21 - _tmp29
+    out[1] = -_tmp30*_tmp31 + _tmp36
+    out[2] = -_tmp1*_tmp38 + _tmp30*_tmp37
+    out[3] = _tmp10 - _tmp39 - _tmp40 + _tmp44
+    out[4] = _tmp42 + _tmp43*_tmp45
+    out[5] = _tmp0*_tmp1*_tmp47 - _tmp48
+    out[6] = -_tmp46 - _tmp49
+    out[7] = 0.0
+    out[8] = -_tmp50
+    out[9] = _tmp51
+    out[10] = _tmp1*_tmp13*_tmp52*p_tz - _tmp14*p_ty
+    out[11] = _tmp1*_tmp19*_tmp52*p_tz - _tmp20*p_ty
+    out[12] = _tmp0*_tmp1*p_tz - p_ty
+    out[13] = -_tmp42*_tmp53 + _tmp46
+    out[14] = _tmp48 - _tmp54
+    out[15] = _tmp42 - _tmp47*_tmp53
+    out[16] = -_tmp45 - _tmp55
+    out[17] = _tmp50
+    out[18] = 0.0
+    out[19] = -_tmp56
+    out[20] = -_tmp13*_tmp58 + _tmp14*p_tx
+    out[21] = -_tmp19*_tmp58 + _tmp20*p_tx
+    out[22] = -_tmp53*p_tz + p_tx
+    out[23] = -_tmp43*_tmp46 + _tmp54
+    out[24] = -_tmp42*_tmp53 + _tmp49
+    out[25] = -_tmp44 + _tmp55
+    out[26] = _tmp43*_tmp45 + _tmp46*_tmp53
+    out[27] = -_tmp51
+    out[28] = _tmp56
+    out[29] = 0.0
+    out[30] = _tmp13*_tmp30*_tmp52*p_ty - _tmp13*_tmp60
+    out[31] = _tmp19*_tmp30*_tmp52*p_ty - _tmp19*_tmp60
+    out[32] = _tmp0*_tmp30*p_ty - _tmp43*p_tx
+    out[33] = _tmp1*_tmp12*_tmp52 - _tmp25
+    out[34] = _tmp1*_tmp18*_tmp52 - _tmp28
+    out[35] = 0.0
+    out[36] = _tmp31
+    out[37] = -_tmp12*_tmp57 + _tmp35
+    out[38] = -_tmp18*_tmp57 + _tmp33
+    out[39] = -_tmp31
+    out[40] = 0.0
+    out[41] = _tmp24*_tmp57 - _tmp34*_tmp59
+    out[42] = _tmp27*_tmp57 - _tmp32*_tmp59
+    out[43] = _tmp37
+    out[44] = -_tmp38
+
+
 def c0_general(q, k):
     """Constraints c0(q) of model 'general' and their Jacobian: shapes (5,), (5, 12)."""
     p_qw = q[2]
@@ -1631,6 +3426,85 @@ def c0_general(q, k):
     return c0, C0
 
 
+def row_c0_general(q, k, out):
+    """Row form of ``c0_general`` (one measure, ``m`` its whole row): ``out`` holds c0 (5,), C0 (5, 12), row-major, one after the other."""
+    p_qw = q[2]
+    p_qx = q[3]
+    p_qy = q[4]
+    p_qz = q[5]
+    p_tx = q[6]
+    p_ty = q[7]
+    p_tz = q[8]
+    p_wx = q[9]
+    p_wy = q[10]
+    p_wz = q[11]
+    out[0] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[1] = p_tx**2 + p_ty**2 + p_tz**2 - 1
+    out[2] = p_wx
+    out[3] = p_wy
+    out[4] = p_wz
+    out[5] = 0.0
+    out[6] = 0.0
+    out[7] = 2*p_qw
+    out[8] = 2*p_qx
+    out[9] = 2*p_qy
+    out[10] = 2*p_qz
+    out[11] = 0.0
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 0.0
+    out[16] = 0.0
+    out[17] = 0.0
+    out[18] = 0.0
+    out[19] = 0.0
+    out[20] = 0.0
+    out[21] = 0.0
+    out[22] = 0.0
+    out[23] = 2*p_tx
+    out[24] = 2*p_ty
+    out[25] = 2*p_tz
+    out[26] = 0.0
+    out[27] = 0.0
+    out[28] = 0.0
+    out[29] = 0.0
+    out[30] = 0.0
+    out[31] = 0.0
+    out[32] = 0.0
+    out[33] = 0.0
+    out[34] = 0.0
+    out[35] = 0.0
+    out[36] = 0.0
+    out[37] = 0.0
+    out[38] = 1
+    out[39] = 0.0
+    out[40] = 0.0
+    out[41] = 0.0
+    out[42] = 0.0
+    out[43] = 0.0
+    out[44] = 0.0
+    out[45] = 0.0
+    out[46] = 0.0
+    out[47] = 0.0
+    out[48] = 0.0
+    out[49] = 0.0
+    out[50] = 0.0
+    out[51] = 1
+    out[52] = 0.0
+    out[53] = 0.0
+    out[54] = 0.0
+    out[55] = 0.0
+    out[56] = 0.0
+    out[57] = 0.0
+    out[58] = 0.0
+    out[59] = 0.0
+    out[60] = 0.0
+    out[61] = 0.0
+    out[62] = 0.0
+    out[63] = 0.0
+    out[64] = 1
+
+
 def c0_general__reduced(r, k):
     """Remaining constraints c0(r) of model 'general' and their Jacobian: shapes (2,), (2, 9)."""
     p_qw = r[2]
@@ -1653,6 +3527,37 @@ def c0_general__reduced(r, k):
     C0[1, 7] = 2*p_ty
     C0[1, 8] = 2*p_tz
     return c0, C0
+
+
+def row_c0_general__reduced(r, k, out):
+    """Row form of ``c0_general__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (2,), C0 (2, 9), row-major, one after the other."""
+    p_qw = r[2]
+    p_qx = r[3]
+    p_qy = r[4]
+    p_qz = r[5]
+    p_tx = r[6]
+    p_ty = r[7]
+    p_tz = r[8]
+    out[0] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[1] = p_tx**2 + p_ty**2 + p_tz**2 - 1
+    out[2] = 0.0
+    out[3] = 0.0
+    out[4] = 2*p_qw
+    out[5] = 2*p_qx
+    out[6] = 2*p_qy
+    out[7] = 2*p_qz
+    out[8] = 0.0
+    out[9] = 0.0
+    out[10] = 0.0
+    out[11] = 0.0
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 0.0
+    out[16] = 0.0
+    out[17] = 2*p_tx
+    out[18] = 2*p_ty
+    out[19] = 2*p_tz
 
 
 def measure_match__general__reduced(r, m, k):
@@ -1777,6 +3682,122 @@ def measure_match__general__reduced(r, m, k):
     D[:, 0, 2] = _tmp39
     D[:, 0, 3] = _tmp44
     return c, C, D
+
+
+def row_measure_match__general__reduced(r, m, k, out):
+    """Row form of ``measure_match__general__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 9), D (1, 4), row-major, one after the other."""
+    p_f1 = r[0]
+    p_f2 = r[1]
+    p_qw = r[2]
+    p_qx = r[3]
+    p_qy = r[4]
+    p_qz = r[5]
+    p_tx = r[6]
+    p_ty = r[7]
+    p_tz = r[8]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 2*p_qw
+    _tmp1 = _tmp0*p_qx
+    _tmp2 = 2*p_qz
+    _tmp3 = _tmp2*p_qy
+    _tmp4 = _tmp1 - _tmp3
+    _tmp5 = -_tmp4
+    _tmp6 = _tmp0*p_qy
+    _tmp7 = _tmp2*p_qx
+    _tmp8 = _tmp6 + _tmp7
+    _tmp9 = _tmp5*p_tx - _tmp8*p_ty
+    _tmp10 = _tmp0*p_qz
+    _tmp11 = 2*p_qx
+    _tmp12 = _tmp11*p_qy
+    _tmp13 = _tmp10 + _tmp12
+    _tmp14 = p_qx**2
+    _tmp15 = p_qy**2
+    _tmp16 = -_tmp15
+    _tmp17 = p_qw**2
+    _tmp18 = p_qz**2
+    _tmp19 = _tmp17 - _tmp18
+    _tmp20 = _tmp14 + _tmp16 + _tmp19
+    _tmp21 = _tmp13*p_tx - _tmp20*p_ty
+    _tmp22 = 1/k_f0
+    _tmp23 = _tmp22*(-k_cx + m_u)
+    _tmp24 = _tmp10 - _tmp12
+    _tmp25 = -_tmp24
+    _tmp26 = -_tmp14
+    _tmp27 = _tmp15 + _tmp19 + _tmp26
+    _tmp28 = -_tmp25*p_ty + _tmp27*p_tx
+    _tmp29 = _tmp22*(-k_cy + m_v)
+    _tmp30 = _tmp21*_tmp23 + _tmp28*_tmp29 + _tmp9*p_f1
+    _tmp31 = -k_cx + m_u2
+    _tmp32 = _tmp6 - _tmp7
+    _tmp33 = -_tmp32
+    _tmp34 = -_tmp13*p_tz + _tmp33*p_ty
+    _tmp35 = _tmp16 + _tmp17 + _tmp18 + _tmp26
+    _tmp36 = _tmp35*p_ty - _tmp5*p_tz
+    _tmp37 = _tmp1 + _tmp3
+    _tmp38 = -_tmp27*p_tz + _tmp37*p_ty
+    _tmp39 = _tmp22*(_tmp23*_tmp34 + _tmp29*_tmp38 + _tmp36*p_f1)
+    _tmp40 = -k_cy + m_v2
+    _tmp41 = _tmp25*p_tz - _tmp37*p_tx
+    _tmp42 = -_tmp35*p_tx + _tmp8*p_tz
+    _tmp43 = _tmp20*p_tz - _tmp33*p_tx
+    _tmp44 = _tmp22*(_tmp23*_tmp43 + _tmp29*_tmp41 + _tmp42*p_f1)
+    _tmp45 = _tmp22*_tmp31
+    _tmp46 = _tmp22*_tmp40
+    _tmp47 = _tmp11*p_tx
+    _tmp48 = 2*p_qy
+    _tmp49 = _tmp48*p_ty
+    _tmp50 = _tmp47 + _tmp49
+    _tmp51 = -_tmp50
+    _tmp52 = _tmp0*p_ty
+    _tmp53 = -_tmp2*p_tx
+    _tmp54 = _tmp52 + _tmp53
+    _tmp55 = -_tmp54
+    _tmp56 = _tmp0*p_tx
+    _tmp57 = _tmp2*p_ty
+    _tmp58 = _tmp56 + _tmp57
+    _tmp59 = _tmp11*p_tz
+    _tmp60 = _tmp52 + _tmp59
+    _tmp61 = _tmp2*p_tz
+    _tmp62 = _tmp49 + _tmp61
+    _tmp63 = -_tmp62
+    _tmp64 = _tmp0*p_tz
+    _tmp65 = _tmp11*p_ty
+    _tmp66 = _tmp64 - _tmp65
+    _tmp67 = -_tmp66
+    _tmp68 = _tmp48*p_tz
+    _tmp69 = _tmp56 - _tmp68
+    _tmp70 = -_tmp69
+    _tmp71 = _tmp48*p_tx
+    _tmp72 = _tmp64 + _tmp71
+    _tmp73 = _tmp47 + _tmp61
+    _tmp74 = -_tmp73
+    _tmp75 = -_tmp65 + _tmp71
+    _tmp76 = _tmp57 - _tmp68
+    _tmp77 = _tmp53 + _tmp59
+    _tmp78 = k_f0**(-2)
+    _tmp79 = _tmp31*_tmp78
+    _tmp80 = _tmp22*p_f2
+    _tmp81 = _tmp40*_tmp78
+    out[0] = _tmp30*p_f2 + _tmp31*_tmp39 + _tmp40*_tmp44
+    out[1] = _tmp36*_tmp45 + _tmp42*_tmp46 + _tmp9*p_f2
+    out[2] = _tmp30
+    out[3] = _tmp45*(_tmp23*_tmp63 + _tmp29*_tmp67 + _tmp60*p_f1) + _tmp46*(_tmp23*_tmp72 + _tmp29*_tmp74 + _tmp70*p_f1) + p_f2*(_tmp23*_tmp55 + _tmp29*_tmp58 + _tmp51*p_f1)
+    out[4] = _tmp45*(_tmp23*_tmp76 + _tmp29*_tmp60 + _tmp66*p_f1) + _tmp46*(_tmp23*_tmp77 + _tmp29*_tmp70 + _tmp73*p_f1) + p_f2*(_tmp23*_tmp75 + _tmp29*_tmp51 - _tmp58*p_f1)
+    out[5] = _tmp45*(-_tmp23*_tmp60 + _tmp29*_tmp76 + _tmp63*p_f1) + _tmp46*(_tmp23*_tmp69 + _tmp29*_tmp77 + _tmp72*p_f1) + p_f2*(_tmp23*_tmp50 + _tmp29*_tmp75 + _tmp55*p_f1)
+    out[6] = _tmp45*(_tmp23*_tmp67 + _tmp29*_tmp62 + _tmp76*p_f1) + _tmp46*(_tmp23*_tmp74 - _tmp29*_tmp72 + _tmp77*p_f1) + p_f2*(_tmp23*_tmp58 + _tmp29*_tmp54 + _tmp75*p_f1)
+    out[7] = _tmp46*(_tmp23*_tmp32 - _tmp29*_tmp37 - _tmp35*p_f1) + p_f2*(_tmp13*_tmp23 + _tmp27*_tmp29 + _tmp5*p_f1)
+    out[8] = _tmp45*(_tmp23*_tmp33 + _tmp29*_tmp37 + _tmp35*p_f1) + p_f2*(-_tmp20*_tmp23 + _tmp24*_tmp29 - _tmp8*p_f1)
+    out[9] = _tmp45*(-_tmp13*_tmp23 - _tmp27*_tmp29 + _tmp4*p_f1) + _tmp46*(_tmp20*_tmp23 + _tmp25*_tmp29 + _tmp8*p_f1)
+    out[10] = _tmp21*_tmp80 + _tmp34*_tmp79 + _tmp43*_tmp81
+    out[11] = _tmp28*_tmp80 + _tmp38*_tmp79 + _tmp41*_tmp81
+    out[12] = _tmp39
+    out[13] = _tmp44
 
 
 def derived(q, k):
@@ -2669,6 +4690,36 @@ MODELS = {
 }
 DERIVED = derived
 SLACK_MEASURES = None
+#: The row forms (one measure, every entry into one flat array: the compiled kernels'
+#: layout), by the name of the function they mirror.
+ROWS = {
+    "c0_none": row_c0_none,
+    "measure_match__none": row_measure_match__none,
+    "c0_none__reduced": row_c0_none__reduced,
+    "measure_match__none__reduced": row_measure_match__none__reduced,
+    "c0_zoom": row_c0_zoom,
+    "c0_zoom__reduced": row_c0_zoom__reduced,
+    "measure_match__zoom__reduced": row_measure_match__zoom__reduced,
+    "c0_rotation": row_c0_rotation,
+    "c0_rotation__reduced": row_c0_rotation__reduced,
+    "measure_match__rotation__reduced": row_measure_match__rotation__reduced,
+    "c0_retinal_translation": row_c0_retinal_translation,
+    "measure_match": row_measure_match,
+    "c0_retinal_translation__reduced": row_c0_retinal_translation__reduced,
+    "measure_match__retinal_translation__reduced": row_measure_match__retinal_translation__reduced,
+    "c0_retinal_displacement": row_c0_retinal_displacement,
+    "c0_retinal_displacement__reduced": row_c0_retinal_displacement__reduced,
+    "measure_match__retinal_displacement__reduced": row_measure_match__retinal_displacement__reduced,
+    "c0_translation": row_c0_translation,
+    "c0_translation__reduced": row_c0_translation__reduced,
+    "measure_match__translation__reduced": row_measure_match__translation__reduced,
+    "c0_planar": row_c0_planar,
+    "c0_planar__reduced": row_c0_planar__reduced,
+    "measure_match__planar__reduced": row_measure_match__planar__reduced,
+    "c0_general": row_c0_general,
+    "c0_general__reduced": row_c0_general__reduced,
+    "measure_match__general__reduced": row_measure_match__general__reduced,
+}
 KERNELS = {
     (1, 4): (whiten_1_4, correct_1_4),
     (3, 4): (whiten_3_4, correct_3_4),

@@ -6,7 +6,7 @@ algebra of the projector. Load it with ``kanagen.load``.
 
 import numpy as np
 
-FORMAT = 2
+FORMAT = 3
 SPEC_SOURCE = "two_view_calibrated.yaml"
 SPEC_SHA256 = "3a31b6b393e236cafbbd9122303651b5397b5f7692be36ee4e84520b2d479016"
 FAMILY = {'name': 'two_view_calibrated',
@@ -363,6 +363,130 @@ def c0_none(q, k):
     return c0, C0
 
 
+def row_c0_none(q, k, out):
+    """Row form of ``c0_none`` (one measure, ``m`` its whole row): ``out`` holds c0 (10,), C0 (10, 10), row-major, one after the other."""
+    p_qw = q[0]
+    p_qx = q[1]
+    p_qy = q[2]
+    p_qz = q[3]
+    p_tx = q[4]
+    p_ty = q[5]
+    p_tz = q[6]
+    p_wx = q[7]
+    p_wy = q[8]
+    p_wz = q[9]
+    out[0] = p_qx
+    out[1] = p_qy
+    out[2] = p_qz
+    out[3] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[4] = p_tx - 1
+    out[5] = p_ty
+    out[6] = p_tz
+    out[7] = p_wx
+    out[8] = p_wy
+    out[9] = p_wz
+    out[10] = 0.0
+    out[11] = 1
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 0.0
+    out[16] = 0.0
+    out[17] = 0.0
+    out[18] = 0.0
+    out[19] = 0.0
+    out[20] = 0.0
+    out[21] = 0.0
+    out[22] = 1
+    out[23] = 0.0
+    out[24] = 0.0
+    out[25] = 0.0
+    out[26] = 0.0
+    out[27] = 0.0
+    out[28] = 0.0
+    out[29] = 0.0
+    out[30] = 0.0
+    out[31] = 0.0
+    out[32] = 0.0
+    out[33] = 1
+    out[34] = 0.0
+    out[35] = 0.0
+    out[36] = 0.0
+    out[37] = 0.0
+    out[38] = 0.0
+    out[39] = 0.0
+    out[40] = 2*p_qw
+    out[41] = 2*p_qx
+    out[42] = 2*p_qy
+    out[43] = 2*p_qz
+    out[44] = 0.0
+    out[45] = 0.0
+    out[46] = 0.0
+    out[47] = 0.0
+    out[48] = 0.0
+    out[49] = 0.0
+    out[50] = 0.0
+    out[51] = 0.0
+    out[52] = 0.0
+    out[53] = 0.0
+    out[54] = 1
+    out[55] = 0.0
+    out[56] = 0.0
+    out[57] = 0.0
+    out[58] = 0.0
+    out[59] = 0.0
+    out[60] = 0.0
+    out[61] = 0.0
+    out[62] = 0.0
+    out[63] = 0.0
+    out[64] = 0.0
+    out[65] = 1
+    out[66] = 0.0
+    out[67] = 0.0
+    out[68] = 0.0
+    out[69] = 0.0
+    out[70] = 0.0
+    out[71] = 0.0
+    out[72] = 0.0
+    out[73] = 0.0
+    out[74] = 0.0
+    out[75] = 0.0
+    out[76] = 1
+    out[77] = 0.0
+    out[78] = 0.0
+    out[79] = 0.0
+    out[80] = 0.0
+    out[81] = 0.0
+    out[82] = 0.0
+    out[83] = 0.0
+    out[84] = 0.0
+    out[85] = 0.0
+    out[86] = 0.0
+    out[87] = 1
+    out[88] = 0.0
+    out[89] = 0.0
+    out[90] = 0.0
+    out[91] = 0.0
+    out[92] = 0.0
+    out[93] = 0.0
+    out[94] = 0.0
+    out[95] = 0.0
+    out[96] = 0.0
+    out[97] = 0.0
+    out[98] = 1
+    out[99] = 0.0
+    out[100] = 0.0
+    out[101] = 0.0
+    out[102] = 0.0
+    out[103] = 0.0
+    out[104] = 0.0
+    out[105] = 0.0
+    out[106] = 0.0
+    out[107] = 0.0
+    out[108] = 0.0
+    out[109] = 1
+
+
 def measure_match__none(q, m, k):
     """Equations of channel 'match', their Jacobians in q and in the corrected
     components ['u', 'v', 'u2', 'v2']: shapes (M, 3), (M, 3, 10), (M, 3, 4)."""
@@ -496,6 +620,136 @@ def measure_match__none(q, m, k):
     return c, C, D
 
 
+def row_measure_match__none(q, m, k, out):
+    """Row form of ``measure_match__none`` (one measure, ``m`` its whole row): ``out`` holds c (3,), C (3, 10), D (3, 4), row-major, one after the other."""
+    p_qw = q[0]
+    p_qx = q[1]
+    p_qy = q[2]
+    p_qz = q[3]
+    p_tx = q[4]
+    p_ty = q[5]
+    p_tz = q[6]
+    p_wx = q[7]
+    p_wy = q[8]
+    p_wz = q[9]
+    k_fx1 = k[0]
+    k_fy1 = k[1]
+    k_cx1 = k[2]
+    k_cy1 = k[3]
+    k_fx2 = k[4]
+    k_fy2 = k[5]
+    k_cx2 = k[6]
+    k_cy2 = k[7]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 1/k_fy2
+    _tmp1 = -k_cy2 + m_v2
+    _tmp2 = p_qw**2
+    _tmp3 = p_qz**2
+    _tmp4 = p_qx**2
+    _tmp5 = -_tmp4
+    _tmp6 = p_qy**2
+    _tmp7 = -_tmp6
+    _tmp8 = 2*p_qw
+    _tmp9 = _tmp8*p_qy
+    _tmp10 = 2*p_qx
+    _tmp11 = _tmp10*p_qz
+    _tmp12 = _tmp11 - _tmp9 + p_tz*p_wx
+    _tmp13 = 1/k_fx1
+    _tmp14 = -k_cx1 + m_u
+    _tmp15 = _tmp13*_tmp14
+    _tmp16 = _tmp10*p_qw
+    _tmp17 = 2*p_qz
+    _tmp18 = _tmp17*p_qy
+    _tmp19 = _tmp16 + _tmp18 + p_tz*p_wy
+    _tmp20 = 1/k_fy1
+    _tmp21 = -k_cy1 + m_v
+    _tmp22 = _tmp20*_tmp21
+    _tmp23 = _tmp12*_tmp15 + _tmp19*_tmp22 + _tmp2 + _tmp3 + _tmp5 + _tmp7 + p_tz*p_wz
+    _tmp24 = _tmp8*p_qz
+    _tmp25 = _tmp10*p_qy
+    _tmp26 = _tmp24 + _tmp25 + p_ty*p_wx
+    _tmp27 = _tmp13*_tmp26
+    _tmp28 = _tmp2 - _tmp3
+    _tmp29 = _tmp28 + _tmp5 + _tmp6 + p_ty*p_wy
+    _tmp30 = _tmp20*_tmp29
+    _tmp31 = _tmp14*_tmp27 - _tmp16 + _tmp18 + _tmp21*_tmp30 + p_ty*p_wz
+    _tmp32 = -k_cx2 + m_u2
+    _tmp33 = 1/k_fx2
+    _tmp34 = _tmp23*_tmp33
+    _tmp35 = _tmp20*(-_tmp24 + _tmp25 + p_tx*p_wy)
+    _tmp36 = _tmp13*(_tmp28 + _tmp4 + _tmp7 + p_tx*p_wx)
+    _tmp37 = _tmp11 + _tmp14*_tmp36 + _tmp21*_tmp35 + _tmp9 + p_tx*p_wz
+    _tmp38 = _tmp0*_tmp37
+    _tmp39 = _tmp15*_tmp17
+    _tmp40 = _tmp22*_tmp8
+    _tmp41 = 2*p_qy
+    _tmp42 = _tmp10*_tmp22 - _tmp15*_tmp41 + _tmp8
+    _tmp43 = _tmp0*_tmp1
+    _tmp44 = _tmp42*_tmp43
+    _tmp45 = -_tmp10 + _tmp39 + _tmp40
+    _tmp46 = _tmp15*_tmp8 - _tmp17*_tmp22 + _tmp41
+    _tmp47 = -_tmp46
+    _tmp48 = _tmp10*_tmp15 + _tmp17 + _tmp22*_tmp41
+    _tmp49 = _tmp43*_tmp48
+    _tmp50 = _tmp15*p_wx + _tmp22*p_wy + p_wz
+    _tmp51 = _tmp43*_tmp50
+    _tmp52 = _tmp32*_tmp33
+    _tmp53 = -_tmp45*_tmp52
+    _tmp54 = _tmp48*_tmp52
+    _tmp55 = _tmp50*_tmp52
+    _tmp56 = _tmp15*p_tx
+    _tmp57 = _tmp52*p_tz
+    _tmp58 = _tmp22*p_tx
+    out[0] = _tmp0*_tmp1*_tmp23 - _tmp31
+    out[1] = -_tmp32*_tmp34 + _tmp37
+    out[2] = -_tmp1*_tmp38 + _tmp31*_tmp32*_tmp33
+    out[3] = _tmp10 - _tmp39 - _tmp40 + _tmp44
+    out[4] = _tmp42 + _tmp43*_tmp45
+    out[5] = _tmp0*_tmp1*_tmp47 - _tmp48
+    out[6] = -_tmp46 + _tmp49
+    out[7] = 0.0
+    out[8] = -_tmp50
+    out[9] = _tmp51
+    out[10] = _tmp0*_tmp1*_tmp13*_tmp14*p_tz - _tmp15*p_ty
+    out[11] = _tmp0*_tmp1*_tmp20*_tmp21*p_tz - _tmp22*p_ty
+    out[12] = _tmp0*_tmp1*p_tz - p_ty
+    out[13] = -_tmp42*_tmp52 + _tmp46
+    out[14] = _tmp48 + _tmp53
+    out[15] = _tmp42 - _tmp47*_tmp52
+    out[16] = -_tmp45 - _tmp54
+    out[17] = _tmp50
+    out[18] = 0.0
+    out[19] = -_tmp55
+    out[20] = -_tmp15*_tmp57 + _tmp56
+    out[21] = -_tmp22*_tmp57 + _tmp58
+    out[22] = -_tmp57 + p_tx
+    out[23] = -_tmp43*_tmp46 - _tmp53
+    out[24] = -_tmp32*_tmp33*_tmp42 - _tmp49
+    out[25] = -_tmp44 + _tmp54
+    out[26] = _tmp32*_tmp33*_tmp46 + _tmp43*_tmp45
+    out[27] = -_tmp51
+    out[28] = _tmp55
+    out[29] = 0.0
+    out[30] = _tmp13*_tmp14*_tmp32*_tmp33*p_ty - _tmp43*_tmp56
+    out[31] = _tmp20*_tmp21*_tmp32*_tmp33*p_ty - _tmp43*_tmp58
+    out[32] = _tmp32*_tmp33*p_ty - _tmp43*p_tx
+    out[33] = _tmp0*_tmp1*_tmp12*_tmp13 - _tmp27
+    out[34] = _tmp0*_tmp1*_tmp19*_tmp20 - _tmp30
+    out[35] = 0.0
+    out[36] = _tmp0*_tmp23
+    out[37] = -_tmp12*_tmp13*_tmp52 + _tmp36
+    out[38] = -_tmp19*_tmp20*_tmp52 + _tmp35
+    out[39] = -_tmp34
+    out[40] = 0.0
+    out[41] = _tmp13*_tmp26*_tmp32*_tmp33 - _tmp36*_tmp43
+    out[42] = _tmp20*_tmp29*_tmp32*_tmp33 - _tmp35*_tmp43
+    out[43] = _tmp31*_tmp33
+    out[44] = -_tmp38
+
+
 def c0_none__reduced(r, k):
     """Remaining constraints c0(r) of model 'none' and their Jacobian: shapes (1,), (1, 1)."""
     p_qw = r[0]
@@ -505,6 +759,13 @@ def c0_none__reduced(r, k):
     C0 = np.zeros((1, 1))
     C0[0, 0] = 2*p_qw
     return c0, C0
+
+
+def row_c0_none__reduced(r, k, out):
+    """Row form of ``c0_none__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (1,), C0 (1, 1), row-major, one after the other."""
+    p_qw = r[0]
+    out[0] = p_qw**2 - 1
+    out[1] = 2*p_qw
 
 
 def measure_match__none__reduced(r, m, k):
@@ -565,6 +826,60 @@ def measure_match__none__reduced(r, m, k):
     return c, C, D
 
 
+def row_measure_match__none__reduced(r, m, k, out):
+    """Row form of ``measure_match__none__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (3,), C (3, 1), D (3, 4), row-major, one after the other."""
+    p_qw = r[0]
+    k_fx1 = k[0]
+    k_fy1 = k[1]
+    k_cx1 = k[2]
+    k_cy1 = k[3]
+    k_fx2 = k[4]
+    k_fy2 = k[5]
+    k_cx2 = k[6]
+    k_cy2 = k[7]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = -k_cy2 + m_v2
+    _tmp1 = 1/k_fy2
+    _tmp2 = p_qw**2
+    _tmp3 = _tmp1*_tmp2
+    _tmp4 = _tmp0*_tmp3
+    _tmp5 = -k_cy1 + m_v
+    _tmp6 = 1/k_fy1
+    _tmp7 = _tmp2*_tmp6
+    _tmp8 = _tmp5*_tmp7
+    _tmp9 = -k_cx2 + m_u2
+    _tmp10 = 1/k_fx2
+    _tmp11 = _tmp10*_tmp2
+    _tmp12 = 1/k_fx1
+    _tmp13 = -k_cx1 + m_u
+    _tmp14 = _tmp10*_tmp9
+    _tmp15 = _tmp12*_tmp13
+    _tmp16 = 2*p_qw
+    _tmp17 = _tmp16*_tmp5*_tmp6
+    _tmp18 = _tmp0*_tmp1*_tmp16
+    out[0] = _tmp4 - _tmp8
+    out[1] = -_tmp11*_tmp9 + _tmp12*_tmp13*_tmp2
+    out[2] = _tmp14*_tmp8 - _tmp15*_tmp4
+    out[3] = -_tmp17 + _tmp18
+    out[4] = 2*_tmp12*_tmp13*p_qw - _tmp14*_tmp16
+    out[5] = _tmp14*_tmp17 - _tmp15*_tmp18
+    out[6] = 0.0
+    out[7] = -_tmp7
+    out[8] = 0.0
+    out[9] = _tmp3
+    out[10] = _tmp12*_tmp2
+    out[11] = 0.0
+    out[12] = -_tmp11
+    out[13] = 0.0
+    out[14] = -_tmp12*_tmp4
+    out[15] = _tmp14*_tmp7
+    out[16] = _tmp10*_tmp8
+    out[17] = -_tmp15*_tmp3
+
+
 def c0_rotation(q, k):
     """Constraints c0(q) of model 'rotation' and their Jacobian: shapes (7,), (7, 10)."""
     p_qw = q[0]
@@ -600,6 +915,97 @@ def c0_rotation(q, k):
     return c0, C0
 
 
+def row_c0_rotation(q, k, out):
+    """Row form of ``c0_rotation`` (one measure, ``m`` its whole row): ``out`` holds c0 (7,), C0 (7, 10), row-major, one after the other."""
+    p_qw = q[0]
+    p_qx = q[1]
+    p_qy = q[2]
+    p_qz = q[3]
+    p_tx = q[4]
+    p_ty = q[5]
+    p_tz = q[6]
+    p_wx = q[7]
+    p_wy = q[8]
+    p_wz = q[9]
+    out[0] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[1] = p_tx - 1
+    out[2] = p_ty
+    out[3] = p_tz
+    out[4] = p_wx
+    out[5] = p_wy
+    out[6] = p_wz
+    out[7] = 2*p_qw
+    out[8] = 2*p_qx
+    out[9] = 2*p_qy
+    out[10] = 2*p_qz
+    out[11] = 0.0
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 0.0
+    out[16] = 0.0
+    out[17] = 0.0
+    out[18] = 0.0
+    out[19] = 0.0
+    out[20] = 0.0
+    out[21] = 1
+    out[22] = 0.0
+    out[23] = 0.0
+    out[24] = 0.0
+    out[25] = 0.0
+    out[26] = 0.0
+    out[27] = 0.0
+    out[28] = 0.0
+    out[29] = 0.0
+    out[30] = 0.0
+    out[31] = 0.0
+    out[32] = 1
+    out[33] = 0.0
+    out[34] = 0.0
+    out[35] = 0.0
+    out[36] = 0.0
+    out[37] = 0.0
+    out[38] = 0.0
+    out[39] = 0.0
+    out[40] = 0.0
+    out[41] = 0.0
+    out[42] = 0.0
+    out[43] = 1
+    out[44] = 0.0
+    out[45] = 0.0
+    out[46] = 0.0
+    out[47] = 0.0
+    out[48] = 0.0
+    out[49] = 0.0
+    out[50] = 0.0
+    out[51] = 0.0
+    out[52] = 0.0
+    out[53] = 0.0
+    out[54] = 1
+    out[55] = 0.0
+    out[56] = 0.0
+    out[57] = 0.0
+    out[58] = 0.0
+    out[59] = 0.0
+    out[60] = 0.0
+    out[61] = 0.0
+    out[62] = 0.0
+    out[63] = 0.0
+    out[64] = 0.0
+    out[65] = 1
+    out[66] = 0.0
+    out[67] = 0.0
+    out[68] = 0.0
+    out[69] = 0.0
+    out[70] = 0.0
+    out[71] = 0.0
+    out[72] = 0.0
+    out[73] = 0.0
+    out[74] = 0.0
+    out[75] = 0.0
+    out[76] = 1
+
+
 def c0_rotation__reduced(r, k):
     """Remaining constraints c0(r) of model 'rotation' and their Jacobian: shapes (1,), (1, 4)."""
     p_qw = r[0]
@@ -615,6 +1021,19 @@ def c0_rotation__reduced(r, k):
     C0[0, 2] = 2*p_qy
     C0[0, 3] = 2*p_qz
     return c0, C0
+
+
+def row_c0_rotation__reduced(r, k, out):
+    """Row form of ``c0_rotation__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (1,), C0 (1, 4), row-major, one after the other."""
+    p_qw = r[0]
+    p_qx = r[1]
+    p_qy = r[2]
+    p_qz = r[3]
+    out[0] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[1] = 2*p_qw
+    out[2] = 2*p_qx
+    out[3] = 2*p_qy
+    out[4] = 2*p_qz
 
 
 def measure_match__rotation__reduced(r, m, k):
@@ -721,6 +1140,104 @@ def measure_match__rotation__reduced(r, m, k):
     return c, C, D
 
 
+def row_measure_match__rotation__reduced(r, m, k, out):
+    """Row form of ``measure_match__rotation__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (3,), C (3, 4), D (3, 4), row-major, one after the other."""
+    p_qw = r[0]
+    p_qx = r[1]
+    p_qy = r[2]
+    p_qz = r[3]
+    k_fx1 = k[0]
+    k_fy1 = k[1]
+    k_cx1 = k[2]
+    k_cy1 = k[3]
+    k_fx2 = k[4]
+    k_fy2 = k[5]
+    k_cx2 = k[6]
+    k_cy2 = k[7]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 1/k_fy2
+    _tmp1 = -k_cy2 + m_v2
+    _tmp2 = p_qw**2
+    _tmp3 = p_qz**2
+    _tmp4 = p_qx**2
+    _tmp5 = -_tmp4
+    _tmp6 = p_qy**2
+    _tmp7 = -_tmp6
+    _tmp8 = 2*p_qw
+    _tmp9 = _tmp8*p_qy
+    _tmp10 = -_tmp9 + 2*p_qx*p_qz
+    _tmp11 = 1/k_fx1
+    _tmp12 = -k_cx1 + m_u
+    _tmp13 = _tmp11*_tmp12
+    _tmp14 = 2*p_qx
+    _tmp15 = _tmp14*p_qw
+    _tmp16 = 2*p_qz
+    _tmp17 = _tmp16*p_qy
+    _tmp18 = _tmp15 + _tmp17
+    _tmp19 = 1/k_fy1
+    _tmp20 = -k_cy1 + m_v
+    _tmp21 = _tmp19*_tmp20
+    _tmp22 = _tmp10*_tmp13 + _tmp18*_tmp21 + _tmp2 + _tmp3 + _tmp5 + _tmp7
+    _tmp23 = _tmp8*p_qz
+    _tmp24 = _tmp14*p_qy + _tmp23
+    _tmp25 = _tmp11*_tmp24
+    _tmp26 = _tmp2 - _tmp3
+    _tmp27 = _tmp26 + _tmp5 + _tmp6
+    _tmp28 = _tmp19*_tmp27
+    _tmp29 = _tmp12*_tmp25 - _tmp15 + _tmp17 + _tmp20*_tmp28
+    _tmp30 = -k_cx2 + m_u2
+    _tmp31 = 1/k_fx2
+    _tmp32 = _tmp22*_tmp31
+    _tmp33 = _tmp19*(-_tmp23 + 2*p_qx*p_qy)
+    _tmp34 = _tmp11*(_tmp26 + _tmp4 + _tmp7)
+    _tmp35 = _tmp12*_tmp34 + _tmp14*p_qz + _tmp20*_tmp33 + _tmp9
+    _tmp36 = _tmp0*_tmp35
+    _tmp37 = _tmp13*_tmp16
+    _tmp38 = _tmp21*_tmp8
+    _tmp39 = 2*p_qy
+    _tmp40 = -_tmp13*_tmp39 + _tmp14*_tmp21 + _tmp8
+    _tmp41 = _tmp0*_tmp1
+    _tmp42 = _tmp40*_tmp41
+    _tmp43 = -_tmp14 + _tmp37 + _tmp38
+    _tmp44 = _tmp13*_tmp8 - _tmp16*_tmp21 + _tmp39
+    _tmp45 = -_tmp44
+    _tmp46 = _tmp13*_tmp14 + _tmp16 + _tmp21*_tmp39
+    _tmp47 = _tmp41*_tmp46
+    _tmp48 = _tmp30*_tmp31
+    _tmp49 = -_tmp43*_tmp48
+    _tmp50 = _tmp46*_tmp48
+    out[0] = _tmp0*_tmp1*_tmp22 - _tmp29
+    out[1] = -_tmp30*_tmp32 + _tmp35
+    out[2] = -_tmp1*_tmp36 + _tmp29*_tmp30*_tmp31
+    out[3] = _tmp14 - _tmp37 - _tmp38 + _tmp42
+    out[4] = _tmp40 + _tmp41*_tmp43
+    out[5] = _tmp0*_tmp1*_tmp45 - _tmp46
+    out[6] = -_tmp44 + _tmp47
+    out[7] = -_tmp40*_tmp48 + _tmp44
+    out[8] = _tmp46 + _tmp49
+    out[9] = _tmp40 - _tmp45*_tmp48
+    out[10] = -_tmp43 - _tmp50
+    out[11] = -_tmp41*_tmp44 - _tmp49
+    out[12] = -_tmp30*_tmp31*_tmp40 - _tmp47
+    out[13] = -_tmp42 + _tmp50
+    out[14] = _tmp30*_tmp31*_tmp44 + _tmp41*_tmp43
+    out[15] = _tmp0*_tmp1*_tmp10*_tmp11 - _tmp25
+    out[16] = _tmp0*_tmp1*_tmp18*_tmp19 - _tmp28
+    out[17] = 0.0
+    out[18] = _tmp0*_tmp22
+    out[19] = -_tmp10*_tmp11*_tmp48 + _tmp34
+    out[20] = -_tmp18*_tmp19*_tmp48 + _tmp33
+    out[21] = -_tmp32
+    out[22] = 0.0
+    out[23] = _tmp11*_tmp24*_tmp30*_tmp31 - _tmp34*_tmp41
+    out[24] = _tmp19*_tmp27*_tmp30*_tmp31 - _tmp33*_tmp41
+    out[25] = _tmp29*_tmp31
+    out[26] = -_tmp36
+
+
 def c0_retinal_translation(q, k):
     """Constraints c0(q) of model 'retinal_translation' and their Jacobian: shapes (9,), (9, 10)."""
     p_qw = q[0]
@@ -760,6 +1277,119 @@ def c0_retinal_translation(q, k):
     C0[7, 8] = 1
     C0[8, 9] = 1
     return c0, C0
+
+
+def row_c0_retinal_translation(q, k, out):
+    """Row form of ``c0_retinal_translation`` (one measure, ``m`` its whole row): ``out`` holds c0 (9,), C0 (9, 10), row-major, one after the other."""
+    p_qw = q[0]
+    p_qx = q[1]
+    p_qy = q[2]
+    p_qz = q[3]
+    p_tx = q[4]
+    p_ty = q[5]
+    p_tz = q[6]
+    p_wx = q[7]
+    p_wy = q[8]
+    p_wz = q[9]
+    out[0] = p_qx
+    out[1] = p_qy
+    out[2] = p_qz
+    out[3] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[4] = p_tz
+    out[5] = p_tx**2 + p_ty**2 + p_tz**2 - 1
+    out[6] = p_wx
+    out[7] = p_wy
+    out[8] = p_wz
+    out[9] = 0.0
+    out[10] = 1
+    out[11] = 0.0
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 0.0
+    out[16] = 0.0
+    out[17] = 0.0
+    out[18] = 0.0
+    out[19] = 0.0
+    out[20] = 0.0
+    out[21] = 1
+    out[22] = 0.0
+    out[23] = 0.0
+    out[24] = 0.0
+    out[25] = 0.0
+    out[26] = 0.0
+    out[27] = 0.0
+    out[28] = 0.0
+    out[29] = 0.0
+    out[30] = 0.0
+    out[31] = 0.0
+    out[32] = 1
+    out[33] = 0.0
+    out[34] = 0.0
+    out[35] = 0.0
+    out[36] = 0.0
+    out[37] = 0.0
+    out[38] = 0.0
+    out[39] = 2*p_qw
+    out[40] = 2*p_qx
+    out[41] = 2*p_qy
+    out[42] = 2*p_qz
+    out[43] = 0.0
+    out[44] = 0.0
+    out[45] = 0.0
+    out[46] = 0.0
+    out[47] = 0.0
+    out[48] = 0.0
+    out[49] = 0.0
+    out[50] = 0.0
+    out[51] = 0.0
+    out[52] = 0.0
+    out[53] = 0.0
+    out[54] = 0.0
+    out[55] = 1
+    out[56] = 0.0
+    out[57] = 0.0
+    out[58] = 0.0
+    out[59] = 0.0
+    out[60] = 0.0
+    out[61] = 0.0
+    out[62] = 0.0
+    out[63] = 2*p_tx
+    out[64] = 2*p_ty
+    out[65] = 2*p_tz
+    out[66] = 0.0
+    out[67] = 0.0
+    out[68] = 0.0
+    out[69] = 0.0
+    out[70] = 0.0
+    out[71] = 0.0
+    out[72] = 0.0
+    out[73] = 0.0
+    out[74] = 0.0
+    out[75] = 0.0
+    out[76] = 1
+    out[77] = 0.0
+    out[78] = 0.0
+    out[79] = 0.0
+    out[80] = 0.0
+    out[81] = 0.0
+    out[82] = 0.0
+    out[83] = 0.0
+    out[84] = 0.0
+    out[85] = 0.0
+    out[86] = 0.0
+    out[87] = 1
+    out[88] = 0.0
+    out[89] = 0.0
+    out[90] = 0.0
+    out[91] = 0.0
+    out[92] = 0.0
+    out[93] = 0.0
+    out[94] = 0.0
+    out[95] = 0.0
+    out[96] = 0.0
+    out[97] = 0.0
+    out[98] = 1
 
 
 def measure_match(q, m, k):
@@ -887,6 +1517,126 @@ def measure_match(q, m, k):
     return c, C, D
 
 
+def row_measure_match(q, m, k, out):
+    """Row form of ``measure_match`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 10), D (1, 4), row-major, one after the other."""
+    p_qw = q[0]
+    p_qx = q[1]
+    p_qy = q[2]
+    p_qz = q[3]
+    p_tx = q[4]
+    p_ty = q[5]
+    p_tz = q[6]
+    k_fx1 = k[0]
+    k_fy1 = k[1]
+    k_cx1 = k[2]
+    k_cy1 = k[3]
+    k_fx2 = k[4]
+    k_fy2 = k[5]
+    k_cx2 = k[6]
+    k_cy2 = k[7]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 2*p_qw
+    _tmp1 = _tmp0*p_qx
+    _tmp2 = 2*p_qz
+    _tmp3 = _tmp2*p_qy
+    _tmp4 = _tmp1 - _tmp3
+    _tmp5 = -_tmp4
+    _tmp6 = _tmp0*p_qy
+    _tmp7 = _tmp2*p_qx
+    _tmp8 = _tmp6 + _tmp7
+    _tmp9 = -k_cx1 + m_u
+    _tmp10 = 1/k_fx1
+    _tmp11 = _tmp0*p_qz
+    _tmp12 = 2*p_qx
+    _tmp13 = _tmp12*p_qy
+    _tmp14 = _tmp11 + _tmp13
+    _tmp15 = p_qw**2
+    _tmp16 = p_qy**2
+    _tmp17 = _tmp15 - _tmp16
+    _tmp18 = p_qx**2
+    _tmp19 = p_qz**2
+    _tmp20 = -_tmp19
+    _tmp21 = _tmp18 + _tmp20
+    _tmp22 = _tmp17 + _tmp21
+    _tmp23 = _tmp10*(_tmp14*p_tx - _tmp22*p_ty)
+    _tmp24 = -k_cy1 + m_v
+    _tmp25 = 1/k_fy1
+    _tmp26 = _tmp11 - _tmp13
+    _tmp27 = -_tmp26
+    _tmp28 = -_tmp18
+    _tmp29 = _tmp15 + _tmp16 + _tmp20 + _tmp28
+    _tmp30 = _tmp25*(-_tmp27*p_ty + _tmp29*p_tx)
+    _tmp31 = -k_cx2 + m_u2
+    _tmp32 = 1/k_fx2
+    _tmp33 = _tmp17 + _tmp19 + _tmp28
+    _tmp34 = -_tmp7
+    _tmp35 = _tmp34 + _tmp6
+    _tmp36 = -_tmp35
+    _tmp37 = -_tmp14*p_tz + _tmp36*p_ty
+    _tmp38 = _tmp10*_tmp9
+    _tmp39 = _tmp1 + _tmp3
+    _tmp40 = -_tmp29*p_tz + _tmp39*p_ty
+    _tmp41 = _tmp24*_tmp25
+    _tmp42 = _tmp32*(_tmp33*p_ty + _tmp37*_tmp38 + _tmp40*_tmp41 - _tmp5*p_tz)
+    _tmp43 = -k_cy2 + m_v2
+    _tmp44 = 1/k_fy2
+    _tmp45 = _tmp27*p_tz - _tmp39*p_tx
+    _tmp46 = _tmp22*p_tz - _tmp36*p_tx
+    _tmp47 = _tmp44*(-_tmp33*p_tx + _tmp38*_tmp46 + _tmp41*_tmp45 + _tmp8*p_tz)
+    _tmp48 = _tmp12*p_tx
+    _tmp49 = 2*p_qy
+    _tmp50 = _tmp49*p_ty
+    _tmp51 = _tmp0*p_ty
+    _tmp52 = _tmp2*p_tx
+    _tmp53 = -_tmp52
+    _tmp54 = _tmp51 + _tmp53
+    _tmp55 = _tmp0*p_tx
+    _tmp56 = _tmp2*p_ty
+    _tmp57 = _tmp55 + _tmp56
+    _tmp58 = _tmp2*p_tz
+    _tmp59 = _tmp50 + _tmp58
+    _tmp60 = _tmp0*p_tz
+    _tmp61 = _tmp12*p_ty
+    _tmp62 = -_tmp61
+    _tmp63 = _tmp60 + _tmp62
+    _tmp64 = -_tmp63
+    _tmp65 = _tmp12*p_tz
+    _tmp66 = _tmp51 + _tmp65
+    _tmp67 = _tmp31*_tmp32
+    _tmp68 = -_tmp55
+    _tmp69 = _tmp49*p_tz
+    _tmp70 = _tmp49*p_tx
+    _tmp71 = _tmp60 + _tmp70
+    _tmp72 = _tmp48 + _tmp58
+    _tmp73 = -_tmp72
+    _tmp74 = _tmp43*_tmp44
+    _tmp75 = -_tmp56
+    _tmp76 = -_tmp61 + _tmp70
+    _tmp77 = _tmp48 + _tmp50
+    _tmp78 = -_tmp69 - _tmp75
+    _tmp79 = _tmp53 + _tmp65
+    _tmp80 = -_tmp69
+    _tmp81 = _tmp55 + _tmp80
+    out[0] = _tmp23*_tmp9 + _tmp24*_tmp30 + _tmp31*_tmp42 + _tmp43*_tmp47 + _tmp5*p_tx - _tmp8*p_ty
+    out[1] = -_tmp38*_tmp54 + _tmp41*_tmp57 - _tmp48 - _tmp50 + _tmp67*(-_tmp38*_tmp59 + _tmp41*_tmp64 + _tmp66) + _tmp74*(_tmp38*_tmp71 + _tmp41*_tmp73 + _tmp68 + _tmp69)
+    out[2] = _tmp38*_tmp76 - _tmp41*_tmp77 + _tmp67*(_tmp38*_tmp78 + _tmp41*_tmp66 + _tmp63) + _tmp68 + _tmp74*(_tmp38*_tmp79 - _tmp41*_tmp81 + _tmp72) + _tmp75
+    out[3] = _tmp38*_tmp77 + _tmp41*_tmp76 - _tmp51 + _tmp52 + _tmp67*(-_tmp10*_tmp66*_tmp9 + _tmp24*_tmp25*_tmp78 - _tmp59) + _tmp74*(_tmp38*_tmp81 + _tmp41*_tmp79 + _tmp71)
+    out[4] = _tmp38*_tmp57 + _tmp41*_tmp54 + _tmp62 + _tmp67*(_tmp38*_tmp64 + _tmp41*_tmp59 + _tmp56 + _tmp80) + _tmp70 + _tmp74*(_tmp38*_tmp73 - _tmp41*_tmp71 + _tmp79)
+    out[5] = -_tmp1 + _tmp14*_tmp38 + _tmp29*_tmp41 + _tmp3 + _tmp74*(-_tmp15 + _tmp16 + _tmp21 + _tmp35*_tmp38 - _tmp39*_tmp41)
+    out[6] = -_tmp22*_tmp38 + _tmp26*_tmp41 + _tmp34 - _tmp6 + _tmp67*(_tmp33 + _tmp36*_tmp38 + _tmp39*_tmp41)
+    out[7] = _tmp67*(-_tmp14*_tmp38 - _tmp29*_tmp41 + _tmp4) + _tmp74*(_tmp22*_tmp38 + _tmp27*_tmp41 + _tmp8)
+    out[8] = 0.0
+    out[9] = 0.0
+    out[10] = 0.0
+    out[11] = _tmp10*_tmp37*_tmp67 + _tmp10*_tmp46*_tmp74 + _tmp23
+    out[12] = _tmp25*_tmp40*_tmp67 + _tmp25*_tmp45*_tmp74 + _tmp30
+    out[13] = _tmp42
+    out[14] = _tmp47
+
+
 def c0_retinal_translation__reduced(r, k):
     """Remaining constraints c0(r) of model 'retinal_translation' and their Jacobian: shapes (2,), (2, 3)."""
     p_qw = r[0]
@@ -901,6 +1651,21 @@ def c0_retinal_translation__reduced(r, k):
     C0[1, 1] = 2*p_tx
     C0[1, 2] = 2*p_ty
     return c0, C0
+
+
+def row_c0_retinal_translation__reduced(r, k, out):
+    """Row form of ``c0_retinal_translation__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (2,), C0 (2, 3), row-major, one after the other."""
+    p_qw = r[0]
+    p_tx = r[1]
+    p_ty = r[2]
+    out[0] = p_qw**2 - 1
+    out[1] = p_tx**2 + p_ty**2 - 1
+    out[2] = 2*p_qw
+    out[3] = 0.0
+    out[4] = 0.0
+    out[5] = 0.0
+    out[6] = 2*p_tx
+    out[7] = 2*p_ty
 
 
 def measure_match__retinal_translation__reduced(r, m, k):
@@ -953,6 +1718,48 @@ def measure_match__retinal_translation__reduced(r, m, k):
     return c, C, D
 
 
+def row_measure_match__retinal_translation__reduced(r, m, k, out):
+    """Row form of ``measure_match__retinal_translation__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 3), D (1, 4), row-major, one after the other."""
+    p_qw = r[0]
+    p_tx = r[1]
+    p_ty = r[2]
+    k_fx1 = k[0]
+    k_fy1 = k[1]
+    k_cx1 = k[2]
+    k_cy1 = k[3]
+    k_fx2 = k[4]
+    k_fy2 = k[5]
+    k_cx2 = k[6]
+    k_cy2 = k[7]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = -k_cx1 + m_u
+    _tmp1 = p_qw**2
+    _tmp2 = 1/k_fx1
+    _tmp3 = _tmp1*_tmp2
+    _tmp4 = _tmp0*_tmp3
+    _tmp5 = -k_cy2 + m_v2
+    _tmp6 = 1/k_fy2
+    _tmp7 = _tmp1*_tmp6
+    _tmp8 = _tmp5*_tmp7
+    _tmp9 = 1/k_fx2
+    _tmp10 = -k_cx2 + m_u2
+    _tmp11 = 1/k_fy1
+    _tmp12 = -k_cy1 + m_v
+    _tmp13 = 2*p_qw
+    _tmp14 = _tmp1*_tmp9
+    out[0] = _tmp1*_tmp10*_tmp9*p_ty + _tmp1*_tmp11*_tmp12*p_tx - _tmp4*p_ty - _tmp8*p_tx
+    out[1] = -_tmp0*_tmp13*_tmp2*p_ty + 2*_tmp10*_tmp9*p_qw*p_ty + 2*_tmp11*_tmp12*p_qw*p_tx - _tmp13*_tmp5*_tmp6*p_tx
+    out[2] = _tmp1*_tmp11*_tmp12 - _tmp8
+    out[3] = _tmp10*_tmp14 - _tmp4
+    out[4] = -_tmp3*p_ty
+    out[5] = _tmp1*_tmp11*p_tx
+    out[6] = _tmp14*p_ty
+    out[7] = -_tmp7*p_tx
+
+
 def c0_translation(q, k):
     """Constraints c0(q) of model 'translation' and their Jacobian: shapes (8,), (8, 10)."""
     p_qw = q[0]
@@ -992,6 +1799,108 @@ def c0_translation(q, k):
     return c0, C0
 
 
+def row_c0_translation(q, k, out):
+    """Row form of ``c0_translation`` (one measure, ``m`` its whole row): ``out`` holds c0 (8,), C0 (8, 10), row-major, one after the other."""
+    p_qw = q[0]
+    p_qx = q[1]
+    p_qy = q[2]
+    p_qz = q[3]
+    p_tx = q[4]
+    p_ty = q[5]
+    p_tz = q[6]
+    p_wx = q[7]
+    p_wy = q[8]
+    p_wz = q[9]
+    out[0] = p_qx
+    out[1] = p_qy
+    out[2] = p_qz
+    out[3] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[4] = p_tx**2 + p_ty**2 + p_tz**2 - 1
+    out[5] = p_wx
+    out[6] = p_wy
+    out[7] = p_wz
+    out[8] = 0.0
+    out[9] = 1
+    out[10] = 0.0
+    out[11] = 0.0
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 0.0
+    out[16] = 0.0
+    out[17] = 0.0
+    out[18] = 0.0
+    out[19] = 0.0
+    out[20] = 1
+    out[21] = 0.0
+    out[22] = 0.0
+    out[23] = 0.0
+    out[24] = 0.0
+    out[25] = 0.0
+    out[26] = 0.0
+    out[27] = 0.0
+    out[28] = 0.0
+    out[29] = 0.0
+    out[30] = 0.0
+    out[31] = 1
+    out[32] = 0.0
+    out[33] = 0.0
+    out[34] = 0.0
+    out[35] = 0.0
+    out[36] = 0.0
+    out[37] = 0.0
+    out[38] = 2*p_qw
+    out[39] = 2*p_qx
+    out[40] = 2*p_qy
+    out[41] = 2*p_qz
+    out[42] = 0.0
+    out[43] = 0.0
+    out[44] = 0.0
+    out[45] = 0.0
+    out[46] = 0.0
+    out[47] = 0.0
+    out[48] = 0.0
+    out[49] = 0.0
+    out[50] = 0.0
+    out[51] = 0.0
+    out[52] = 2*p_tx
+    out[53] = 2*p_ty
+    out[54] = 2*p_tz
+    out[55] = 0.0
+    out[56] = 0.0
+    out[57] = 0.0
+    out[58] = 0.0
+    out[59] = 0.0
+    out[60] = 0.0
+    out[61] = 0.0
+    out[62] = 0.0
+    out[63] = 0.0
+    out[64] = 0.0
+    out[65] = 1
+    out[66] = 0.0
+    out[67] = 0.0
+    out[68] = 0.0
+    out[69] = 0.0
+    out[70] = 0.0
+    out[71] = 0.0
+    out[72] = 0.0
+    out[73] = 0.0
+    out[74] = 0.0
+    out[75] = 0.0
+    out[76] = 1
+    out[77] = 0.0
+    out[78] = 0.0
+    out[79] = 0.0
+    out[80] = 0.0
+    out[81] = 0.0
+    out[82] = 0.0
+    out[83] = 0.0
+    out[84] = 0.0
+    out[85] = 0.0
+    out[86] = 0.0
+    out[87] = 1
+
+
 def c0_translation__reduced(r, k):
     """Remaining constraints c0(r) of model 'translation' and their Jacobian: shapes (2,), (2, 4)."""
     p_qw = r[0]
@@ -1008,6 +1917,24 @@ def c0_translation__reduced(r, k):
     C0[1, 2] = 2*p_ty
     C0[1, 3] = 2*p_tz
     return c0, C0
+
+
+def row_c0_translation__reduced(r, k, out):
+    """Row form of ``c0_translation__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (2,), C0 (2, 4), row-major, one after the other."""
+    p_qw = r[0]
+    p_tx = r[1]
+    p_ty = r[2]
+    p_tz = r[3]
+    out[0] = p_qw**2 - 1
+    out[1] = p_tx**2 + p_ty**2 + p_tz**2 - 1
+    out[2] = 2*p_qw
+    out[3] = 0.0
+    out[4] = 0.0
+    out[5] = 0.0
+    out[6] = 0.0
+    out[7] = 2*p_tx
+    out[8] = 2*p_ty
+    out[9] = 2*p_tz
 
 
 def measure_match__translation__reduced(r, m, k):
@@ -1069,6 +1996,57 @@ def measure_match__translation__reduced(r, m, k):
     return c, C, D
 
 
+def row_measure_match__translation__reduced(r, m, k, out):
+    """Row form of ``measure_match__translation__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 4), D (1, 4), row-major, one after the other."""
+    p_qw = r[0]
+    p_tx = r[1]
+    p_ty = r[2]
+    p_tz = r[3]
+    k_fx1 = k[0]
+    k_fy1 = k[1]
+    k_cx1 = k[2]
+    k_cy1 = k[3]
+    k_fx2 = k[4]
+    k_fy2 = k[5]
+    k_cx2 = k[6]
+    k_cy2 = k[7]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = p_qw**2
+    _tmp1 = _tmp0*p_tx
+    _tmp2 = 1/k_fy1
+    _tmp3 = -k_cy1 + m_v
+    _tmp4 = _tmp2*_tmp3
+    _tmp5 = _tmp0*p_ty
+    _tmp6 = 1/k_fx1
+    _tmp7 = -k_cx1 + m_u
+    _tmp8 = _tmp6*_tmp7
+    _tmp9 = -k_cx2 + m_u2
+    _tmp10 = 1/k_fx2
+    _tmp11 = _tmp0*_tmp4
+    _tmp12 = _tmp10*(-_tmp11*p_tz + _tmp5)
+    _tmp13 = -k_cy2 + m_v2
+    _tmp14 = 1/k_fy2
+    _tmp15 = _tmp14*(_tmp0*_tmp6*_tmp7*p_tz - _tmp1)
+    _tmp16 = 2*p_qw
+    _tmp17 = _tmp16*p_ty
+    _tmp18 = _tmp16*p_tx
+    _tmp19 = _tmp10*_tmp9
+    _tmp20 = _tmp13*_tmp14
+    _tmp21 = _tmp0*_tmp19
+    out[0] = _tmp1*_tmp4 + _tmp12*_tmp9 + _tmp13*_tmp15 - _tmp5*_tmp8
+    out[1] = -_tmp17*_tmp8 + _tmp18*_tmp4 + _tmp19*(-_tmp16*_tmp4*p_tz + _tmp17) + _tmp20*(-_tmp18 + 2*_tmp6*_tmp7*p_qw*p_tz)
+    out[2] = _tmp0*_tmp2*_tmp3 - _tmp0*_tmp20
+    out[3] = -_tmp0*_tmp8 + _tmp21
+    out[4] = _tmp0*_tmp13*_tmp14*_tmp6*_tmp7 - _tmp11*_tmp19
+    out[5] = _tmp0*_tmp13*_tmp14*_tmp6*p_tz - _tmp5*_tmp6
+    out[6] = _tmp1*_tmp2 - _tmp2*_tmp21*p_tz
+    out[7] = _tmp12
+    out[8] = _tmp15
+
+
 def c0_retinal_displacement(q, k):
     """Constraints c0(q) of model 'retinal_displacement' and their Jacobian: shapes (8,), (8, 10)."""
     p_qw = q[0]
@@ -1108,6 +2086,108 @@ def c0_retinal_displacement(q, k):
     return c0, C0
 
 
+def row_c0_retinal_displacement(q, k, out):
+    """Row form of ``c0_retinal_displacement`` (one measure, ``m`` its whole row): ``out`` holds c0 (8,), C0 (8, 10), row-major, one after the other."""
+    p_qw = q[0]
+    p_qx = q[1]
+    p_qy = q[2]
+    p_qz = q[3]
+    p_tx = q[4]
+    p_ty = q[5]
+    p_tz = q[6]
+    p_wx = q[7]
+    p_wy = q[8]
+    p_wz = q[9]
+    out[0] = p_qx
+    out[1] = p_qy
+    out[2] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[3] = p_tz
+    out[4] = p_tx**2 + p_ty**2 + p_tz**2 - 1
+    out[5] = p_wx
+    out[6] = p_wy
+    out[7] = p_wz
+    out[8] = 0.0
+    out[9] = 1
+    out[10] = 0.0
+    out[11] = 0.0
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 0.0
+    out[16] = 0.0
+    out[17] = 0.0
+    out[18] = 0.0
+    out[19] = 0.0
+    out[20] = 1
+    out[21] = 0.0
+    out[22] = 0.0
+    out[23] = 0.0
+    out[24] = 0.0
+    out[25] = 0.0
+    out[26] = 0.0
+    out[27] = 0.0
+    out[28] = 2*p_qw
+    out[29] = 2*p_qx
+    out[30] = 2*p_qy
+    out[31] = 2*p_qz
+    out[32] = 0.0
+    out[33] = 0.0
+    out[34] = 0.0
+    out[35] = 0.0
+    out[36] = 0.0
+    out[37] = 0.0
+    out[38] = 0.0
+    out[39] = 0.0
+    out[40] = 0.0
+    out[41] = 0.0
+    out[42] = 0.0
+    out[43] = 0.0
+    out[44] = 1
+    out[45] = 0.0
+    out[46] = 0.0
+    out[47] = 0.0
+    out[48] = 0.0
+    out[49] = 0.0
+    out[50] = 0.0
+    out[51] = 0.0
+    out[52] = 2*p_tx
+    out[53] = 2*p_ty
+    out[54] = 2*p_tz
+    out[55] = 0.0
+    out[56] = 0.0
+    out[57] = 0.0
+    out[58] = 0.0
+    out[59] = 0.0
+    out[60] = 0.0
+    out[61] = 0.0
+    out[62] = 0.0
+    out[63] = 0.0
+    out[64] = 0.0
+    out[65] = 1
+    out[66] = 0.0
+    out[67] = 0.0
+    out[68] = 0.0
+    out[69] = 0.0
+    out[70] = 0.0
+    out[71] = 0.0
+    out[72] = 0.0
+    out[73] = 0.0
+    out[74] = 0.0
+    out[75] = 0.0
+    out[76] = 1
+    out[77] = 0.0
+    out[78] = 0.0
+    out[79] = 0.0
+    out[80] = 0.0
+    out[81] = 0.0
+    out[82] = 0.0
+    out[83] = 0.0
+    out[84] = 0.0
+    out[85] = 0.0
+    out[86] = 0.0
+    out[87] = 1
+
+
 def c0_retinal_displacement__reduced(r, k):
     """Remaining constraints c0(r) of model 'retinal_displacement' and their Jacobian: shapes (2,), (2, 4)."""
     p_qw = r[0]
@@ -1124,6 +2204,24 @@ def c0_retinal_displacement__reduced(r, k):
     C0[1, 2] = 2*p_tx
     C0[1, 3] = 2*p_ty
     return c0, C0
+
+
+def row_c0_retinal_displacement__reduced(r, k, out):
+    """Row form of ``c0_retinal_displacement__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (2,), C0 (2, 4), row-major, one after the other."""
+    p_qw = r[0]
+    p_qz = r[1]
+    p_tx = r[2]
+    p_ty = r[3]
+    out[0] = p_qw**2 + p_qz**2 - 1
+    out[1] = p_tx**2 + p_ty**2 - 1
+    out[2] = 2*p_qw
+    out[3] = 2*p_qz
+    out[4] = 0.0
+    out[5] = 0.0
+    out[6] = 0.0
+    out[7] = 0.0
+    out[8] = 2*p_tx
+    out[9] = 2*p_ty
 
 
 def measure_match__retinal_displacement__reduced(r, m, k):
@@ -1193,6 +2291,65 @@ def measure_match__retinal_displacement__reduced(r, m, k):
     return c, C, D
 
 
+def row_measure_match__retinal_displacement__reduced(r, m, k, out):
+    """Row form of ``measure_match__retinal_displacement__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 4), D (1, 4), row-major, one after the other."""
+    p_qw = r[0]
+    p_qz = r[1]
+    p_tx = r[2]
+    p_ty = r[3]
+    k_fx1 = k[0]
+    k_fy1 = k[1]
+    k_cx1 = k[2]
+    k_cy1 = k[3]
+    k_fx2 = k[4]
+    k_fy2 = k[5]
+    k_cx2 = k[6]
+    k_cy2 = k[7]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = -k_cx2 + m_u2
+    _tmp1 = p_qw**2
+    _tmp2 = p_qz**2
+    _tmp3 = _tmp1 + _tmp2
+    _tmp4 = 1/k_fx2
+    _tmp5 = _tmp3*_tmp4
+    _tmp6 = _tmp0*_tmp5
+    _tmp7 = -k_cy2 + m_v2
+    _tmp8 = 1/k_fy2
+    _tmp9 = _tmp3*_tmp8
+    _tmp10 = _tmp7*_tmp9
+    _tmp11 = -k_cy1 + m_v
+    _tmp12 = 1/k_fy1
+    _tmp13 = 2*p_qw
+    _tmp14 = _tmp13*p_ty
+    _tmp15 = _tmp1 - _tmp2
+    _tmp16 = _tmp12*(_tmp14*p_qz + _tmp15*p_tx)
+    _tmp17 = -k_cx1 + m_u
+    _tmp18 = 1/k_fx1
+    _tmp19 = _tmp13*p_tx
+    _tmp20 = _tmp18*(-_tmp15*p_ty + _tmp19*p_qz)
+    _tmp21 = _tmp0*_tmp4
+    _tmp22 = _tmp7*_tmp8
+    _tmp23 = _tmp14 - 2*p_qz*p_tx
+    _tmp24 = _tmp17*_tmp18
+    _tmp25 = 2*p_qz
+    _tmp26 = _tmp25*p_ty
+    _tmp27 = _tmp19 + _tmp26
+    _tmp28 = _tmp11*_tmp12
+    _tmp29 = _tmp13*p_qz
+    out[0] = -_tmp10*p_tx + _tmp11*_tmp16 + _tmp17*_tmp20 + _tmp6*p_ty
+    out[1] = _tmp14*_tmp21 - _tmp19*_tmp22 - _tmp23*_tmp24 + _tmp27*_tmp28
+    out[2] = _tmp21*_tmp26 - _tmp22*_tmp25*p_tx + _tmp23*_tmp28 + _tmp24*_tmp27
+    out[3] = -_tmp10 + _tmp15*_tmp28 + _tmp24*_tmp29
+    out[4] = -_tmp15*_tmp24 + _tmp28*_tmp29 + _tmp6
+    out[5] = _tmp20
+    out[6] = _tmp16
+    out[7] = _tmp5*p_ty
+    out[8] = -_tmp9*p_tx
+
+
 def c0_planar(q, k):
     """Constraints c0(q) of model 'planar' and their Jacobian: shapes (2,), (2, 10)."""
     p_qw = q[0]
@@ -1215,6 +2372,39 @@ def c0_planar(q, k):
     C0[1, 5] = 2*p_ty
     C0[1, 6] = 2*p_tz
     return c0, C0
+
+
+def row_c0_planar(q, k, out):
+    """Row form of ``c0_planar`` (one measure, ``m`` its whole row): ``out`` holds c0 (2,), C0 (2, 10), row-major, one after the other."""
+    p_qw = q[0]
+    p_qx = q[1]
+    p_qy = q[2]
+    p_qz = q[3]
+    p_tx = q[4]
+    p_ty = q[5]
+    p_tz = q[6]
+    out[0] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[1] = p_tx**2 + p_ty**2 + p_tz**2 - 1
+    out[2] = 2*p_qw
+    out[3] = 2*p_qx
+    out[4] = 2*p_qy
+    out[5] = 2*p_qz
+    out[6] = 0.0
+    out[7] = 0.0
+    out[8] = 0.0
+    out[9] = 0.0
+    out[10] = 0.0
+    out[11] = 0.0
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 0.0
+    out[16] = 2*p_tx
+    out[17] = 2*p_ty
+    out[18] = 2*p_tz
+    out[19] = 0.0
+    out[20] = 0.0
+    out[21] = 0.0
 
 
 def c0_general(q, k):
@@ -1250,6 +2440,75 @@ def c0_general(q, k):
     return c0, C0
 
 
+def row_c0_general(q, k, out):
+    """Row form of ``c0_general`` (one measure, ``m`` its whole row): ``out`` holds c0 (5,), C0 (5, 10), row-major, one after the other."""
+    p_qw = q[0]
+    p_qx = q[1]
+    p_qy = q[2]
+    p_qz = q[3]
+    p_tx = q[4]
+    p_ty = q[5]
+    p_tz = q[6]
+    p_wx = q[7]
+    p_wy = q[8]
+    p_wz = q[9]
+    out[0] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[1] = p_tx**2 + p_ty**2 + p_tz**2 - 1
+    out[2] = p_wx
+    out[3] = p_wy
+    out[4] = p_wz
+    out[5] = 2*p_qw
+    out[6] = 2*p_qx
+    out[7] = 2*p_qy
+    out[8] = 2*p_qz
+    out[9] = 0.0
+    out[10] = 0.0
+    out[11] = 0.0
+    out[12] = 0.0
+    out[13] = 0.0
+    out[14] = 0.0
+    out[15] = 0.0
+    out[16] = 0.0
+    out[17] = 0.0
+    out[18] = 0.0
+    out[19] = 2*p_tx
+    out[20] = 2*p_ty
+    out[21] = 2*p_tz
+    out[22] = 0.0
+    out[23] = 0.0
+    out[24] = 0.0
+    out[25] = 0.0
+    out[26] = 0.0
+    out[27] = 0.0
+    out[28] = 0.0
+    out[29] = 0.0
+    out[30] = 0.0
+    out[31] = 0.0
+    out[32] = 1
+    out[33] = 0.0
+    out[34] = 0.0
+    out[35] = 0.0
+    out[36] = 0.0
+    out[37] = 0.0
+    out[38] = 0.0
+    out[39] = 0.0
+    out[40] = 0.0
+    out[41] = 0.0
+    out[42] = 0.0
+    out[43] = 1
+    out[44] = 0.0
+    out[45] = 0.0
+    out[46] = 0.0
+    out[47] = 0.0
+    out[48] = 0.0
+    out[49] = 0.0
+    out[50] = 0.0
+    out[51] = 0.0
+    out[52] = 0.0
+    out[53] = 0.0
+    out[54] = 1
+
+
 def c0_general__reduced(r, k):
     """Remaining constraints c0(r) of model 'general' and their Jacobian: shapes (2,), (2, 7)."""
     p_qw = r[0]
@@ -1272,6 +2531,33 @@ def c0_general__reduced(r, k):
     C0[1, 5] = 2*p_ty
     C0[1, 6] = 2*p_tz
     return c0, C0
+
+
+def row_c0_general__reduced(r, k, out):
+    """Row form of ``c0_general__reduced`` (one measure, ``m`` its whole row): ``out`` holds c0 (2,), C0 (2, 7), row-major, one after the other."""
+    p_qw = r[0]
+    p_qx = r[1]
+    p_qy = r[2]
+    p_qz = r[3]
+    p_tx = r[4]
+    p_ty = r[5]
+    p_tz = r[6]
+    out[0] = p_qw**2 + p_qx**2 + p_qy**2 + p_qz**2 - 1
+    out[1] = p_tx**2 + p_ty**2 + p_tz**2 - 1
+    out[2] = 2*p_qw
+    out[3] = 2*p_qx
+    out[4] = 2*p_qy
+    out[5] = 2*p_qz
+    out[6] = 0.0
+    out[7] = 0.0
+    out[8] = 0.0
+    out[9] = 0.0
+    out[10] = 0.0
+    out[11] = 0.0
+    out[12] = 0.0
+    out[13] = 2*p_tx
+    out[14] = 2*p_ty
+    out[15] = 2*p_tz
 
 
 def measure_match__general__reduced(r, m, k):
@@ -1397,6 +2683,123 @@ def measure_match__general__reduced(r, m, k):
     D[:, 0, 2] = _tmp42
     D[:, 0, 3] = _tmp47
     return c, C, D
+
+
+def row_measure_match__general__reduced(r, m, k, out):
+    """Row form of ``measure_match__general__reduced`` (one measure, ``m`` its whole row): ``out`` holds c (1,), C (1, 7), D (1, 4), row-major, one after the other."""
+    p_qw = r[0]
+    p_qx = r[1]
+    p_qy = r[2]
+    p_qz = r[3]
+    p_tx = r[4]
+    p_ty = r[5]
+    p_tz = r[6]
+    k_fx1 = k[0]
+    k_fy1 = k[1]
+    k_cx1 = k[2]
+    k_cy1 = k[3]
+    k_fx2 = k[4]
+    k_fy2 = k[5]
+    k_cx2 = k[6]
+    k_cy2 = k[7]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 2*p_qw
+    _tmp1 = _tmp0*p_qx
+    _tmp2 = 2*p_qz
+    _tmp3 = _tmp2*p_qy
+    _tmp4 = _tmp1 - _tmp3
+    _tmp5 = -_tmp4
+    _tmp6 = _tmp0*p_qy
+    _tmp7 = _tmp2*p_qx
+    _tmp8 = _tmp6 + _tmp7
+    _tmp9 = -k_cx1 + m_u
+    _tmp10 = 1/k_fx1
+    _tmp11 = _tmp0*p_qz
+    _tmp12 = 2*p_qx
+    _tmp13 = _tmp12*p_qy
+    _tmp14 = _tmp11 + _tmp13
+    _tmp15 = p_qw**2
+    _tmp16 = p_qy**2
+    _tmp17 = _tmp15 - _tmp16
+    _tmp18 = p_qx**2
+    _tmp19 = p_qz**2
+    _tmp20 = -_tmp19
+    _tmp21 = _tmp18 + _tmp20
+    _tmp22 = _tmp17 + _tmp21
+    _tmp23 = _tmp10*(_tmp14*p_tx - _tmp22*p_ty)
+    _tmp24 = -k_cy1 + m_v
+    _tmp25 = 1/k_fy1
+    _tmp26 = _tmp11 - _tmp13
+    _tmp27 = -_tmp26
+    _tmp28 = -_tmp18
+    _tmp29 = _tmp15 + _tmp16 + _tmp20 + _tmp28
+    _tmp30 = _tmp25*(-_tmp27*p_ty + _tmp29*p_tx)
+    _tmp31 = -k_cx2 + m_u2
+    _tmp32 = 1/k_fx2
+    _tmp33 = _tmp17 + _tmp19 + _tmp28
+    _tmp34 = -_tmp7
+    _tmp35 = _tmp34 + _tmp6
+    _tmp36 = -_tmp35
+    _tmp37 = -_tmp14*p_tz + _tmp36*p_ty
+    _tmp38 = _tmp10*_tmp9
+    _tmp39 = _tmp1 + _tmp3
+    _tmp40 = -_tmp29*p_tz + _tmp39*p_ty
+    _tmp41 = _tmp24*_tmp25
+    _tmp42 = _tmp32*(_tmp33*p_ty + _tmp37*_tmp38 + _tmp40*_tmp41 - _tmp5*p_tz)
+    _tmp43 = -k_cy2 + m_v2
+    _tmp44 = 1/k_fy2
+    _tmp45 = _tmp27*p_tz - _tmp39*p_tx
+    _tmp46 = _tmp22*p_tz - _tmp36*p_tx
+    _tmp47 = _tmp44*(-_tmp33*p_tx + _tmp38*_tmp46 + _tmp41*_tmp45 + _tmp8*p_tz)
+    _tmp48 = _tmp12*p_tx
+    _tmp49 = 2*p_qy
+    _tmp50 = _tmp49*p_ty
+    _tmp51 = _tmp0*p_ty
+    _tmp52 = _tmp2*p_tx
+    _tmp53 = -_tmp52
+    _tmp54 = _tmp51 + _tmp53
+    _tmp55 = _tmp0*p_tx
+    _tmp56 = _tmp2*p_ty
+    _tmp57 = _tmp55 + _tmp56
+    _tmp58 = _tmp2*p_tz
+    _tmp59 = _tmp50 + _tmp58
+    _tmp60 = _tmp0*p_tz
+    _tmp61 = _tmp12*p_ty
+    _tmp62 = -_tmp61
+    _tmp63 = _tmp60 + _tmp62
+    _tmp64 = -_tmp63
+    _tmp65 = _tmp12*p_tz
+    _tmp66 = _tmp51 + _tmp65
+    _tmp67 = _tmp31*_tmp32
+    _tmp68 = -_tmp55
+    _tmp69 = _tmp49*p_tz
+    _tmp70 = _tmp49*p_tx
+    _tmp71 = _tmp60 + _tmp70
+    _tmp72 = _tmp48 + _tmp58
+    _tmp73 = -_tmp72
+    _tmp74 = _tmp43*_tmp44
+    _tmp75 = -_tmp56
+    _tmp76 = -_tmp61 + _tmp70
+    _tmp77 = _tmp48 + _tmp50
+    _tmp78 = -_tmp69 - _tmp75
+    _tmp79 = _tmp53 + _tmp65
+    _tmp80 = -_tmp69
+    _tmp81 = _tmp55 + _tmp80
+    out[0] = _tmp23*_tmp9 + _tmp24*_tmp30 + _tmp31*_tmp42 + _tmp43*_tmp47 + _tmp5*p_tx - _tmp8*p_ty
+    out[1] = -_tmp38*_tmp54 + _tmp41*_tmp57 - _tmp48 - _tmp50 + _tmp67*(-_tmp38*_tmp59 + _tmp41*_tmp64 + _tmp66) + _tmp74*(_tmp38*_tmp71 + _tmp41*_tmp73 + _tmp68 + _tmp69)
+    out[2] = _tmp38*_tmp76 - _tmp41*_tmp77 + _tmp67*(_tmp38*_tmp78 + _tmp41*_tmp66 + _tmp63) + _tmp68 + _tmp74*(_tmp38*_tmp79 - _tmp41*_tmp81 + _tmp72) + _tmp75
+    out[3] = _tmp38*_tmp77 + _tmp41*_tmp76 - _tmp51 + _tmp52 + _tmp67*(-_tmp10*_tmp66*_tmp9 + _tmp24*_tmp25*_tmp78 - _tmp59) + _tmp74*(_tmp38*_tmp81 + _tmp41*_tmp79 + _tmp71)
+    out[4] = _tmp38*_tmp57 + _tmp41*_tmp54 + _tmp62 + _tmp67*(_tmp38*_tmp64 + _tmp41*_tmp59 + _tmp56 + _tmp80) + _tmp70 + _tmp74*(_tmp38*_tmp73 - _tmp41*_tmp71 + _tmp79)
+    out[5] = -_tmp1 + _tmp14*_tmp38 + _tmp29*_tmp41 + _tmp3 + _tmp74*(-_tmp15 + _tmp16 + _tmp21 + _tmp35*_tmp38 - _tmp39*_tmp41)
+    out[6] = -_tmp22*_tmp38 + _tmp26*_tmp41 + _tmp34 - _tmp6 + _tmp67*(_tmp33 + _tmp36*_tmp38 + _tmp39*_tmp41)
+    out[7] = _tmp67*(-_tmp14*_tmp38 - _tmp29*_tmp41 + _tmp4) + _tmp74*(_tmp22*_tmp38 + _tmp27*_tmp41 + _tmp8)
+    out[8] = _tmp10*_tmp37*_tmp67 + _tmp10*_tmp46*_tmp74 + _tmp23
+    out[9] = _tmp25*_tmp40*_tmp67 + _tmp25*_tmp45*_tmp74 + _tmp30
+    out[10] = _tmp42
+    out[11] = _tmp47
 
 
 def derived(q, k):
@@ -2321,6 +3724,31 @@ MODELS = {
 }
 DERIVED = derived
 SLACK_MEASURES = None
+#: The row forms (one measure, every entry into one flat array: the compiled kernels'
+#: layout), by the name of the function they mirror.
+ROWS = {
+    "c0_none": row_c0_none,
+    "measure_match__none": row_measure_match__none,
+    "c0_none__reduced": row_c0_none__reduced,
+    "measure_match__none__reduced": row_measure_match__none__reduced,
+    "c0_rotation": row_c0_rotation,
+    "c0_rotation__reduced": row_c0_rotation__reduced,
+    "measure_match__rotation__reduced": row_measure_match__rotation__reduced,
+    "c0_retinal_translation": row_c0_retinal_translation,
+    "measure_match": row_measure_match,
+    "c0_retinal_translation__reduced": row_c0_retinal_translation__reduced,
+    "measure_match__retinal_translation__reduced": row_measure_match__retinal_translation__reduced,
+    "c0_translation": row_c0_translation,
+    "c0_translation__reduced": row_c0_translation__reduced,
+    "measure_match__translation__reduced": row_measure_match__translation__reduced,
+    "c0_retinal_displacement": row_c0_retinal_displacement,
+    "c0_retinal_displacement__reduced": row_c0_retinal_displacement__reduced,
+    "measure_match__retinal_displacement__reduced": row_measure_match__retinal_displacement__reduced,
+    "c0_planar": row_c0_planar,
+    "c0_general": row_c0_general,
+    "c0_general__reduced": row_c0_general__reduced,
+    "measure_match__general__reduced": row_measure_match__general__reduced,
+}
 KERNELS = {
     (1, 4): (whiten_1_4, correct_1_4),
     (3, 4): (whiten_3_4, correct_3_4),

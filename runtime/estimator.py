@@ -21,6 +21,8 @@ from dataclasses import replace
 
 import numpy as np
 
+from kanagen.common.jit import interrupted
+
 from . import lattice
 from .budget import SampleBudget
 from .family import ModelFamily
@@ -327,6 +329,8 @@ class Estimator:
             try:
                 going = self._step(batch)
             except Exception as exc:  # absorbed: the reason stays in the status
+                if interrupted(exc):  # Ctrl-C, raised inside a kernel's boxing
+                    raise KeyboardInterrupt from exc
                 self.errors.append(f"{type(exc).__name__}: {exc}")
                 self._walk.clear()
                 self._search = None

@@ -1,5 +1,5 @@
-"""The compiled kernels of the estimator: ctypes glue to ``kg_coherence``, ``kg_project``,
-``kg_minimal`` and the sampling calls (docs/fastpath.md).
+"""The compiled kernels of the robust search: ctypes glue to ``kg_coherence``, ``kg_minimal``
+and the sampling calls (docs/fastpath.md).
 
 ``codegen/c/kanagen_fast.c`` is a port of the NumPy runtime's measure projection (eq. 22–24),
 square roots and minimal solve (eq. 21), compiled with a family's CasADi C into the library
@@ -64,9 +64,6 @@ class FastPath:
         self._coherence = lib.kg_coherence
         self._coherence.argtypes = [ctypes.c_void_p] * 2
         self._coherence.restype = ctypes.c_int
-        self._project = lib.kg_project
-        self._project.argtypes = [ctypes.c_void_p] * 3
-        self._project.restype = ctypes.c_int
         self._minimal = lib.kg_minimal
         self._minimal.argtypes = [ctypes.c_void_p] * 2
         self._minimal.restype = ctypes.c_int
@@ -142,50 +139,6 @@ class FastPath:
             kept.append(out[at + M:at + 2 * M].astype(np.int64))
             at += 2 * M
         return tuple(totals), tuple(kept)
-
-    def project(self, model: str, problem, q: np.ndarray, mt, iterations: int, tol: float):
-        """``kg_project``: :func:`~kanagen.runtime.projector.project_measures` of the
-        validated ``problem`` at ``q`` from the corrected measures ``mt`` — the same
-        ``(mt, violations, ranks, evals)``; None when kg_project refuses the input (not
-        finite). Packed once per problem and thread (a fit restores on one problem)."""
-        packed = getattr(self._local, "project", None)
-        if packed is None or packed[0] is not problem or packed[1] != (model, iterations, tol):
-            n = self.n
-            sizes = []
-            for ch in problem.channels:
-                M, k = ch.X.shape[0], len(ch.index)
-                p = self._equations[model][self.channels[ch.name][0]]
-                sizes.append((M, k, p))
-            size_out = sum(M * (k + 2 + p * (1 + n + k)) for M, k, p in sizes)
-            ws, where = self._packed_at(model, problem, problem.q0, problem.eps, iterations,
-                                        tol, size_out, own=True)
-            mt_in = np.empty(sum(M * k for M, k, _ in sizes) + 1)
-            packed = self._local.project = (problem, (model, iterations, tol), ws, where,
-                                            sizes, mt_in, ctypes.c_void_p(mt_in.ctypes.data))
-        _, _, ws, where, sizes, mt_in, mt_at = packed
-        ws[0][where[0]:where[0] + self.n] = q
-        at = 0
-        for m, (M, k, _) in zip(mt, sizes, strict=True):
-            mt_in[at:at + M * k] = m.ravel()
-            at += M * k
-        if self._project(ws[2], mt_at, ws[3]) != 0:
-            return None
-        out, n = ws[1], self.n
-        mts, violations, ranks, evals, at = [], [], [], [], 0
-        for M, k, p in sizes:
-            mts.append(out[at:at + M * k].reshape(M, k).copy())
-            at += M * k
-            violations.append(out[at:at + M].copy())
-            ranks.append(out[at + M:at + 2 * M].astype(np.int64))
-            at += 2 * M
-            c = out[at:at + M * p].reshape(M, p).copy()
-            at += M * p
-            C = out[at:at + M * p * n].reshape(M, p, n).copy()
-            at += M * p * n
-            D = out[at:at + M * p * k].reshape(M, p, k).copy()
-            at += M * p * k
-            evals.append((c, C, D))
-        return tuple(mts), tuple(violations), tuple(ranks), tuple(evals)
 
     def coherence_input(self, model: str, problem, iterations: int, tol: float):
         """kg_coherence's input for the validated ``problem`` (its start and prior slots

@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from .engine.data import model_rows
 from .family import ModelFamily
 from .hyper import corrected
 from .inputs import channel_data, data_hint, describe, parameter_vector, prior_information
@@ -49,7 +50,9 @@ def make_problem(fam: ModelFamily, model: str, data: Mapping | None = None,
         strict_slacks=fam.strict_slacks(model),
         compiled=None if fam.fastpath is None else (fam.fastpath, model),
         names=fam.parameter_names,
+        rows=model_rows(fam, model),
     )
+
 
 
 def _equation_count(fam: ModelFamily, model: str, channel: str, k: np.ndarray) -> int:

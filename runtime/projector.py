@@ -12,8 +12,24 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .engine.data import (
+    arrays,
+    pack_evals,
+    pack_measures,
+    per_channel,
+    unpack_evals,
+    unpack_measures,
+)
+from .engine.linear import (
+    corrected,
+    parameter_block,
+    retraction_step,
+    seen_components,
+)
+from .engine.linear import linearise as engine_linearise
+from .engine.measures import project_all
 from .inputs import ChannelData
-from .sqrt import EPS, closest_sqrt, reduced_solve, reduced_sqrt, triangular_solve
+from .sqrt import EPS
 
 #: Relative rounding level of stored values (moves below it are noise).
 _ROUNDING = 1e3 * np.finfo(float).eps
@@ -37,6 +53,7 @@ class Problem:
     # (FastPath, model) when the family is compiled: coherence errors in C (fastpath.py)
     compiled: tuple | None = None
     names: tuple[str, ...] = ()  # the parameter's components, for messages
+    rows: object = None  # the model's compiled row kernels (engine.data.RowKernels)
 
 
     def subset(self, rows) -> Problem:
@@ -80,6 +97,7 @@ class Linearisation:
     whitened: tuple  # per channel: (C̄, r̄', kernel state) or None
     ranks: tuple[np.ndarray, ...]  # p_i per measure, per channel
     residual: float  # Σ ‖W_i c_i‖², the measurement part of E²
+    packed: tuple = ()  # C̄, r̄', E, L, L's inverse pivots: per measure, padded (engine)
 
 
 @dataclass(frozen=True)
@@ -132,41 +150,19 @@ def point(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...], evals) ->
 def project_measures(problem: Problem, q: np.ndarray, mt: tuple[np.ndarray, ...],
                      iterations: int, tol: float = 1e-10):
     """Project each measure onto ``c_i(q, ·) = 0`` with ``q`` fixed, in its ``Q_i`` metric
-    (report eq. 22: the projector in measure space only, with eq. 18's halving per measure,
-    vectorised over the measures).
+    (report eq. 22: the projector in measure space only, with eq. 18's halving per measure;
+    :func:`~kanagen.runtime.engine.measures.project_measure`).
 
     ``iterations`` counts projector steps plus one: 1 evaluates at ``mt`` and moves nothing.
     Returns ``(mt, violations, ranks, evals)`` with, per channel and measure, the whitened
     violation ``‖c(q, m̃)‖²_{(D Q⁺ Dᵀ)⁻}`` and the number of equations kept, and per channel
     the equations ``(c, C, D)``, all at the returned point.
     """
-    out_mt, out_violation, out_rank, out_evals = [], [], [], []
-    for fn, (whiten, correct), ch, m in zip(problem.measures, problem.kernels,
-                                            problem.channels, mt, strict=True):
-        m = m.copy()
-        violation = np.zeros(ch.size)
-        rank = np.zeros(ch.size, dtype=int)
-        c, C, D = fn(q, ch.with_corrected(m), problem.k)
-        active = np.ones(ch.size, dtype=bool)
-        for it in range(iterations if ch.size else 0):
-            r = (D @ (m - ch.m)[..., None])[..., 0] - c  # r − C q with q fixed
-            Bbar, kept, state = whiten(D, ch.G, np.stack([r, c], axis=2), problem.eps)
-            violation = np.sum(Bbar[..., 1] ** 2, axis=1)
-            rank = kept.sum(axis=1)
-            if it == iterations - 1 or not active.any():
-                break
-            step = ch.m + correct(state, ch.G, Bbar[..., 0]) - m
-            step[~active | ~np.all(np.isfinite(step), axis=1)] = 0.0
-            m, (c, C, D), moved = _halving(problem, fn, ch, q, m, c, step)
-            seen = quadratic(moved, ch.Q) > tol**2
-            # where the information does not see a move (Q semi-definite): the rounding level
-            unseen = np.any(np.abs(moved) > _ROUNDING * (1.0 + np.abs(m)), axis=1)
-            active &= seen | unseen
-        out_mt.append(m)
-        out_violation.append(violation)
-        out_rank.append(rank)
-        out_evals.append((c, C, D))
-    return tuple(out_mt), tuple(out_violation), tuple(out_rank), tuple(out_evals)
+    A = arrays(problem)
+    out, viol, rank, c, C, D = project_all(A, q, pack_measures(A, mt), int(iterations),
+                                           float(tol))
+    return (unpack_measures(A, out), per_channel(A, viol), per_channel(A, rank),
+            unpack_evals(A, c, C, D))
 
 
 def restore_parameter(problem: Problem, q: np.ndarray, root: np.ndarray | None,
@@ -192,10 +188,7 @@ def restore_parameter(problem: Problem, q: np.ndarray, root: np.ndarray | None,
     for _ in range(iterations):
         if not worst > _ROUNDING * (1.0 + float(np.max(np.abs(q)))) * 1e-3:
             break
-        C0bar_t = triangular_solve(root, C0.T)  # Ā⁻¹ C0ᵀ
-        L0, kept0 = reduced_sqrt(C0bar_t.T @ C0bar_t, problem.eps)
-        y = reduced_solve(L0, kept0, reduced_solve(L0, kept0, c0), transpose=True)
-        trial = q - triangular_solve(root, C0bar_t @ y, transpose=True)
+        trial = q - retraction_step(root, C0, c0, problem.eps)
         c0_new, C0_new = problem.c0(trial, problem.k)
         new_worst = float(np.max(np.abs(c0_new)))
         if not new_worst < worst:
@@ -204,70 +197,20 @@ def restore_parameter(problem: Problem, q: np.ndarray, root: np.ndarray | None,
     return q
 
 
-def _halving(problem: Problem, fn, ch, q, m, c, step, halvings: int = 4):
-    """Eq. 18 per measure: take ``m + α step`` with α halved where the violation grows (a few
-    times: the far-point instability of the plain step needs α <= 1/4); a measure whose
-    violation still grows stays where it is."""
-    worst = np.max(np.abs(c), axis=1) if c.shape[1] else np.zeros(len(m))
-    alpha = np.ones(len(m))
-    for _ in range(halvings):
-        cand = m + alpha[:, None] * step
-        new = fn(q, ch.with_corrected(cand), problem.k)
-        c_new = new[0]
-        new_worst = np.max(np.abs(c_new), axis=1) if c_new.shape[1] else worst
-        grew = ~(new_worst <= worst + 1e-9 * (1.0 + worst))  # NaN counts as growth
-        if not grew.any():
-            break
-        alpha = np.where(grew, alpha / 2, alpha)
-    else:
-        alpha = np.where(grew, 0.0, alpha)
-        cand = m + alpha[:, None] * step
-        new = fn(q, ch.with_corrected(cand), problem.k)
-    return cand, new, cand - m
-
-
 def linearise(problem: Problem, x: Point) -> Linearisation:
-    """Whitened linearisation at ``x`` (report appendix A, Fig. 17), per-measure work
-    vectorised over the measures of each channel."""
-    q = x.q
-    n = q.size
-    A = np.zeros((n, n))
-    g = np.zeros(n)
-    residual = 0.0
-    whitened, ranks = [], []
-    for (whiten, _), ch, m, (c, C, D) in zip(problem.kernels, problem.channels, x.mt, x.evals,
-                                             strict=True):
-        if ch.size == 0:
-            whitened.append(None)
-            ranks.append(np.zeros(0, dtype=int))
-            continue
-        stacked = np.empty(C.shape[:2] + (n + 2,))
-        stacked[..., :n] = C
-        # r_i − C_i q• = D_i (m• − m) − c_i (SPEC §2, in increments)
-        stacked[..., n] = (D @ (m - ch.m)[..., None])[..., 0] - c
-        stacked[..., n + 1] = c
-        Bbar, kept, state = whiten(D, ch.G, stacked, problem.eps)
-        flat = Bbar.reshape(-1, n + 2)
-        A += flat[:, :n].T @ flat[:, :n]
-        g += flat[:, :n].T @ flat[:, n]
-        residual += float(flat[:, n + 1] @ flat[:, n + 1])
-        whitened.append((Bbar[..., :n], Bbar[..., n], state))
-        ranks.append(kept.sum(axis=1))
-    info = problem.Q0 + A
-    rhs = problem.Q0 @ (problem.q0 - q) + g
-    gradient = -rhs
-    H = info
-    C0 = x.C0
-    if C0.shape[0]:
-        # Augmented form of the same KKT system: adding ρ C0ᵀ(C0 Δq + c0) = 0 changes neither
-        # Δq nor λ0, but makes H definite wherever the constraints fix what the data leave
-        # free (e.g. the scale of a homogeneous parameter), so the closest root needs no ε
-        # floor there and C̄0 = Ā⁻¹ C0ᵀ stays well conditioned.
-        gram = C0.T @ C0
-        rho = _augmentation(H, gram)
-        H = H + rho * gram
-        rhs = rhs - rho * (C0.T @ x.c0)
-    return Linearisation(x, info, H, rhs, gradient, tuple(whitened), tuple(ranks), residual)
+    """Whitened linearisation at ``x`` (report appendix A, Fig. 17;
+    :func:`~kanagen.runtime.engine.linear.linearise`)."""
+    A = arrays(problem)
+    c, C, D = pack_evals(A, x.evals, x.q.size)
+    info, H, rhs, gradient, Cbar, rbar, E, L, inv, kept, ranks, residual = engine_linearise(
+        A, np.ascontiguousarray(x.q, dtype=float), pack_measures(A, x.mt), c, C, D,
+        np.ascontiguousarray(x.c0, dtype=float), np.ascontiguousarray(x.C0, dtype=float))
+    whitened = tuple(None if A.size[j] == 0 else
+                     (Cbar[A.start[j]:A.start[j] + A.size[j], :A.P[j]],
+                      rbar[A.start[j]:A.start[j] + A.size[j], :A.P[j]], None)
+                     for j in range(A.size.size))
+    return Linearisation(x, info, H, rhs, gradient, whitened, per_channel(A, ranks),
+                         float(residual), (Cbar, rbar, E, L, inv))
 
 
 def solve(problem: Problem, lin: Linearisation, mu: float = 0.0,
@@ -276,19 +219,13 @@ def solve(problem: Problem, lin: Linearisation, mu: float = 0.0,
 
     ``mu > 0`` adds Levenberg–Marquardt damping ``μ diag(w)`` to the parameter block (our
     globalisation for starts far from the solution), ``w`` the given ``weights`` or else
-    ``diag(H)``; ``mu = 0`` is the report's projector.
+    ``diag(H)`` equilibrated; ``mu = 0`` is the report's projector.
     """
     x = lin.x
-    dq, rank0, kept0, residual = _parameter_block(problem, lin, mu, weights)
-    mt_new = []
-    for (_, correct), ch, w in zip(problem.kernels, problem.channels, lin.whitened,
-                                   strict=True):
-        if w is None:
-            mt_new.append(ch.m.copy())
-            continue
-        Cbar, rbar, state = w
-        mt_new.append(ch.m + correct(state, ch.G, rbar - Cbar @ dq))  # eq. 44
-    return Projection(x.q + dq, tuple(mt_new), x.C0[kept0], rank0, residual)
+    dq, kept0, rank0, residual = _parameter_block(problem, lin, mu, weights)
+    A = arrays(problem)
+    mt = unpack_measures(A, corrected(A, dq, *lin.packed))  # eq. 44
+    return Projection(x.q + dq, mt, x.C0[kept0], rank0, residual)
 
 
 def parameter_step(problem: Problem, lin: Linearisation, mu: float = 0.0,
@@ -298,48 +235,22 @@ def parameter_step(problem: Problem, lin: Linearisation, mu: float = 0.0,
 
 
 def _parameter_block(problem: Problem, lin: Linearisation, mu: float,
-                     weights: np.ndarray | None) -> tuple[np.ndarray, int, np.ndarray, float]:
-    """``Δq`` of eq. 43 (damped by ``μ diag(w)``), the rank of the constraints, the rows kept
-    and the residual E²."""
+                     weights: np.ndarray | None):
+    """``Δq`` of eq. 43 (damped by ``μ diag(w)``), the rows of ``C0`` kept, their rank and
+    the residual E² (:func:`~kanagen.runtime.engine.linear.parameter_block`)."""
     x = lin.x
-    H = lin.H
-    if mu > 0.0:
-        H = H + mu * np.diag(_equilibrium_weights(H) if weights is None else weights)
-    # A component that neither the data nor the constraints see (a slack in a factor of a
-    # disjunction that does not hold: its column is rounding) holds only rounding in the
-    # right-hand side, which the closest root would divide by ε: it does not move.
-    seen = _seen(lin.info, x.C0, x.q)
-    dq = np.zeros(x.q.size)
-    if not seen.all():
-        H, rhs, C0 = H[np.ix_(seen, seen)], lin.rhs[seen], x.C0[:, seen]
-    else:
-        rhs, C0 = lin.rhs, x.C0
-    residual = lin.residual
-    rank0, kept0 = 0, np.zeros(x.C0.shape[0], dtype=bool)
-    if seen.any():  # none seen, e.g. every gradient vanishes at the start: q stays
-        rank0, kept0, residual = _solve_seen(problem, x, H, rhs, C0, seen, dq, residual)
-    return dq, rank0, kept0, residual
+    dq, kept0, rank0, residual, ok = parameter_block(
+        lin.H, lin.info, lin.rhs, np.ascontiguousarray(x.C0, dtype=float),
+        np.ascontiguousarray(x.c0, dtype=float), np.ascontiguousarray(x.q, dtype=float),
+        lin.residual, float(mu), _NO_WEIGHTS if weights is None else
+        np.ascontiguousarray(weights, dtype=float), problem.eps)
+    if not ok:
+        raise np.linalg.LinAlgError("singular triangular factor")
+    return dq, kept0, int(rank0), float(residual)
 
 
-def _solve_seen(problem: Problem, x: Point, H: np.ndarray, rhs: np.ndarray, C0: np.ndarray,
-                seen: np.ndarray, dq: np.ndarray, residual: float,
-                ) -> tuple[int, np.ndarray, float]:
-    """The parameter block of eq. 43 on the seen components: writes ``dq[seen]``; returns the
-    rank of the constraints, the rows kept and the residual with ``‖c0‖²`` whitened."""
-    Abar = closest_sqrt(H, problem.eps)  # H = Ā Āᵀ
-    bbar = triangular_solve(Abar, rhs)
-    rank0, kept0 = 0, np.zeros(C0.shape[0], dtype=bool)
-    if C0.shape[0]:
-        C0bar_t = triangular_solve(Abar, C0.T)  # Ā⁻¹ C0ᵀ
-        L0, kept0 = reduced_sqrt(C0bar_t.T @ C0bar_t, problem.eps)
-        lam = reduced_solve(L0, kept0, reduced_solve(L0, kept0, C0bar_t.T @ bbar + x.c0),
-                            transpose=True)
-        bbar = bbar - C0bar_t @ lam
-        e0 = reduced_solve(L0, kept0, x.c0)
-        residual += float(e0 @ e0)
-        rank0 = int(kept0.sum())
-    dq[seen] = triangular_solve(Abar, bbar, transpose=True)
-    return rank0, kept0, residual
+_NO_WEIGHTS = np.zeros(0)
+
 
 def project(problem: Problem, x: Point) -> tuple[Linearisation, Projection]:
     """One application of the projector ``P_{x0}(x•)`` (report eq. 12, Fig. 17)."""
@@ -348,30 +259,8 @@ def project(problem: Problem, x: Point) -> tuple[Linearisation, Projection]:
 
 
 def _seen(info: np.ndarray, C0: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Components the data or the constraints see: some information (however small: the
-    scales of components may differ by many orders) or a constraint Jacobian entry above the
-    rounding level of its row — as it is, or as the change ``C0[r, j] q_j`` of a relative
-    move of the component (a slack near its boundary, ``s² (AC − B²) − 1`` with ``s`` large,
-    has a small but exact derivative ``2 s (AC − B²)``; a slack in a factor of a disjunction
-    that does not hold has rounding there, whatever its scale)."""
-    seen = np.diagonal(info) != 0.0
-    if C0.shape[0]:
-        for J in (np.abs(C0), np.abs(C0 * q)):
-            rows = np.max(J, axis=1, keepdims=True)
-            seen |= np.any(J > _ROUNDING * rows, axis=0)
-    return seen
-
-
-def _equilibrium_weights(H: np.ndarray) -> np.ndarray:
-    diag = np.abs(np.diagonal(H))
-    top = float(diag.max(initial=0.0))
-    return np.where(diag > 0, diag, top if top > 0 else 1.0)
-
-
-def _augmentation(info: np.ndarray, gram: np.ndarray) -> float:
-    """ρ that puts ρ C0ᵀC0 on the scale of the information matrix."""
-    top = float(np.max(np.diagonal(info), initial=0.0))
-    bottom = float(np.max(np.diagonal(gram), initial=0.0))
-    if bottom <= 0.0:
-        return 0.0
-    return (top if top > 0.0 else 1.0) / bottom
+    """Components the data or the constraints see
+    (:func:`~kanagen.runtime.engine.linear.seen_components`)."""
+    return seen_components(np.ascontiguousarray(info, dtype=float),
+                           np.ascontiguousarray(C0, dtype=float),
+                           np.ascontiguousarray(q, dtype=float))

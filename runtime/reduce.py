@@ -14,6 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from .engine.data import model_rows
 from .family import ModelFamily, Reduction
 from .projector import Problem
 
@@ -41,4 +42,5 @@ def reduced_problem(fam: ModelFamily, model: str, problem: Problem,
         strict_slacks=tuple((free.index(i), power) for i, power in problem.strict_slacks
                             if i in free),
         compiled=None,  # the compiled library evaluates the full model
+        rows=model_rows(fam, model, red),
     )

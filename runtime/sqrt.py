@@ -1,7 +1,8 @@
 """The two generalised square-root decompositions of the report (§3.3, appendix D).
 
-Both work on symmetric positive semi-definite matrices, batched over leading axes, with
-loops over the (small, fixed) matrix size and vector operations over the batch.
+Both work on symmetric positive semi-definite matrices, one at a time or batched over
+leading axes; the factorisations and solves are kernels (``@jit``, :mod:`kanagen.common.jit`)
+on one matrix, looped over a batch.
 
 * :func:`closest_sqrt` — Cholesky where a pivot that is not > ε·scale is replaced by ε·scale
   (and the column below it, rounding noise for a PSD input, by zeros): the factor of a
@@ -21,18 +22,14 @@ equation intact.
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import lapack
+
+from kanagen.common.jit import jit
 
 #: Default relative pivot threshold, 10× machine precision (report §3.3).
 EPS = 10 * np.finfo(float).eps
 _TINY = np.finfo(float).tiny
 #: Relative pivot below which a row is taken as a combination of the rows kept before it.
 REDUNDANT = 1e3 * np.finfo(float).eps
-
-
-def _scale(S: np.ndarray) -> np.ndarray:
-    diag = np.diagonal(S, axis1=-2, axis2=-1)
-    return np.maximum(diag.max(axis=-1, initial=0.0), _TINY)
 
 
 def closest_sqrt(S: np.ndarray, eps: float = EPS) -> np.ndarray:
@@ -58,25 +55,12 @@ def closest_sqrt(S: np.ndarray, eps: float = EPS) -> np.ndarray:
     True
     """
     S = np.asarray(S, dtype=float)
-    n = S.shape[-1]
     eps = max(eps, REDUNDANT)
     if S.ndim == 2:
-        return _closest_single(S, eps)
-    d = _equilibrium(S)
-    U = S / (d[..., :, None] * d[..., None, :])
-    L = np.zeros_like(U)
-    for k in range(n):
-        piv = U[..., k, k] - np.sum(L[..., k, :k] ** 2, axis=-1)
-        fixed = ~(piv > eps)
-        L[..., k, k] = np.sqrt(np.where(fixed, eps, piv))
-        if k + 1 < n:
-            rest = U[..., k + 1 :, k] - np.einsum("...ij,...j->...i", L[..., k + 1 :, :k],
-                                                  L[..., k, :k])
-            # below a vanishing pivot a PSD matrix has a vanishing column (|rest|² <= piv ·
-            # pivots below): what is left is rounding noise, which √ε would amplify
-            L[..., k + 1 :, k] = np.where(fixed[..., None], 0.0,
-                                          rest / L[..., k, k][..., None])
-    return L * d[..., :, None]
+        return closest_root(S, eps)
+    n = S.shape[-1]
+    flat = np.ascontiguousarray(S).reshape(-1, n, n)
+    return _closest_batch(flat, eps).reshape(S.shape)
 
 
 def reduced_sqrt(S: np.ndarray, eps: float = EPS) -> tuple[np.ndarray, np.ndarray]:
@@ -93,40 +77,23 @@ def reduced_sqrt(S: np.ndarray, eps: float = EPS) -> tuple[np.ndarray, np.ndarra
     [True, False, True]
     """
     S = np.asarray(S, dtype=float)
-    n = S.shape[-1]
     if S.ndim == 2:
-        return _reduced_single(S, eps)
-    tol = eps * _scale(S)
-    L = np.zeros_like(S)
-    kept = np.zeros(S.shape[:-1], dtype=bool)
-    for k in range(n):
-        piv = S[..., k, k] - np.sum(L[..., k, :k] ** 2, axis=-1)
-        keep = (piv > tol) & (piv > REDUNDANT * S[..., k, k])
-        kept[..., k] = keep
-        root = np.sqrt(np.where(keep, piv, 1.0))
-        L[..., k, :k] *= keep[..., None]  # a dropped equation leaves a zero row
-        L[..., k, k] = np.where(keep, root, 0.0)
-        if k + 1 < n:
-            rest = S[..., k + 1 :, k] - np.einsum("...ij,...j->...i", L[..., k + 1 :, :k],
-                                                  L[..., k, :k])
-            L[..., k + 1 :, k] = np.where(keep[..., None], rest / root[..., None], 0.0)
-    return L, kept
+        return reduced_root(S, eps)
+    n = S.shape[-1]
+    L, kept = _reduced_batch(np.ascontiguousarray(S).reshape(-1, n, n), eps)
+    return L.reshape(S.shape), kept.reshape(S.shape[:-1])
 
 
 def triangular_solve(L: np.ndarray, b: np.ndarray, transpose: bool = False) -> np.ndarray:
-    """Solve ``L x = b`` (or ``Lᵀ x = b``) for a lower-triangular, non-singular ``L``.
-
-    Several right-hand sides are solved one column at a time: with a matrix, OpenBLAS's
-    ``dtrsm`` wakes its threads even for a 7 × 3 system, which costs ten times the solve
-    (and, on a loaded machine, a hundred: the robust lattice search of the shipped conic
-    example took 16 s instead of 1.4 s)."""
-    trans = 1 if transpose else 0
-    if b.ndim == 2 and b.shape[1] > 1:
-        return np.column_stack([triangular_solve(L, b[:, j], transpose)
-                                for j in range(b.shape[1])])
-    x, info = lapack.dtrtrs(L, b, lower=1, trans=trans)
-    if info != 0:
-        raise np.linalg.LinAlgError(f"singular triangular factor (info {info})")
+    """Solve ``L x = b`` (or ``Lᵀ x = b``) for a lower-triangular, non-singular ``L``; ``b``
+    a vector or a matrix of right-hand sides. A zero on the diagonal raises
+    ``numpy.linalg.LinAlgError``."""
+    L = np.asarray(L, dtype=float)
+    b = np.asarray(b, dtype=float)
+    x = solve_lower(L, b, transpose) if b.ndim == 1 else \
+        solve_lower_columns(L, np.ascontiguousarray(b), transpose)
+    if not x.size and b.size:
+        raise np.linalg.LinAlgError("singular triangular factor")
     return x
 
 
@@ -135,73 +102,175 @@ def reduced_solve(L: np.ndarray, kept: np.ndarray, B: np.ndarray, transpose: boo
 
     ``L`` is (..., p, p), ``kept`` (..., p), ``B`` (..., p) or (..., p, t).
     """
+    L = np.asarray(L, dtype=float)
+    B = np.asarray(B, dtype=float)
     vector = B.ndim == L.ndim - 1
     if L.ndim == 2 and vector:
-        if kept.all():
-            return triangular_solve(L, B, transpose)
-        y = np.zeros(B.shape)
-        if kept.any():
-            y[kept] = triangular_solve(L[np.ix_(kept, kept)], B[kept], transpose)
-        return y
-    Y = np.array(B[..., None] if vector else B, dtype=float)
+        return solve_kept(L, kept, B, transpose)
     p = L.shape[-1]
-    diag = np.diagonal(L, axis1=-2, axis2=-1)
-    inv = np.where(kept, 1.0 / np.where(kept, diag, 1.0), 0.0)[..., None]
-    order = range(p - 1, -1, -1) if transpose else range(p)
-    for a in order:
-        if transpose:
-            below = L[..., a + 1 :, a]
-            acc = Y[..., a, :] - np.einsum("...i,...it->...t", below, Y[..., a + 1 :, :])
-        else:
-            acc = Y[..., a, :] - np.einsum("...i,...it->...t", L[..., a, :a], Y[..., :a, :])
-        Y[..., a, :] = acc * inv[..., a, :]
+    Y = np.array(B[..., None] if vector else B, dtype=float)
+    t = Y.shape[-1]
+    flat = _solve_kept_batch(np.ascontiguousarray(L).reshape(-1, p, p),
+                             np.ascontiguousarray(kept).reshape(-1, p),
+                             Y.reshape(-1, p, t), transpose)
+    Y = flat.reshape(Y.shape)
     return Y[..., 0] if vector else Y
 
 
-def _equilibrium(S: np.ndarray) -> np.ndarray:
+# -- kernels: one matrix ------------------------------------------------------------------
+
+@jit
+def equilibrium(S):
     """Diagonal scaling that gives ``S`` a unit diagonal; a zero diagonal entry (a component
     nothing informs) takes the matrix scale, so its pivot floor is ε·scale."""
-    diag = np.diagonal(S, axis1=-2, axis2=-1)
-    scale = diag.max(axis=-1, initial=0.0)[..., None]
-    scale = np.where(scale > _TINY, scale, 1.0)  # S = 0: the closest definite matrix is ε I
-    return np.sqrt(np.where(diag > _TINY * scale, diag, scale))
-
-
-def _closest_single(S: np.ndarray, eps: float) -> np.ndarray:
-    """One matrix: LAPACK when no pivot needs the fix (the common case), else the row loop.
-
-    (LAPACK's recursive Cholesky leaves no sequential partial factor to repair after a
-    failure, so the pivot fixes are made by the reference loop.)"""
-    d = _equilibrium(S)
-    L, info = lapack.dpotrf(S / np.outer(d, d), lower=1, clean=1)
-    if info == 0 and (L.diagonal() ** 2 > eps).all():
-        return L * d[:, None]
-    return closest_sqrt(S[None], eps)[0]
-
-
-def _reduced_single(S: np.ndarray, eps: float) -> tuple[np.ndarray, np.ndarray]:
-    """One matrix through LAPACK: the first pivot <= tol drops its row and column, and the
-    factorisation restarts on the rest (the kept prefix is unchanged by the restart)."""
     n = S.shape[0]
-    if n == 0:
-        return np.zeros((0, 0)), np.zeros(0, dtype=bool)
-    diag = S.diagonal()
-    tol = np.maximum(eps * max(float(diag.max()), _TINY), REDUNDANT * diag)
-    L, info = lapack.dpotrf(S, lower=1, clean=1)
-    if info == 0 and (L.diagonal() ** 2 > tol).all():
-        return L, np.ones(n, dtype=bool)  # every equation independent: the plain factor
-    kept = np.ones(n, dtype=bool)
-    while kept.any():
-        idx = np.flatnonzero(kept)
-        L, info = lapack.dpotrf(S[np.ix_(idx, idx)], lower=1, clean=1)
-        bad = info - 1 if info > 0 else None
-        if info == 0:
-            small = np.flatnonzero(~(np.diagonal(L) ** 2 > tol[idx]))
-            bad = int(small[0]) if small.size else None
-        if bad is not None:
-            kept[idx[bad]] = False
+    scale = 0.0
+    for i in range(n):
+        v = S[i, i]
+        if v != v:  # NaN: the scale of NumPy's max, which NaN makes NaN
+            scale = np.nan
+            break
+        scale = max(scale, v)
+    if not scale > _TINY:  # S = 0: the closest definite matrix is ε I
+        scale = 1.0
+    d = np.empty(n)
+    for i in range(n):
+        v = S[i, i]
+        d[i] = np.sqrt(v if v > _TINY * scale else scale)
+    return d
+
+
+@jit
+def closest_root(S, eps):
+    """:func:`closest_sqrt` of one matrix (``eps`` already floored at :data:`REDUNDANT`):
+    Cholesky on the equilibrated matrix, a pivot that is not > ε replaced by ε and the
+    column below it (rounding noise for a PSD input, which √ε would amplify) by zeros."""
+    n = S.shape[0]
+    d = equilibrium(S)
+    L = np.zeros((n, n))
+    for k in range(n):
+        piv = S[k, k] / (d[k] * d[k])
+        for j in range(k):
+            piv -= L[k, j] * L[k, j]
+        fixed = not piv > eps
+        root = np.sqrt(eps if fixed else piv)
+        L[k, k] = root
+        if fixed:
             continue
-        full = np.zeros_like(S)
-        full[np.ix_(idx, idx)] = L
-        return full, kept
-    return np.zeros_like(S), kept
+        for i in range(k + 1, n):
+            acc = S[i, k] / (d[i] * d[k])
+            for j in range(k):
+                acc -= L[i, j] * L[k, j]
+            L[i, k] = acc / root
+    for i in range(n):
+        for j in range(i + 1):
+            L[i, j] *= d[i]
+    return L
+
+
+@jit
+def reduced_root(S, eps):
+    """:func:`reduced_sqrt` of one matrix: a pivot <= ε·scale or <= :data:`REDUNDANT` times
+    its own diagonal drops its row and column, and the factorisation goes on."""
+    n = S.shape[0]
+    scale = 0.0
+    for i in range(n):
+        v = S[i, i]
+        if v != v:
+            scale = np.nan
+            break
+        scale = max(scale, v)
+    tol = eps * max(scale, _TINY) if scale == scale else np.nan
+    L = np.zeros((n, n))
+    kept = np.zeros(n, dtype=np.bool_)
+    for k in range(n):
+        piv = S[k, k]
+        for j in range(k):
+            piv -= L[k, j] * L[k, j]
+        keep = piv > tol and piv > REDUNDANT * S[k, k]
+        kept[k] = keep
+        if not keep:
+            for j in range(k):
+                L[k, j] = 0.0
+            continue
+        root = np.sqrt(piv)
+        L[k, k] = root
+        for i in range(k + 1, n):
+            acc = S[i, k]
+            for j in range(k):
+                acc -= L[i, j] * L[k, j]
+            L[i, k] = acc / root
+    return L, kept
+
+
+@jit
+def solve_lower(L, b, transpose):
+    """``L⁻¹ b`` (``L⁻ᵀ b``) for one vector; an empty array when ``L`` has a zero pivot."""
+    n = b.shape[0]
+    for i in range(n):
+        if L[i, i] == 0.0:
+            return np.empty(0)
+    return solve_kept(L, np.ones(n, dtype=np.bool_), b, transpose)
+
+
+@jit
+def solve_lower_columns(L, B, transpose):
+    """:func:`solve_lower` for each column of ``B``; an empty array on a zero pivot."""
+    X = np.empty(B.shape)
+    for c in range(B.shape[1]):
+        x = solve_lower(L, np.ascontiguousarray(B[:, c]), transpose)
+        if x.size != B.shape[0]:
+            return np.empty((0, 0))
+        X[:, c] = x
+    return X
+
+
+@jit
+def solve_kept(L, kept, b, transpose):
+    """``L y = b`` (``Lᵀ y = b``) on the kept indices of a reduced root; dropped entries 0."""
+    n = b.shape[0]
+    y = np.zeros(n)
+    if transpose:
+        for i in range(n - 1, -1, -1):
+            if kept[i]:
+                acc = b[i]
+                for j in range(i + 1, n):
+                    acc -= L[j, i] * y[j]
+                y[i] = acc / L[i, i]
+    else:
+        for i in range(n):
+            if kept[i]:
+                acc = b[i]
+                for j in range(i):
+                    acc -= L[i, j] * y[j]
+                y[i] = acc / L[i, i]
+    return y
+
+
+# -- kernels: batches ---------------------------------------------------------------------
+
+@jit
+def _closest_batch(S, eps):
+    L = np.empty(S.shape)
+    for b in range(S.shape[0]):
+        L[b] = closest_root(S[b], eps)
+    return L
+
+
+@jit
+def _reduced_batch(S, eps):
+    L = np.empty(S.shape)
+    kept = np.empty(S.shape[:2], dtype=np.bool_)
+    for b in range(S.shape[0]):
+        L[b], kept[b] = reduced_root(S[b], eps)
+    return L, kept
+
+
+@jit
+def _solve_kept_batch(L, kept, Y, transpose):
+    out = np.empty(Y.shape)
+    for b in range(Y.shape[0]):
+        for c in range(Y.shape[2]):
+            out[b, :, c] = solve_kept(L[b], kept[b], np.ascontiguousarray(Y[b, :, c]),
+                                      transpose)
+    return out

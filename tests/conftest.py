@@ -40,3 +40,17 @@ def data_dir() -> Path:
 def _isolated_cache(tmp_path_factory, monkeypatch):
     """Specs built at run time go to a per-session temporary cache."""
     monkeypatch.setenv("KANAGEN_CACHE", str(tmp_path_factory.getbasetemp() / "kanagen-cache"))
+
+
+def pytest_sessionstart(session):
+    """The estimator's kernels compiled (or loaded from numba's cache) once, before any test:
+    a first compile takes minutes, and a test's subprocess must not be the one that pays it
+    (nor print its notice)."""
+    import numpy as np
+
+    import kanagen
+
+    fam = kanagen.load("conic")
+    t = np.linspace(0.0, np.pi, 12)
+    xy = np.c_[100 + 50 * np.cos(t), 80 + 30 * np.sin(t)]
+    kanagen.fit(fam, "conic", data={"point": xy})

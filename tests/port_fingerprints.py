@@ -19,12 +19,12 @@ from types import ModuleType
 
 #: Python functions (and module constants) that codegen/c/kanagen_fast.c ports, by module.
 PORTED: dict[str, tuple[str, ...]] = {
-    # kg_coherence, kg_project: the measures projected onto their equations (eq. 22–24)
-    "projector": ("project_measures", "_halving", "quadratic", "_ROUNDING"),
+    # kg_coherence: the measures projected onto their equations (eq. 22–24)
+    "engine.measures": ("project_measure", "halving", "eval_measure", "quad", "factor",
+                        "whiten_column", "correct", "worst_abs", "ROUNDING"),
     "sqrt": ("closest_sqrt", "reduced_sqrt", "reduced_solve", "triangular_solve",
-             "_equilibrium", "_closest_single", "_reduced_single", "_scale", "EPS", "_TINY",
-             "REDUNDANT"),
-    "kernels": ("whiten", "correct"),
+             "equilibrium", "closest_root", "reduced_root", "solve_lower", "solve_kept",
+             "EPS", "_TINY", "REDUNDANT"),
     # kg_minimal: eq. 21
     "minimal": ("coherence_errors", "minimal_solve_problem", "_solved", "_FREE_STEPS",
                 "_WATCHDOG", "_SLOW"),
@@ -49,23 +49,27 @@ TWIN_MODULES = frozenset({"two_view_starts", "geometry"})
 
 #: Fingerprints of :data:`PORTED` when the C port was last brought in line with them.
 FINGERPRINTS: dict[str, str] = {
-    'projector.project_measures': 'c3d1d84ea5b4',
-    'projector._halving': '788448d7ecbd',
-    'projector.quadratic': 'ad2172806540',
-    'projector._ROUNDING': 'b19a1c4efef9',
-    'sqrt.closest_sqrt': 'b4340982303f',
-    'sqrt.reduced_sqrt': '81d2a95ecf3e',
-    'sqrt.reduced_solve': 'caecf64cc8c0',
-    'sqrt.triangular_solve': '01c0fd119e19',
-    'sqrt._equilibrium': 'dd8612e57ac3',
-    'sqrt._closest_single': '12aebbdf103d',
-    'sqrt._reduced_single': 'd5c2329a2e14',
-    'sqrt._scale': 'bdb7682c62c0',
+    'engine.measures.project_measure': 'c25f14ec1a44',
+    'engine.measures.halving': 'bb062a68f777',
+    'engine.measures.eval_measure': '5578fc3ad8ee',
+    'engine.measures.quad': '105e5af99b00',
+    'engine.measures.factor': '7f6c2a84e38c',
+    'engine.measures.whiten_column': '4704fde1107d',
+    'engine.measures.correct': '4ca345fe5051',
+    'engine.measures.worst_abs': '1654b711f665',
+    'engine.measures.ROUNDING': 'a6ed850332ba',
+    'sqrt.closest_sqrt': 'b46be465048d',
+    'sqrt.reduced_sqrt': 'f908fd4a9e93',
+    'sqrt.reduced_solve': '7ef3dfa98e65',
+    'sqrt.triangular_solve': '628602a3e7bb',
+    'sqrt.equilibrium': 'b3d39f2bd202',
+    'sqrt.closest_root': '63796dd79116',
+    'sqrt.reduced_root': 'd09d6daf4bbb',
+    'sqrt.solve_lower': '48d384892f3b',
+    'sqrt.solve_kept': 'e28eb93738b3',
     'sqrt.EPS': 'cf90b756d02d',
     'sqrt._TINY': '24623188d5ff',
     'sqrt.REDUNDANT': 'a11958cb4ea6',
-    'kernels.whiten': 'ffc3e108b3d4',
-    'kernels.correct': '0e183f7e3c8f',
     'minimal.coherence_errors': 'b6d9e82e820b',
     'minimal.minimal_solve_problem': '4b123dbff38e',
     'minimal._solved': 'ac88707f4a75',
@@ -118,8 +122,11 @@ def _node(module: ModuleType, name: str) -> ast.AST:
         cls = ast.parse(textwrap.dedent(inspect.getsource(getattr(module, owner))))
         body = cls.body[0].body
         node = next(n for n in body if getattr(n, "name", None) == attr)
-    elif inspect.isfunction(getattr(module, name)):
-        node = ast.parse(textwrap.dedent(inspect.getsource(getattr(module, name)))).body[0]
+    elif inspect.isfunction(getattr(module, name)) or \
+            inspect.isfunction(getattr(getattr(module, name), "py_func", None)):  # a kernel
+        function = getattr(module, name)
+        function = getattr(function, "py_func", function)
+        node = ast.parse(textwrap.dedent(inspect.getsource(function))).body[0]
     else:
         tree = ast.parse(inspect.getsource(module))
         node = next(n for n in tree.body if isinstance(n, ast.Assign | ast.AnnAssign)

@@ -59,7 +59,14 @@ def _outputs(fam, case, q_at=None):
     res = kanagen.fit(fam, model, data=data, info=info, q0=start, constants=consts)
     q_at = res.q if q_at is None else q_at
     out = {"status": [(res.status, 0.0)], "success": [(res.success, 0.0)]}
-    if res.success:  # an estimate: every output (a failed fit stops anywhere on a plateau)
+    identified = np.isfinite(np.diagonal(res.covariance))
+    if res.success and not identified.all():
+        # a minimum that is not isolated (hysteresis from two readings: the data fix 1 of
+        # 11 components): the components of infinite variance take any value along it, and
+        # the backends' last-bit differences pick different ones; the cost and the
+        # identified components are the estimate
+        out.update({"q[identified]": [(res.q[identified], 0.0)], "cost": [(res.cost, 0.0)]})
+    elif res.success:  # an estimate: every output (a failed fit stops anywhere on a plateau)
         out.update({"q": [(res.q, 0.0)], "cost": [(res.cost, 0.0)], "info": [(res.info, 0.0)],
                     "covariance": [(res.covariance, 0.0)], "dof": [(res.dof, 0.0)],
                     # E² is rounding noise at a solution: negligible against the cost
@@ -80,7 +87,9 @@ def _outputs(fam, case, q_at=None):
     size = kanagen.minimal_sample_size(fam, model, channel, start, consts)
     sol = kanagen.minimal_solve(fam, model, data={channel: X[:size]}, q_start=start,
                                 constants=consts)
-    out.update({"minimal.q": [(sol.q, 0.0)], "minimal.success": [(sol.success, 0.0)]})
+    out["minimal.success"] = [(sol.success, 0.0)]
+    if identified.all():  # else the minimal sample leaves the same directions free
+        out["minimal.q"] = [(sol.q, 0.0)]
     for k, (value, jac) in fam.derived(q_at, consts).items():
         out[f"derived@q[{k}]"] = [(value, _derived_scale(value, jac, q_at)), (jac, 0.0)]
     return out

@@ -118,10 +118,11 @@ def test_coherence_errors_as_on_the_numpy_runtime(families, iterations):
 
 
 def test_restorations_as_on_the_numpy_runtime(families):
-    """The local fit's restorations (restoration.restore_measures: project_measures from
-    given corrected measures) through kg_project: the same measures, violations and
-    equations at the returned point to 1e-10, on several channels, an exact component,
-    per-measure information, far measures and a two-view scene; and the same fit."""
+    """The local fit's restorations (restoration.restore_measures: the engine's kernels, the
+    same on every backend) on a compiled family and on the NumPy one: the same measures,
+    violations and equations at the returned point to 1e-10, on several channels, an exact
+    component, per-measure information, far measures and a two-view scene; and the same
+    fit."""
     from kanagen.runtime.fit import make_problem
     from kanagen.runtime.restoration import restore_measures
     from kanagen.scenes import two_view_scene

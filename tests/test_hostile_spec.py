@@ -32,10 +32,11 @@ def test_hostile_specs_are_refused_early_with_file_and_line(name):
 
 def test_an_alias_bomb_is_refused_in_bounded_memory():
     """In a fresh process under a 1 GB address-space limit: refused in under 2 s and
-    500 MB (it took 50 s and 5.7 GB before a MemoryError)."""
+    500 MB beyond what importing kanagen's runtime takes (it took 50 s and 5.7 GB before a
+    MemoryError)."""
     result = run_spec(SPECS["YAML alias bomb (9 x 9)"][0])
     assert result["outcome"] == "refuse", result
-    assert result["seconds"] < 2.0 and result["mb"] < 500, result
+    assert result["seconds"] < 2.0 and result["mb"] - result["base_mb"] < 500, result
 
 
 def test_a_polynomial_of_hundreds_of_terms_builds_and_fits():

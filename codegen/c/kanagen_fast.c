@@ -1,8 +1,8 @@
 /* kanagen's compiled fast path in C: a mechanical port of the NumPy runtime's measure
  * projection (coherence_errors, eq. 22–24), closest square root and minimal solve (eq. 21),
  * and the evaluations of a family's functions (docs/fastpath.md). The entry points are
- * kg_coherence, kg_project, kg_minimal, kg_closest_root, kg_sizes, kg_equations and kg_eval
- * (kg_project: the local fit's restorations of the measures); the robust
+ * kg_coherence, kg_minimal, kg_closest_root, kg_sizes, kg_equations and kg_eval (the local
+ * fit's restorations run in the engine's kernels, runtime/engine, since 2026-11-26); the robust
  * search's sample (kanagen_sample.c) calls kg_read, kg_coherence_at and kg_minimal_solve,
  * the closed forms (kanagen_geometry.c) kg_jacobi and kg_column_norms. (The compiled local
  * fit, kg_fit, was removed on 2026-11-25, issue 17: the local fit runs runtime/iterate.py.)
@@ -538,66 +538,6 @@ int kg_coherence(const double *in, double *out)
     kg_channel channels[nch > 0 ? nch : 1];
     if (kg_read(in, &pb, channels, &iterations, &tol, &q)) return 1;
     return kg_coherence_at(&pb, q, iterations, tol, out);
-}
-
-/* project_measures() from given corrected measures, for the local fit's restorations
- * (runtime/restoration.py: restore_measures): the problem of kg_read's input (its start the
- * q at which the measures are projected, its iteration cap the projector steps plus one, its
- * xtol the tolerance), the starting corrected measures mt_in (per channel M × k, channels one
- * after the other); out per channel: mt (M × k), the whitened violation (M), the equations
- * kept (M, as doubles), then c (M × p), C (M × p × n), D (M × p × k) at the returned point.
- * 1: bad input (sizes out of range, or not finite), 2: out of memory */
-int kg_project(const double *in, const double *mt_in, double *out)
-{
-    kg_problem pb;
-    int nch = (int)in[1], iterations;
-    double tol;
-    const double *q;
-    if (nch < 0 || nch > KG_NCH) return 1;
-    kg_channel channels[nch > 0 ? nch : 1];
-    if (kg_read(in, &pb, channels, &iterations, &tol, &q)) return 1;
-    long total = 0;
-    for (int c = 0; c < nch; ++c) total += channels[c].M * channels[c].k;
-    double *work = malloc(sizeof(double) * (total + 1));
-    if (!work) return 2;
-    double *mt[nch > 0 ? nch : 1], *cc[nch > 0 ? nch : 1], *CC[nch > 0 ? nch : 1];
-    double *DD[nch > 0 ? nch : 1], *violation[nch > 0 ? nch : 1];
-    double *start[nch > 0 ? nch : 1];
-    int *rank[nch > 0 ? nch : 1];
-    int *ranks = malloc(sizeof(int) * (total + 1));
-    if (!ranks) {
-        free(work);
-        return 2;
-    }
-    for (long c = 0, at = 0, ra = 0; c < nch; ++c) {
-        kg_channel *ch = &channels[c];
-        const long M = ch->M, k = ch->k, p = ch->p;
-        ch->m = work + at; /* ChannelData.m */
-        start[c] = (double *)mt_in + at;
-        at += M * k;
-        rank[c] = ranks + ra;
-        ra += M;
-        mt[c] = out;
-        violation[c] = mt[c] + M * k;
-        cc[c] = violation[c] + 2 * M;
-        CC[c] = cc[c] + M * p;
-        DD[c] = CC[c] + M * p * KG_N;
-        out = DD[c] + M * p * k;
-        for (long j = 0; j < M * k; ++j)
-            if (!isfinite(start[c][j])) {
-                free(work);
-                free(ranks);
-                return 1;
-            }
-    }
-    kg_channel_data(&pb);
-    kg_point projected = {mt, cc, CC, DD};
-    kg_project_measures(&pb, q, start, &projected, iterations, tol, violation, rank);
-    for (int c = 0; c < nch; ++c)
-        for (long i = 0; i < channels[c].M; ++i) violation[c][channels[c].M + i] = rank[c][i];
-    free(work);
-    free(ranks);
-    return 0;
 }
 
 /* ---------------------------------------------------- runtime/coherence.py: solve_minimal */

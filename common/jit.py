@@ -1,0 +1,119 @@
+"""The compiler of the runtime's kernels: ``@jit`` is numba's ``njit(cache=True)``.
+
+A kernel is written once, in the subset of Python and NumPy that numba compiles (loops over
+small fixed-size matrices, no Python objects); the same source runs interpreted where numba
+is missing or ``NUMBA_DISABLE_JIT=1`` is set (for debugging: slower, the same answers up to
+rounding). Compiled kernels are cached on disk (numba's cache: ``__pycache__`` beside the
+source, or the user's cache directory when that is read-only), so a kernel is compiled once
+per machine and signature.
+
+Numba's cache keys a kernel by its own file only: a kernel calling a kernel of another file
+would keep the old callee after that file changed. The cache directory is therefore named
+after the sources of every module that defines kernels (:data:`KERNEL_SOURCES`): any change
+to one starts a fresh cache.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import sys
+import warnings
+from pathlib import Path
+
+_RUNTIME = Path(__file__).resolve().parent.parent / "runtime"
+#: The sources that define ``@jit`` kernels (globs under the runtime package).
+KERNEL_SOURCES = ("sqrt.py", "projector.py", "engine/*.py")
+
+
+def _sources_digest() -> str:
+    digest = hashlib.sha256()
+    for pattern in KERNEL_SOURCES:
+        for path in sorted(_RUNTIME.glob(pattern)):
+            digest.update(path.name.encode())
+            digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def _cache_dir() -> str:
+    """The user's cache (``$XDG_CACHE_HOME`` or ``~/.cache``), ``kanagen/numba/<digest>``:
+    shared by every process and every ``$KANAGEN_CACHE`` (the kernels depend on their
+    sources only, which the digest names)."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "kanagen", "numba", _sources_digest())
+
+
+def _import_numba():
+    """numba, or None (one warning: the kernels then run interpreted). numba reads an
+    optional ``.numba_config.yaml`` when ``yaml`` imports: a fit loads no yaml, so it is
+    hidden from numba's import when nothing loaded it before."""
+    hide = "yaml" not in sys.modules
+    if hide:
+        sys.modules["yaml"] = None  # type: ignore[assignment]
+    try:
+        import numba
+    except ImportError as exc:  # pragma: no cover - numba is a dependency
+        warnings.warn(f"kanagen: numba is not available ({exc}); the estimator's kernels "
+                      "run interpreted (the same answers, much slower)", RuntimeWarning,
+                      stacklevel=3)
+        return None
+    finally:
+        if hide:
+            del sys.modules["yaml"]
+    if not os.environ.get("NUMBA_CACHE_DIR"):
+        numba.config.CACHE_DIR = _cache_dir()
+    return numba
+
+
+#: numba, or None where it cannot be imported.
+NUMBA = _import_numba()
+
+
+def jit(function):
+    """Compile ``function`` with numba (nopython, cached; NumPy's rules for floating-point
+    errors: a division by zero gives inf or NaN, as in the interpreted run), or return it
+    as it is."""
+    if NUMBA is None:
+        return function
+    return NUMBA.njit(cache=True, error_model="numpy")(function)
+
+
+def jit_inline(function):
+    """:func:`jit` for a small kernel inlined into its callers (numba's IR inlining): its
+    array arguments then cost no reference counting per call."""
+    if NUMBA is None:
+        return function
+    return NUMBA.njit(cache=True, nogil=True, error_model="numpy", inline="always")(function)
+
+
+def interrupted(exc: BaseException) -> bool:
+    """``exc`` is Ctrl-C in disguise: numba runs a little Python when it boxes a kernel's
+    results (unpickling a class), and a KeyboardInterrupt raised there reaches the caller
+    as a SystemError caused by it."""
+    while exc is not None:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+_announced = False
+
+
+def announce() -> None:
+    """Say, once a process, that the kernels are being compiled when the cache holds none
+    of them yet (the first fit on a machine, or after kanagen changed): it takes minutes."""
+    global _announced
+    if _announced or NUMBA is None or jit.disabled:
+        return
+    _announced = True
+    folder = NUMBA.config.CACHE_DIR
+    if folder and os.path.isdir(folder) and any(os.scandir(folder)):
+        return
+    sys.stderr.write(f"kanagen: compiling the estimator's kernels for this machine (once, a "
+                     f"few minutes; cached in {folder})...\n")
+    sys.stderr.flush()
+
+
+#: True when kernels run interpreted (numba missing, or ``NUMBA_DISABLE_JIT=1``).
+jit.disabled = NUMBA is None or bool(NUMBA.config.DISABLE_JIT)

@@ -1,0 +1,451 @@
+"""The non-linear iteration of the report (eq. 18) as one kernel: a trust region on restored
+points, its end verified. runtime/iterate.py documents the method, its starts, its ends and
+its status codes; this is its only implementation (:func:`run`).
+
+``st`` holds the run's state between iterations: ``[radius, size0, escapes, strict,
+delta0, has_info_start]``; ``info0`` the diagonal of the information at the start.
+"""
+
+from __future__ import annotations
+
+from collections import namedtuple
+
+import numpy as np
+
+from kanagen.common.jit import jit
+
+from ..sqrt import REDUNDANT, closest_root
+from .measures import ROUNDING
+from .points import (
+    c0_eval,
+    cost_rounding,
+    evaluate,
+    feasible,
+    finite,
+    has_relations,
+    lagrangian,
+    max_abs,
+    multipliers,
+    nearer_points,
+    negligible,
+    on_constraints,
+    parameter_step,
+    project_point,
+    relations_hold,
+    restored,
+    solve,
+)
+from .verify import Verdict, escape, is_minimum, lost_direction, stationary, verify
+
+CONVERGED, MAX_ITER, STALLED, FAILED, BOUNDARY, SADDLE, PLATEAU, INFEASIBLE, UNVERIFIED = \
+    range(9)
+#: What follows a status's message: nothing, " at the starting point", " in the projector",
+#: the lost direction (the verdict's plateau vector), the verdict's plateau, its description.
+NO_DETAIL, AT_START, IN_PROJECTOR, LOST, PLATEAU_DETAIL, DESCRIBED = range(6)
+
+RESTORE = 30  # restoration steps (runtime/restoration.py: RESTORE_STEPS)
+_ACCEPT = 1e-4
+_EXACT = 0.05
+_SHRINK, _GROW = 0.25, 0.75
+_STAGNATION = 5
+_ESCAPES = 6
+_COST_NOISE = 1e-13
+_MAX_REFUSALS = 40
+_LINE_STEPS = 3
+_JOINT = 1e3
+_LOST_ROUNDS = 5
+_SLOW = 1e-6
+_LOOK = 10
+_LINEAR = 0.1
+_CRAWL = 3
+_GROWING = 1.0
+_JOINT_STEPS = 4
+
+#: An outcome: status, iterations, the point, which detail its message carries, a verdict.
+Out = namedtuple("Out", ["status", "iterations", "x", "detail", "verdict"])
+
+
+@jit
+def _none_verdict(cost):
+    return Verdict(False, 0.0, cost, np.nan, np.zeros(0), 0, np.zeros(0))
+
+
+@jit
+def outcome(x, it, status, detail, v):
+    return Out(status, it, x, detail, v)
+
+
+@jit
+def root_of(A, info):
+    return closest_root(info, max(A.eps, REDUNDANT))
+
+
+@jit
+def weights(A, st, scale, q):
+    """The trust region's norm: ODRPACK's scaling, the strict slacks relative to
+    themselves."""
+    w = scale ** 2
+    for s in range(A.strict_idx.size):
+        index = A.strict_idx[s]
+        w[index] = (st[1] / max(abs(q[index]), np.finfo(np.float64).tiny)) ** 2
+    return w
+
+
+@jit
+def wnorm(s, w):
+    return np.sqrt(s @ (w * s))
+
+
+@jit
+def damping_for(A, x, lin, radius, w):
+    """μ of ``μ diag(w)`` whose step has ``‖Δq‖_w`` just within ``radius`` (bisection)."""
+    lo, hi = -12.0, 12.0
+    if wnorm(parameter_step(A, x, lin, 10.0 ** hi, w), w) > radius:
+        return 10.0 ** hi
+    while hi - lo > 0.02:
+        mid = 0.5 * (lo + hi)
+        if wnorm(parameter_step(A, x, lin, 10.0 ** mid, w), w) > radius:
+            lo = mid
+        else:
+            hi = mid
+    return 10.0 ** hi
+
+
+@jit
+def damped(A, x, lin, radius, w):
+    """The projector's point with the parameter's step damped to ``radius``."""
+    return solve(A, x, lin, damping_for(A, x, lin, radius, w), w)[1]
+
+
+@jit
+def predicted_fall(A, x, lin, s, target_q, lam0):
+    fall = -(lin.gradient @ s + 0.5 * (s @ (lin.info @ s)))
+    if lam0.size:
+        fall -= lam0 @ c0_eval(A, target_q)[0] - lam0 @ x.c0
+    return fall
+
+
+@jit
+def diverging(A, q_old, q_new, start):
+    """A strict relation's slack diverges (runtime/iterate.py: ``_diverging``)."""
+    for s in range(A.strict_idx.size):
+        index, power = A.strict_idx[s], A.strict_pow[s]
+        s_old, s_new = abs(q_old[index]), abs(q_new[index])
+        if s_new > 1.1 * s_old and (abs(start[index]) / s_new) ** power < 1e-8:
+            return True
+    return False
+
+
+@jit
+def at_rounding(q, q_new):
+    top = ROUNDING * max_abs(q)
+    for a in range(q.size):
+        if not abs(q_new[a] - q[a]) <= top:
+            return False
+    return True
+
+
+@jit
+def lowers_violation(trial, trial_violation, x, violation):
+    noise = 1e-14 * max(1.0, x.cost)
+    return trial_violation < (1 - 1e-4) * violation - noise or (
+        trial_violation <= violation + noise and trial.cost <= x.cost)
+
+
+@jit
+def nearer(A, x, root):
+    """``x`` with measures at nearer points of their equations, restored, when that lowers
+    the cost (``found`` False otherwise)."""
+    changed, y = nearer_points(A, x)
+    if not changed:
+        return False, x, 0.0
+    moved, violation = restored(A, x.q, y.mt, root, RESTORE, False)
+    if finite(moved) and on_constraints(moved, violation) and moved.cost < x.cost - (
+            _COST_NOISE * x.cost + cost_rounding(A)):
+        return True, moved, violation
+    return False, x, 0.0
+
+
+@jit
+def towards_constraints(A, x, violation, target_q, target_mt, root, guard):
+    """Eq. 18 while ``x`` is off its equations: a trial that lowers the violation, moved
+    onto the constraints once close to them."""
+    trial, tv = restored(A, target_q, target_mt, root, RESTORE, False)
+    if not (finite(trial) and (not guard or relations_hold(A, trial.q))
+            and lowers_violation(trial, tv, x, violation)):
+        return False, x, 0.0
+    if feasible(tv, trial.cost):
+        onto, ov = restored(A, trial.q, trial.mt, root, RESTORE, True)
+        if finite(onto) and on_constraints(onto, ov):
+            return True, onto, ov
+    return True, trial, tv
+
+
+@jit
+def step(A, st, scale, x, violation, lin, proj):
+    """An acceptable restored point: the projector's step, shortened, else damped within
+    the trust radius (runtime/iterate.py: ``_Run.step``)."""
+    root = root_of(A, lin.info)
+    guard = has_relations(A) and relations_hold(A, x.q)
+    lam0 = multipliers(x, lin.gradient)
+    on = on_constraints(x, violation)
+    w = weights(A, st, scale, x.q)
+    full = proj.q - x.q
+    length = wnorm(full, w)
+    alpha = 1.0
+    strict = st[3] != 0
+    line_steps = 0 if length > st[0] else _LINE_STEPS
+    for attempt in range(_MAX_REFUSALS):
+        line = attempt <= line_steps and not (strict and length > st[0])
+        beyond = attempt == 0 and length > st[0] and not strict
+        if line:
+            target_q = x.q + alpha * full
+            target_mt = x.mt + alpha * (proj.mt - x.mt)
+        else:
+            dp = damped(A, x, lin, st[0], w)
+            target_q, target_mt = dp.q, dp.mt
+        s = target_q - x.q
+        size = wnorm(s, w)
+        if not on:
+            taken, trial, tv = towards_constraints(A, x, violation, target_q, target_mt, root,
+                                                   guard)
+            if taken:
+                return True, trial, tv
+        else:
+            trial, tv = restored(A, target_q, target_mt, root, RESTORE, True)
+            if finite(trial) and (not guard or relations_hold(A, trial.q)) and \
+                    on_constraints(trial, tv):
+                pred = predicted_fall(A, x, lin, s, target_q, lam0)
+                rho = (x.cost - trial.cost) / pred if pred > 0.0 else -np.inf
+                noise = _COST_NOISE * x.cost + cost_rounding(A)
+                rounding = abs(pred) <= 1e2 * noise and trial.cost <= x.cost + noise
+                if beyond:
+                    if abs(rho - 1.0) <= _EXACT:
+                        st[0] = max(st[0], 2.0 * size)
+                        return True, trial, tv
+                elif rounding or rho > _ACCEPT:
+                    if rho < _SHRINK and not rounding:
+                        st[0] = _SHRINK * size
+                    elif rho > _GROW:
+                        st[0] = max(st[0], 2.0 * size)
+                    return True, trial, tv
+        if line:
+            alpha /= 2
+        if beyond or line:
+            continue
+        st[0] = _SHRINK * (min(st[0], size) if np.isfinite(size) else st[0])
+        if not st[0] > 1e-15 * (1.0 + np.sqrt(x.q @ x.q)):
+            return False, x, 0.0
+    return False, x, 0.0
+
+
+@jit
+def end(A, st, info0, x, have_lin, lin, proj, it, verify_end):
+    """Verify ``x``: ``(done, outcome, next point, its violation)`` — not done after an
+    escape (the iteration goes on from the next point)."""
+    none = _none_verdict(x.cost)
+    if not have_lin:
+        ok, lin, proj = project_point(A, x, 0.0, np.zeros(0))
+        if not ok:
+            return True, outcome(x, it, FAILED, IN_PROJECTOR, none), x, 0.0
+    if not verify_end:
+        return True, outcome(x, it, UNVERIFIED, NO_DETAIL, none), x, 0.0
+    root = root_of(A, lin.info)
+    _, violation = restored(A, x.q, x.mt, root, RESTORE, True)
+    if not feasible(violation, x.cost):
+        return True, outcome(x, it, INFEASIBLE, NO_DETAIL, none), x, 0.0
+    if st[2] < _ESCAPES:
+        found, moved, mv = nearer(A, x, root)
+        if found:
+            st[2] += 1
+            return False, outcome(x, it, FAILED, NO_DETAIL, none), moved, mv
+    mlin, mproj = lagrangian(A, x, lin, proj)
+    start_info = info0 if st[5] != 0 else np.zeros(0)
+    v = verify(A, x, lin, proj, start_info, at_rounding(x.q, mproj.q), mlin, mproj)
+    if is_minimum(v):
+        return True, outcome(x, it, CONVERGED, NO_DETAIL, v), x, 0.0
+    if v.plateau:
+        return True, outcome(x, it, PLATEAU, PLATEAU_DETAIL, v), x, 0.0
+    if not v.stationary:
+        return True, outcome(x, it, STALLED, DESCRIBED, v), x, 0.0
+    if st[2] < _ESCAPES and v.direction.size:
+        st[2] += 1
+        found, moved, mv = escape(A, x, lin, v.direction)
+        if found:
+            d = moved.q - x.q
+            st[0] = max(st[0], np.sqrt(d @ d))
+            return False, outcome(x, it, FAILED, NO_DETAIL, none), moved, mv
+    return True, outcome(x, it, SADDLE, DESCRIBED, v), x, 0.0
+
+
+@jit
+def descend(A, st, info0, scale, q_start, x, violation, max_iter, xtol, verify_end):
+    """The iteration from the point ``x`` (runtime/iterate.py: ``_Run.descend``)."""
+    since_progress = since_lost = next_look = crawl = 0
+    last_fall = np.inf
+    last_size = np.inf
+    for it in range(1, max_iter + 1):
+        ok, lin, proj = project_point(A, x, 0.0, np.zeros(0))
+        if not ok:
+            return outcome(x, it, FAILED, IN_PROJECTOR, _none_verdict(x.cost))
+        if st[5] == 0:
+            for a in range(x.q.size):
+                info0[a] = abs(lin.info[a, a])
+            st[5] = 1
+        x_feasible = feasible(violation, x.cost)
+        size = np.sqrt((scale * x.q) @ (scale * x.q))
+        lost = False
+        u = np.zeros(0)
+        if x_feasible and verify_end and size > _GROWING * last_size:
+            lost, u = lost_direction(A, x, lin)
+        since_lost = since_lost + 1 if lost else 0
+        last_size = size
+        if since_lost >= _LOST_ROUNDS:
+            v = Verdict(True, 0.0, x.cost, np.nan, np.zeros(0), 2, u)
+            return outcome(x, it, PLATEAU, LOST, v)
+        mlin, mproj = lagrangian(A, x, lin, proj)
+        if x_feasible and (stationary(A, x, mlin, mproj) or at_rounding(x.q, mproj.q)) \
+                and negligible(A, x.q, mproj.q, x.mt, mproj.mt, xtol):
+            done, out, x, violation = end(A, st, info0, x, True, lin, proj, it, verify_end)
+            if done:
+                return out
+            continue
+        found, trial, trial_violation = step(A, st, scale, x, violation, mlin, mproj)
+        if not found:
+            done, out, x, violation = end(A, st, info0, x, True, lin, proj, it, verify_end)
+            if done:
+                return out
+            continue
+        if diverging(A, x.q, trial.q, q_start):
+            return outcome(trial, it, BOUNDARY, NO_DETAIL, _none_verdict(trial.cost))
+        fall = x.cost - trial.cost
+        progress = not on_constraints(x, violation) or fall > 1e-14 * x.cost
+        since_progress = 0 if progress else since_progress + 1
+        x, violation = trial, trial_violation
+        crawl = crawl + 1 if (progress and fall <= _SLOW * x.cost and
+                              fall > _LINEAR * last_fall) else 0
+        last_fall = fall
+        if crawl >= _CRAWL and verify_end and st[2] < _ESCAPES and it >= next_look and \
+                on_constraints(x, violation):
+            next_look = it + _LOOK
+            found, moved, mv = nearer(A, x, root_of(A, lin.info))
+            if found:
+                st[2] += 1
+                x, violation = moved, mv
+                continue
+        if since_progress >= _STAGNATION:
+            done, out, x, violation = end(A, st, info0, x, False, lin, proj, it, verify_end)
+            if done:
+                return out
+            since_progress = 0
+    ok, lin, proj = project_point(A, x, 0.0, np.zeros(0))
+    if verify_end and ok and feasible(violation, x.cost) and \
+            not nearer(A, x, root_of(A, lin.info))[0]:
+        mlin, mproj = lagrangian(A, x, lin, proj)
+        start_info = info0 if st[5] != 0 else np.zeros(0)
+        v = verify(A, x, lin, proj, start_info, False, mlin, mproj)
+        if is_minimum(v):
+            return outcome(x, max_iter, CONVERGED, NO_DETAIL, v)
+    return outcome(x, max_iter, MAX_ITER, NO_DETAIL, _none_verdict(x.cost))
+
+
+@jit
+def joint_start(A, st, scale, x, violation, proj0, root):
+    """The restored start, or the points of the joint problem's steps from the raw start
+    while they improve (runtime/iterate.py: ``_Run.joint_start``); ``moved`` whether it
+    is not the restored start."""
+    best, best_violation, moved = x, violation, False
+    proj = proj0
+    w = weights(A, st, scale, x.q)
+    for _ in range(_JOINT_STEPS):
+        s = proj.q - x.q
+        if not wnorm(s, w) <= _JOINT * st[0]:
+            break
+        trial, tv = restored(A, proj.q, proj.mt, root, RESTORE, True)
+        if not (finite(trial) and on_constraints(trial, tv) and (
+                trial.cost < best.cost or not on_constraints(best, best_violation)) and (
+                not has_relations(A) or relations_hold(A, trial.q))):
+            break
+        best, best_violation, moved = trial, tv, True
+        ok, _, proj = project_point(A, evaluate(A, proj.q, proj.mt), 0.0, np.zeros(0))
+        if not ok:
+            break
+    return best, best_violation, moved
+
+
+@jit
+def run(A, q_start, max_iter, xtol, verify_end):
+    """The iteration from ``(q_start, m)`` (runtime/iterate.py: ``iterate``): its outcome
+    and the start's violation ``‖c‖∞``."""
+    n = q_start.size
+    st = np.zeros(6)
+    info0 = np.zeros(n)
+    raw = evaluate(A, q_start, A.m)
+    st[4] = raw.delta
+    if not finite(raw):
+        return outcome(raw, 0, FAILED, AT_START, _none_verdict(raw.cost)), st[4]
+    ok0, lin0, proj0 = project_point(A, raw, 0.0, np.zeros(0))
+    root = root_of(A, lin0.info) if ok0 else np.zeros((0, 0))
+    x, violation = restored(A, q_start, raw.mt, root, RESTORE, True)
+    if not (finite(x) and on_constraints(x, violation)):
+        x, violation = restored(A, q_start, raw.mt, np.zeros((0, 0)), RESTORE, False)
+    size0 = np.sqrt(q_start @ q_start)
+    size0 = size0 if size0 != 0 else 1.0
+    st[0] = st[1] = size0
+    typical = np.sqrt(np.mean(q_start ** 2))
+    typical = typical if typical != 0 else 1.0
+    scale = size0 / np.maximum(np.abs(q_start), 0.1 * typical)
+    if not finite(x):
+        return descend(A, st, info0, scale, q_start, raw, np.inf, max_iter, xtol,
+                       verify_end), st[4]
+    if not ok0:
+        return descend(A, st, info0, scale, q_start, x, violation, max_iter, xtol,
+                       verify_end), st[4]
+    joint, joint_violation, joint_moved = joint_start(A, st, scale, x, violation, proj0, root)
+    plan = [0]  # the joint step's point; its damped step; the restored start (strict); it
+    if on_constraints(x, violation):
+        if verify_end:
+            plan.append(1)
+            plan.append(2)
+        if joint_moved:
+            plan.append(3)
+    have_best = False
+    best = outcome(x, 0, FAILED, NO_DETAIL, _none_verdict(x.cost))
+    iterations = 0
+    for code in plan:
+        if have_best:
+            if best.status == CONVERGED or (not verify_end and (
+                    best.status == UNVERIFIED or best.status == MAX_ITER)):
+                break
+            st[0], st[2], st[5] = st[1], 0.0, 0.0
+        if code == 0:
+            point, pv = joint, joint_violation
+        elif code == 1:
+            dp = damped(A, raw, lin0, st[1], weights(A, st, scale, q_start))
+            point, pv = restored(A, dp.q, dp.mt, root, RESTORE, True)
+            if not (finite(point) and on_constraints(point, pv)):
+                continue
+        else:
+            point, pv = x, violation
+        st[3] = 1.0 if code == 2 else 0.0
+        out = descend(A, st, info0, scale, q_start, point, pv, max_iter, xtol, verify_end)
+        st[3] = 0.0
+        iterations += out.iterations
+        if not have_best or out.status == CONVERGED or out.x.cost < best.x.cost:
+            best, have_best = out, True
+    return Out(best.status, iterations, best.x, best.detail, best.verdict), st[4]
+
+
+
+
+
+@jit
+def run_flat(A, q_start, max_iter, xtol, verify_end):
+    """:func:`run` with its outcome as a plain tuple: boxing a named tuple calls its Python
+    class, where a pending Ctrl-C would raise inside numba's boxing (and crash)."""
+    out, delta0 = run(A, q_start, max_iter, xtol, verify_end)
+    x, v = out.x, out.verdict
+    return (out.status, out.iterations, out.detail, delta0,
+            x.q, x.mt, x.c0, x.C0, x.c, x.C, x.D, x.delta, x.cost,
+            v.stationary, v.decrement, v.cost, v.curvature, v.direction, v.plateau,
+            v.plateau_vector)

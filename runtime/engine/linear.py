@@ -1,0 +1,292 @@
+"""The block local projector as kernels (report appendix A, Fig. 17; eq. 38–44): the
+whitened linearisation at a point, the parameter block and the measures' corrections.
+
+The per-measure algebra is :mod:`.measures`'.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kanagen.common.jit import jit
+
+from ..sqrt import (
+    REDUNDANT,
+    closest_root,
+    reduced_root,
+    solve_kept,
+    solve_lower,
+    solve_lower_columns,
+)
+from .measures import ROUNDING, correct, factor, whiten_column
+
+
+@jit
+def nan_max_diagonal(S):
+    """``max(diag(S), initial=0)`` as NumPy computes it (NaN propagates)."""
+    top = 0.0
+    for a in range(S.shape[0]):
+        v = S[a, a]
+        if v != v:
+            return np.nan
+        top = max(top, v)
+    return top
+
+
+@jit
+def linearise(A, q, mt, c, C, D, c0, C0):
+    """The whitened linearisation at ``(q, m̃)`` (equations ``c, C, D`` there): returns
+    ``(info, H, rhs, gradient, Cbar, rbar, E, L, inv, kept, ranks, residual)``.
+
+    ``info = Q0 + Σ C̄ᵀC̄``; ``H`` the same augmented by ``ρ C0ᵀC0`` (a definite matrix
+    wherever the constraints fix what the data leave free, with the same solution);
+    ``rhs`` and ``gradient = −∇L²`` (without the augmentation), the whitened ``C̄, r̄'``,
+    the per-measure factors and ranks, ``residual = Σ ‖W c‖²``."""
+    n = q.size
+    M = A.chan.size
+    pmax = C.shape[1]
+    dmax = A.m.shape[1]
+    Cbar = np.zeros((M, pmax, n))
+    rbar = np.zeros((M, pmax))
+    E = np.zeros((M, pmax, dmax))
+    L = np.zeros((M, pmax, pmax))
+    inv = np.zeros((M, pmax))
+    kept = np.zeros((M, pmax), dtype=np.bool_)
+    ranks = np.zeros(M, dtype=np.int64)
+    info = A.Q0.copy()
+    g = np.zeros(n)
+    residual = 0.0
+    cbar, col, wcol = np.zeros(pmax), np.zeros(pmax), np.zeros(pmax)
+    for i in range(M):
+        ch = A.chan[i]
+        p, d = A.P[ch], A.Dn[ch]
+        Li, invi, keptc = L[i], inv[i], kept[i]
+        factor(D[i], A.G[i], p, d, A.eps, E[i], Li, invi, keptc)
+        r = np.zeros(p)
+        for a in range(p):
+            acc = 0.0
+            for j in range(d):
+                acc += D[i, a, j] * (mt[i, j] - A.m[i, j])
+            r[a] = acc - c[i, a]
+            ranks[i] += 1 if keptc[a] else 0
+        whiten_column(Li, invi, r, p, rbar[i])
+        whiten_column(Li, invi, c[i], p, cbar)
+        for j in range(n):
+            for a in range(p):
+                col[a] = C[i, a, j]
+            whiten_column(Li, invi, col, p, wcol)
+            for a in range(p):
+                Cbar[i, a, j] = wcol[a]
+        for a in range(p):
+            residual += cbar[a] * cbar[a]
+            for j in range(n):
+                g[j] += Cbar[i, a, j] * rbar[i, a]
+                for u in range(j + 1):
+                    info[j, u] += Cbar[i, a, j] * Cbar[i, a, u]
+    for j in range(n):
+        for u in range(j):
+            info[u, j] = info[j, u]
+    rhs = g.copy()
+    for a in range(n):
+        acc = 0.0
+        for b in range(n):
+            acc += A.Q0[a, b] * (A.q0[b] - q[b])
+        rhs[a] += acc
+    gradient = -rhs
+    H = info.copy()
+    r0 = C0.shape[0]
+    if r0:
+        gram = np.zeros((n, n))
+        for a in range(n):
+            for b in range(n):
+                acc = 0.0
+                for k in range(r0):
+                    acc += C0[k, a] * C0[k, b]
+                gram[a, b] = acc
+        top, bottom = nan_max_diagonal(info), nan_max_diagonal(gram)
+        rho = 0.0 if not bottom > 0.0 else (top if top > 0.0 else 1.0) / bottom
+        H += rho * gram
+        for a in range(n):
+            acc = 0.0
+            for k in range(r0):
+                acc += C0[k, a] * c0[k]
+            rhs[a] -= rho * acc
+    return info, H, rhs, gradient, Cbar, rbar, E, L, inv, kept, ranks, residual
+
+
+@jit
+def seen_components(info, C0, q):
+    """Components the data or the constraints see (runtime/projector.py: ``_seen``)."""
+    n = q.size
+    seen = np.zeros(n, dtype=np.bool_)
+    for j in range(n):
+        seen[j] = info[j, j] != 0.0
+    for form in range(2):
+        for k in range(C0.shape[0]):
+            top = 0.0
+            for j in range(n):
+                v = abs(C0[k, j]) if form == 0 else abs(C0[k, j] * q[j])
+                if v != v:
+                    top = np.nan
+                    break
+                top = max(top, v)
+            for j in range(n):
+                v = abs(C0[k, j]) if form == 0 else abs(C0[k, j] * q[j])
+                if v > ROUNDING * top:
+                    seen[j] = True
+    return seen
+
+
+@jit
+def equilibrium_weights(H):
+    n = H.shape[0]
+    diag = np.empty(n)
+    top = 0.0
+    for a in range(n):
+        diag[a] = abs(H[a, a])
+        top = np.nan if diag[a] != diag[a] or top != top else max(top, diag[a])
+    for a in range(n):
+        if not diag[a] > 0:
+            diag[a] = top if top > 0 else 1.0
+    return diag
+
+
+@jit
+def parameter_block(H, info, rhs, C0, c0, q, residual, mu, weights, eps):
+    """``Δq`` of eq. 43 (damped by ``μ diag(w)``; ``w`` empty: the equilibrium weights of
+    ``H``), the rows of ``C0`` kept, their rank and the residual E² (``ok`` False on a zero
+    pivot)."""
+    n, r0 = q.size, C0.shape[0]
+    Hd = H.copy()
+    if mu > 0.0:
+        w = equilibrium_weights(H) if weights.size == 0 else weights
+        for a in range(n):
+            Hd[a, a] += mu * w[a]
+    seen = seen_components(info, C0, q)
+    idx = np.flatnonzero(seen)
+    dq = np.zeros(n)
+    kept0 = np.zeros(r0, dtype=np.bool_)
+    if idx.size == 0:
+        return dq, kept0, 0, residual, True
+    Hs = np.empty((idx.size, idx.size))
+    rs = np.empty(idx.size)
+    Cs = np.empty((r0, idx.size))
+    for a in range(idx.size):
+        rs[a] = rhs[idx[a]]
+        for b in range(idx.size):
+            Hs[a, b] = Hd[idx[a], idx[b]]
+        for k in range(r0):
+            Cs[k, a] = C0[k, idx[a]]
+    step, kept0, e0 = parameter_solve(Hs, rs, Cs, c0, eps)
+    if step.size != idx.size:
+        return dq, kept0, 0, residual, False
+    for a in range(idx.size):
+        dq[idx[a]] = step[a]
+    return dq, kept0, int(kept0.sum()), residual + e0, True
+
+
+@jit
+def corrected(A, dq, Cbar, rbar, E, L, inv):
+    """The measures of the projector's point for the step ``dq`` (eq. 44)."""
+    M = A.chan.size
+    out = np.zeros(A.m.shape)
+    pmax, dmax = Cbar.shape[1], A.m.shape[1]
+    z, y, dm = np.zeros(pmax), np.zeros(pmax), np.zeros(dmax)
+    for i in range(M):
+        ch = A.chan[i]
+        p, d = A.P[ch], A.Dn[ch]
+        for a in range(p):
+            acc = 0.0
+            for j in range(dq.size):
+                acc += Cbar[i, a, j] * dq[j]
+            z[a] = rbar[i, a] - acc
+        correct(E[i], L[i], inv[i], A.G[i], z, p, d, y, dm)
+        for j in range(d):
+            out[i, j] = A.m[i, j] + dm[j]
+    return out
+
+
+# -- the parameter block and the constraints ----------------------------------------------
+
+@jit
+def constraint_root(Abar, C0, eps):
+    """``C̄0ᵀ = Ā⁻¹ C0ᵀ`` and the reduced root ``L0`` (rows kept) of ``C̄0 C̄0ᵀ``: the
+    constraints whitened by the metric ``Ā Āᵀ``. ``C̄0ᵀ`` is empty on a zero pivot of ``Ā``."""
+    n, r = Abar.shape[0], C0.shape[0]
+    C0bar_t = solve_lower_columns(Abar, np.ascontiguousarray(C0.T), False)
+    gram = np.zeros((r, r))
+    if C0bar_t.shape[0] == n:
+        for a in range(r):
+            for b in range(a + 1):
+                acc = 0.0
+                for i in range(n):
+                    acc += C0bar_t[i, a] * C0bar_t[i, b]
+                gram[a, b] = acc
+                gram[b, a] = acc
+    L0, kept0 = reduced_root(gram, eps)
+    return C0bar_t, L0, kept0
+
+
+@jit
+def parameter_solve(H, rhs, C0, c0, eps):
+    """``Δq`` of eq. 43 (``H = Ā Āᵀ`` its closest root, the constraints' rows reduced to
+    their first independent ones), the rows of ``C0`` kept and ``‖L0⁻¹ c0‖²`` (the
+    constraints' part of E²). ``Δq`` is empty on a zero pivot (non-finite input)."""
+    n, r = H.shape[0], C0.shape[0]
+    Abar = closest_root(H, max(eps, REDUNDANT))
+    bbar = solve_lower(Abar, rhs, False)
+    kept0 = np.zeros(r, dtype=np.bool_)
+    e0sq = 0.0
+    if bbar.size != n:
+        return bbar, kept0, e0sq
+    if r:
+        C0bar_t, L0, kept0 = constraint_root(Abar, C0, eps)
+        if C0bar_t.shape[0] != n:
+            return np.empty(0), kept0, e0sq
+        t = c0.copy()
+        for a in range(r):
+            for i in range(n):
+                t[a] += C0bar_t[i, a] * bbar[i]
+        lam = solve_kept(L0, kept0, solve_kept(L0, kept0, t, False), True)
+        for i in range(n):
+            acc = 0.0
+            for a in range(r):
+                acc += C0bar_t[i, a] * lam[a]
+            bbar[i] -= acc
+        e0 = solve_kept(L0, kept0, c0, False)
+        for a in range(r):
+            e0sq += e0[a] * e0[a]
+    return solve_lower(Abar, bbar, True), kept0, e0sq
+
+
+@jit
+def retraction_step(root, C0, c0, eps):
+    """The least move ``Q̃⁻¹ C0ᵀ (C0 Q̃⁻¹ C0ᵀ)⁻ c0`` onto ``c0 = 0`` in the metric
+    ``Q̃ = root rootᵀ`` (:func:`restore_parameter`'s step, to subtract); NaN on a zero pivot."""
+    n, r = root.shape[0], C0.shape[0]
+    C0bar_t, L0, kept0 = constraint_root(root, C0, eps)
+    if C0bar_t.shape[0] != n:
+        return np.full(n, np.nan)
+    y = solve_kept(L0, kept0, solve_kept(L0, kept0, c0, False), True)
+    v = np.zeros(n)
+    for i in range(n):
+        for a in range(r):
+            v[i] += C0bar_t[i, a] * y[a]
+    step = solve_lower(root, v, True)
+    return step if step.size == n else np.full(n, np.nan)
+
+
+@jit
+def whitened_violation(root, C0, c0, eps):
+    """``‖c0‖²`` whitened by ``C0 Q̃⁻¹ C0ᵀ`` (its reduced root), ``Q̃ = root rootᵀ``; inf
+    where that is not finite."""
+    C0bar_t, L0, kept0 = constraint_root(root, C0, eps)
+    if C0bar_t.shape[0] != root.shape[0]:
+        return np.inf
+    e0 = solve_kept(L0, kept0, c0, False)
+    total = 0.0
+    for a in range(e0.size):
+        if not np.isfinite(e0[a]):
+            return np.inf
+        total += e0[a] * e0[a]
+    return total

@@ -1,0 +1,511 @@
+"""Per-measure kernels: equations at a point, the per-measure algebra of the projector
+(report appendix A, Fig. 17), the measures projected onto their equations for a fixed
+parameter (eq. 22 iterated, with eq. 18's halving) and the restoration that finishes the
+measures those steps leave off (runtime/restoration.py describes the method).
+
+Every measure is handled on its own: the results do not depend on which other measures a
+call holds. ``A`` is the problem's :class:`~.data.Arrays`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kanagen.common.jit import jit
+
+from ..sqrt import REDUNDANT
+from .rows import call3, call4
+
+_TINY = np.finfo(float).tiny
+#: Relative rounding level of stored values (moves below it are noise).
+ROUNDING = 1e3 * np.finfo(float).eps
+#: Projection steps of a restoration (eq. 22) at most, and the move (in standard
+#: deviations) below which a measure has converged.
+RESTORE_STEPS, RESTORE_TOL = 30, 1e-10
+#: A measure whose whitened violation stays above this (cost units) did not reach its
+#: equations by the projector's steps.
+UNREACHED = 1e-16
+_NEWTON = 8  # normal (Newton) steps onto the manifold, at most
+_HALVINGS = 12  # halvings of a step along the manifold
+_DESCENT = 12  # steps along the manifold, at most
+_PROJECT_HALVINGS = 4  # halvings of a projector step per measure (eq. 18)
+
+
+# -- equations --------------------------------------------------------------------------
+
+@jit
+def c0_eval(A, q):
+    """``c0 (r)`` and ``C0 (r, n)`` at ``q``."""
+    n, r = q.size, A.r
+    out = np.empty(r + r * n)
+    call3(A.c0_addr, np.ascontiguousarray(q), A.k, out)
+    return out[:r].copy(), out[r:].copy().reshape(r, n)
+
+
+@jit
+def eval_measure(A, i, q, mt_i, c, C, D, x):
+    """Write measure ``i``'s ``c (p)``, ``C (p, n)``, ``D (p, d)`` at ``(q, mt_i)`` (``x``:
+    a buffer of :func:`row_buffer`'s size)."""
+    ch = A.chan[i]
+    p, d, n, w = A.P[ch], A.Dn[ch], q.size, A.W[ch]
+    for j in range(w):
+        x[j] = A.X[i, j]
+    for j in range(d):
+        x[A.col[ch, j]] = mt_i[j]
+    out = x[w:]
+    call4(A.meas_addr[ch], q, x[:w], A.k, out)
+    for a in range(p):
+        c[a] = out[a]
+        for j in range(n):
+            C[a, j] = out[p + a * n + j]
+        for j in range(d):
+            D[a, j] = out[p + p * n + a * d + j]
+
+
+@jit
+def row_buffer(A, n):
+    """A buffer for :func:`eval_measure`: a data row and the kernel's outputs."""
+    pmax = max(1, A.P.max()) if A.P.size else 1
+    return np.empty(A.X.shape[1] + pmax + pmax * n + pmax * A.m.shape[1])
+
+
+@jit
+def empty_evals(A, n):
+    M = A.chan.size
+    pmax = max(1, A.P.max()) if A.P.size else 1
+    dmax = A.m.shape[1]
+    return np.zeros((M, pmax)), np.zeros((M, pmax, n)), np.zeros((M, pmax, dmax))
+
+
+@jit
+def eval_all(A, q, mt):
+    """The equations of every measure at ``(q, mt)``: ``c, C, D`` padded."""
+    q = np.ascontiguousarray(q)
+    c, C, D = empty_evals(A, q.size)
+    x = row_buffer(A, q.size)
+    for i in range(A.chan.size):
+        eval_measure(A, i, q, mt[i], c[i], C[i], D[i], x)
+    return c, C, D
+
+
+@jit
+def quad(v, Q, d):
+    """``vᵀ Q v`` over the first ``d`` components."""
+    total = 0.0
+    for a in range(d):
+        acc = 0.0
+        for b in range(d):
+            acc += Q[a, b] * v[b]
+        total += v[a] * acc
+    return total
+
+
+@jit
+def point_values(A, q, mt, c, c0):
+    """``(delta, cost)`` of a point: ``‖c(x)‖∞`` over every equation (NaN counts as
+    infinite) and ``L² = ½‖q−q0‖²_Q0 + Σ ½‖m̃−m‖²_Q`` (eq. 2)."""
+    delta = 0.0
+    for a in range(c0.size):
+        v = abs(c0[a])
+        delta = np.inf if v != v or delta == np.inf else max(delta, v)
+    n = q.size
+    dq = q - A.q0
+    cost = 0.0
+    for a in range(n):
+        acc = 0.0
+        for b in range(n):
+            acc += A.Q0[a, b] * dq[b]
+        cost += dq[a] * acc
+    cost *= 0.5
+    for i in range(A.chan.size):
+        ch = A.chan[i]
+        d = A.Dn[ch]
+        for a in range(A.P[ch]):
+            v = abs(c[i, a])
+            delta = np.inf if v != v or delta == np.inf else max(delta, v)
+        cost += 0.5 * quad(mt[i] - A.m[i], A.Q[i], d)
+    return delta, cost
+
+
+# -- the per-measure algebra: whiten and correct ----------------------------------------
+
+@jit
+def factor(D, G, p, d, eps, E, L, inv, kept):
+    """``E = D Gᵀ`` and the reduced square root of ``S = E Eᵀ = D Q⁺ Dᵀ`` (``Q⁺ = GᵀG``, G
+    lower triangular), written into ``E, L, inv, kept``: ``inv`` the inverse pivots, 0 for
+    a dropped equation (a pivot <= eps·scale, or <= REDUNDANT times its own diagonal). The
+    operations are those of the generated unrolled kernels (``whiten_p_k``)."""
+    for a in range(p):
+        for j in range(d):
+            acc = 0.0
+            for u in range(j + 1):
+                acc += D[a, u] * G[j, u]
+            E[a, j] = acc
+    top = 0.0
+    for a in range(p):
+        acc = 0.0
+        for j in range(d):
+            acc += E[a, j] * E[a, j]
+        if a == 0 or acc != acc:  # NaN propagates, as through np.maximum
+            top = acc
+        elif top == top:
+            top = max(top, acc)
+    tol = eps * max(top, _TINY) if top == top else np.nan
+    for a in range(p):
+        piv = 0.0
+        for j in range(d):
+            piv += E[a, j] * E[a, j]
+        S_aa = piv
+        for b in range(a):
+            piv -= L[a, b] ** 2
+        keep = piv > tol and (a == 0 or piv > REDUNDANT * S_aa)
+        kept[a] = keep
+        inv[a] = 1.0 / np.sqrt(piv) if keep else 0.0
+        for i in range(a + 1, p):
+            acc = 0.0
+            for j in range(d):
+                acc += E[i, j] * E[a, j]
+            for b in range(a):
+                acc -= L[i, b] * L[a, b]
+            L[i, a] = acc * inv[a]
+
+
+@jit
+def whiten_column(L, inv, b, p, out):
+    """``out = L⁻¹ b`` on the kept equations (dropped ones give 0)."""
+    for a in range(p):
+        acc = b[a]
+        for k in range(a):
+            acc -= L[a, k] * out[k]
+        out[a] = acc * inv[a]
+
+
+@jit
+def correct(E, L, inv, G, z, p, d, y, dm):
+    """``dm = Gᵀ Eᵀ S⁻ z``: the measure correction from the whitened ``z`` (``y`` scratch,
+    ``p`` long; ``dm`` is ``d`` long)."""
+    for a in range(p - 1, -1, -1):
+        acc = z[a]
+        for i in range(a + 1, p):
+            acc -= L[i, a] * y[i]
+        y[a] = acc * inv[a]
+    for u in range(d):
+        acc = 0.0
+        for j in range(u, d):
+            t = 0.0
+            for a in range(p):
+                t += E[a, j] * y[a]
+            acc += G[j, u] * t
+        dm[u] = acc
+
+
+@jit
+def scratch(A, n):
+    """Buffers of the per-measure algebra, for the largest channel of ``A``: ``E, L, inv,
+    kept, y, w1, w2`` (equations), ``dm, step, cand, moved`` (components), ``x``
+    (:func:`row_buffer`). Allocated once a kernel call."""
+    p = max(1, A.P.max()) if A.P.size else 1
+    d = A.m.shape[1]
+    return (np.zeros((p, d)), np.zeros((p, p)), np.zeros(p), np.zeros(p, dtype=np.bool_),
+            np.zeros(p), np.zeros(p), np.zeros(p), np.zeros(d), np.zeros(d), np.zeros(d),
+            np.zeros(d), row_buffer(A, n))
+
+
+@jit
+def violation(c, D, G, p, d, eps, work):
+    """A measure's whitened violation ``‖c‖²_{(D Q⁺ Dᵀ)⁻}`` in metric ``G``, and whether
+    the whitened values are finite (``work``: :func:`scratch`)."""
+    E, L, inv, kept, y, w1, w2, dm, step, cand, moved, x = work
+    factor(D, G, p, d, eps, E, L, inv, kept)
+    whiten_column(L, inv, c, p, w1)
+    total = 0.0
+    finite = True
+    for a in range(p):
+        total += w1[a] ** 2
+        finite = finite and np.isfinite(w1[a])
+    return total, finite
+
+
+@jit
+def worst_abs(c, p):
+    worst = 0.0
+    for a in range(p):
+        worst = max(worst, abs(c[a]))
+    return worst
+
+
+@jit
+def all_finite(v):
+    for a in range(v.size):
+        if not np.isfinite(v[a]):
+            return False
+    return True
+
+
+# -- eq. 22: the measures projected for a fixed q ---------------------------------------
+
+@jit
+def project_measure(A, i, q, m, iterations, tol, c, C, D, E, L, inv, kept, y, rbar, cbar, dm,
+                    step, cand, moved, x):
+    """Project measure ``i`` onto ``c_i(q, ·) = 0`` from ``m`` (updated in place) in its
+    ``Q_i`` metric (eq. 22 with eq. 18's halving). ``iterations`` counts projector steps
+    plus one. Writes ``c, C, D`` at the returned point; returns ``(violation, rank)``."""
+    ch = A.chan[i]
+    p, d = A.P[ch], A.Dn[ch]
+    G, Q, m_obs = A.G[i], A.Q[i], A.m[i]
+    eval_measure(A, i, q, m, c, C, D, x)
+    viol, rank = 0.0, 0
+    active = True
+    for it in range(iterations):
+        for a in range(p):
+            acc = 0.0
+            for j in range(d):
+                acc += D[a, j] * (m[j] - m_obs[j])
+            y[a] = acc - c[a]  # r − C q with q fixed
+        factor(D, G, p, d, A.eps, E, L, inv, kept)
+        whiten_column(L, inv, y, p, rbar)
+        whiten_column(L, inv, c, p, cbar)
+        viol = 0.0
+        rank = 0
+        for a in range(p):
+            viol += cbar[a] ** 2
+            rank += 1 if kept[a] else 0
+        if it == iterations - 1 or not active:
+            break
+        correct(E, L, inv, G, rbar, p, d, y, dm)
+        finite = True
+        for j in range(d):
+            step[j] = m_obs[j] + dm[j] - m[j]
+            finite = finite and np.isfinite(step[j])
+        if not finite:
+            step[:d] = 0.0
+        halving(A, i, q, m, c, C, D, step, p, d, cand, moved, x)
+        seen = quad(moved, Q, d) > tol ** 2
+        unseen = False
+        for j in range(d):
+            unseen = unseen or abs(moved[j]) > ROUNDING * (1.0 + abs(m[j]))
+        active = seen or unseen
+    return viol, rank
+
+
+@jit
+def halving(A, i, q, m, c, C, D, step, p, d, cand, moved, x):
+    """Eq. 18 for one measure: ``m + α step`` with α halved while the violation grows (four
+    times at most), else no move; updates ``m, c, C, D`` in place, writes the move into
+    ``moved``."""
+    worst = worst_abs(c, p)
+    alpha = 1.0
+    for attempt in range(_PROJECT_HALVINGS + 1):
+        if attempt == _PROJECT_HALVINGS:
+            alpha = 0.0
+        for j in range(d):
+            cand[j] = m[j] + alpha * step[j]
+        eval_measure(A, i, q, cand, c, C, D, x)
+        new_worst = worst_abs(c, p) if p else worst
+        if new_worst <= worst + 1e-9 * (1.0 + worst) or attempt == _PROJECT_HALVINGS:
+            break
+        alpha /= 2
+    for j in range(d):
+        moved[j] = cand[j] - m[j]
+        m[j] = cand[j]
+
+
+@jit
+def project_all(A, q, mt, iterations, tol):
+    """:func:`project_measure` for every measure: ``(m̃, violations, ranks, c, C, D)``."""
+    q = np.ascontiguousarray(q)
+    M = A.chan.size
+    c, C, D = empty_evals(A, q.size)
+    out = mt.copy()
+    viol = np.zeros(M)
+    rank = np.zeros(M, dtype=np.int64)
+    E, L, inv, kept, y, rbar, cbar, dm, step, cand, moved, x = scratch(A, q.size)
+    for i in range(M):
+        viol[i], rank[i] = project_measure(A, i, q, out[i], iterations, tol, c[i], C[i], D[i],
+                                           E, L, inv, kept, y, rbar, cbar, dm, step, cand,
+                                           moved, x)
+    return out, viol, rank, c, C, D
+
+
+# -- the restoration: measures the projector's steps leave off ---------------------------
+
+@jit
+def top_variances(A):
+    """Per channel, each component's largest variance over its measures (``Q⁺ = GᵀG``)."""
+    nch, dmax = A.P.size, A.m.shape[1]
+    top = np.zeros((nch, dmax))
+    for i in range(A.chan.size):
+        ch = A.chan[i]
+        for u in range(A.Dn[ch]):
+            var = 0.0
+            for j in range(A.Dn[ch]):
+                var += A.G[i, j, u] ** 2
+            top[ch, u] = max(top[ch, u], var)
+    return top
+
+
+@jit
+def reaching(A, i, top):
+    """``G`` of the diagonal metric of the channel's largest variances (zero where the
+    measure's component is exact)."""
+    ch = A.chan[i]
+    d = A.Dn[ch]
+    R = np.zeros((A.m.shape[1], A.m.shape[1]))
+    for u in range(d):
+        var = 0.0
+        for j in range(d):
+            var += A.G[i, j, u] ** 2
+        R[u, u] = np.sqrt(top[ch, u]) if var > 0 else 0.0
+    return R
+
+
+@jit
+def newton(A, i, q, values, c, C, D, G, work, c_new, C_new, D_new):
+    """Newton steps of measure ``i`` onto its equations along ``Q⁺Dᵀ`` in the metric ``G``,
+    halved where ``|c|`` grows; updates ``values, c, C, D``; True when it is on them."""
+    ch = A.chan[i]
+    p, d = A.P[ch], A.Dn[ch]
+    E, L, inv, kept, y, w, w2, dm, step, cand, moved, x = work
+    for attempt in range(_NEWTON + 1):
+        size, finite = violation(c, D, G, p, d, A.eps, work)  # the factor and w = L⁻¹c
+        if not (size > UNREACHED * 1e-4 and finite):
+            return True
+        correct(E, L, inv, G, w, p, d, y, dm)
+        if attempt == _NEWTON:
+            return False
+        finite = True
+        for j in range(d):
+            step[j] = -dm[j]
+            finite = finite and np.isfinite(step[j])
+        if not finite:
+            step[:d] = 0.0
+        worst = worst_abs(c, p)
+        alpha = 1.0
+        done = False
+        for _ in range(_HALVINGS):
+            for j in range(d):
+                cand[j] = values[j] + alpha * step[j]
+            eval_measure(A, i, q, cand, c_new, C_new, D_new, x)
+            if worst_abs(c_new, p) < worst:
+                values[:d] = cand[:d]
+                c[:] = c_new
+                C[:] = C_new
+                D[:] = D_new
+                done = True
+                break
+            alpha /= 2
+        if not done:
+            return False
+    return False
+
+
+@jit
+def normal(A, i, q, values, c, C, D, reach, work, spare):
+    """Newton steps onto the manifold in the measure's metric, then — for a measure they
+    leave off — in its channel's largest variances (runtime/restoration.py describes it).
+    ``spare``: buffers for trial equations ``(c, C, D)``."""
+    if not newton(A, i, q, values, c, C, D, A.G[i], work, *spare):
+        newton(A, i, q, values, c, C, D, reach, work, *spare)
+
+
+@jit
+def descend(A, i, q, start, top, c, C, D, work):
+    """Measure ``i`` moved onto ``c(q, ·) = 0`` and down the distance along it from
+    ``start``; writes ``c, C, D``; returns ``(m̃, violation)``."""
+    ch = A.chan[i]
+    p, d = A.P[ch], A.Dn[ch]
+    G, Q, m_obs = A.G[i], A.Q[i], A.m[i, :d]
+    E, L, inv, kept, y, w, w2, dm, step, cand, moved, x = work
+    reach = reaching(A, i, top)
+    spare = (c.copy(), C.copy(), D.copy())
+    values = start.copy()
+    eval_measure(A, i, q, values, c, C, D, x)
+    normal(A, i, q, values, c, C, D, reach, work, spare)
+    distance = quad(values - m_obs, Q, d)
+    active = violation(c, D, G, p, d, A.eps, work)[0] <= UNREACHED
+    c2, C2, D2 = c.copy(), C.copy(), D.copy()
+    r = np.zeros(p)
+    for _ in range(_DESCENT):
+        if not active:
+            break
+        for a in range(p):
+            acc = 0.0
+            for j in range(d):
+                acc += D[a, j] * (values[j] - m_obs[j])
+            r[a] = acc - c[a]
+        factor(D, G, p, d, A.eps, E, L, inv, kept)
+        whiten_column(L, inv, r, p, w)
+        correct(E, L, inv, G, w, p, d, y, dm)
+        along = values.copy()
+        finite = True
+        for j in range(d):
+            along[j] = m_obs[j] + dm[j] - values[j]
+            finite = finite and np.isfinite(along[j])
+        shift = 0.0
+        if finite:
+            alpha = 1.0
+            for _ in range(_HALVINGS):
+                trial = values + alpha * along
+                eval_measure(A, i, q, trial, c2, C2, D2, x)
+                normal(A, i, q, trial, c2, C2, D2, reach, work, spare)
+                d_trial = quad(trial - m_obs, Q, d)
+                worst = worst_abs(c, p)
+                if d_trial < distance and worst_abs(c2, p) <= worst + 1e-12 * (1 + worst):
+                    shift = quad(trial - values, Q, d)
+                    values[:] = trial
+                    c[:] = c2
+                    C[:] = C2
+                    D[:] = D2
+                    distance = d_trial
+                    break
+                alpha /= 2
+        active = shift > RESTORE_TOL ** 2
+    eval_measure(A, i, q, values, c, C, D, x)
+    return values, violation(c, D, G, p, d, A.eps, work)[0]
+
+
+@jit
+def restore_all(A, q, mt, iterations):
+    """The measures projected onto their equations for ``q`` from ``mt`` (eq. 22), those
+    left off finished by the descent on the manifold from where they were left and from
+    their observed values, the nearer kept: ``(m̃, violations, c, C, D)``."""
+    q = np.ascontiguousarray(q)
+    out, viol, rank, c, C, D = project_all(A, q, mt, iterations, RESTORE_TOL)
+    top = np.zeros((0, 0))
+    work = scratch(A, q.size)
+    for i in range(A.chan.size):
+        if viol[i] <= UNREACHED:
+            continue
+        if top.shape[0] == 0:
+            top = top_variances(A)
+        ch = A.chan[i]
+        d = A.Dn[ch]
+        Q, m_obs = A.Q[i], A.m[i, :d]
+        starts = (out[i, :d].copy(), m_obs.copy())
+        for s in range(2):
+            c2, C2, D2 = c[i].copy(), C[i].copy(), D[i].copy()
+            m_new, v_new = descend(A, i, q, starts[s], top, c2, C2, D2, work)
+            old = viol[i]
+            d_old = quad(out[i, :d] - m_obs, Q, d)
+            d_new = quad(m_new - m_obs, Q, d)
+            reached = v_new <= UNREACHED
+            if reached:
+                better = not (old <= UNREACHED) or d_new < d_old
+            else:
+                better = v_new < (old if np.isfinite(old) else np.inf)
+            if better:
+                out[i, :d] = m_new
+                viol[i] = v_new
+                c[i], C[i], D[i] = c2, C2, D2
+    return out, viol, c, C, D
+
+
+@jit
+def violations_all(A, c, D):
+    """Every measure's whitened violation ``‖c‖²_{(D Q⁺ Dᵀ)⁻}`` (cost units)."""
+    out = np.zeros(A.chan.size)
+    work = scratch(A, 0)
+    for i in range(A.chan.size):
+        ch = A.chan[i]
+        out[i] = violation(c[i], D[i], A.G[i], A.P[ch], A.Dn[ch], A.eps, work)[0]
+    return out

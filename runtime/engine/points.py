@@ -1,0 +1,350 @@
+"""Points of the iteration and what is done to them: evaluated, projected (the block
+projector, report appendix A), restored onto their equations (a retraction of the
+parameter, the measures projected: runtime/iterate.py describes why), the Lagrangian's
+curvature on curved constraints. Kernels on :class:`~.data.Arrays` ``A``.
+"""
+
+from __future__ import annotations
+
+from collections import namedtuple
+
+import numpy as np
+
+from kanagen.common.jit import jit
+
+from ..sqrt import EPS, REDUNDANT, closest_root
+from .linear import corrected, linearise, parameter_block, retraction_step, whitened_violation
+from .measures import (
+    ROUNDING,
+    UNREACHED,
+    c0_eval,
+    eval_all,
+    point_values,
+    quad,
+    restore_all,
+    violations_all,
+)
+from .rows import call3
+
+#: A point ``x = (q, m̃)`` with its equations: ``c0 (r)``, ``C0 (r, n)`` and per measure
+#: ``c, C, D`` (padded), ``delta = ‖c(x)‖∞`` (eq. 18) and ``cost = L²`` (eq. 2).
+Pt = namedtuple("Pt", ["q", "mt", "c0", "C0", "c", "C", "D", "delta", "cost"])
+#: The whitened linearisation at a point (eq. 38–43) and the projector's point (eq. 12).
+Lin = namedtuple("Lin", ["info", "H", "rhs", "gradient", "Cbar", "rbar", "E", "L", "inv",
+                         "residual"])
+Proj = namedtuple("Proj", ["q", "mt", "kept0", "rank0", "residual"])
+
+RETRACTION = 64  # Gauss–Newton steps onto c0 = 0, at most (a double root: linear)
+
+
+
+@jit
+def make_point(A, q, mt, c, C, D):
+    c0, C0 = c0_eval(A, q)
+    delta, cost = point_values(A, q, mt, c, c0)
+    return Pt(q, mt, c0, C0, c, C, D, delta, cost)
+
+
+@jit
+def evaluate(A, q, mt):
+    """Equations, Jacobians, ``‖c‖∞`` and the cost at ``(q, m̃)``."""
+    q = np.ascontiguousarray(q).copy()
+    mt = np.ascontiguousarray(mt).copy()
+    c, C, D = eval_all(A, q, mt)
+    return make_point(A, q, mt, c, C, D)
+
+
+@jit
+def finite(x):
+    return np.isfinite(x.delta) and np.isfinite(x.cost)
+
+
+@jit
+def project_point(A, x, mu, weights):
+    """The linearisation at ``x`` and the projector's point (damped by ``μ diag(w)``);
+    ``ok`` False where the projector fails (a zero pivot)."""
+    info, H, rhs, gradient, Cbar, rbar, E, L, inv, kept, ranks, residual = linearise(
+        A, x.q, x.mt, x.c, x.C, x.D, x.c0, x.C0)
+    lin = Lin(info, H, rhs, gradient, Cbar, rbar, E, L, inv, residual)
+    ok, proj = solve(A, x, lin, mu, weights)
+    return ok, lin, proj
+
+
+@jit
+def solve(A, x, lin, mu, weights):
+    """The projector's point from a linearisation (eq. 43–44)."""
+    dq, kept0, rank0, residual, ok = parameter_block(lin.H, lin.info, lin.rhs, x.C0, x.c0,
+                                                     x.q, lin.residual, mu, weights, A.eps)
+    mt = corrected(A, dq, lin.Cbar, lin.rbar, lin.E, lin.L, lin.inv)
+    return ok, Proj(x.q + dq, mt, kept0, rank0, residual)
+
+
+@jit
+def parameter_step(A, x, lin, mu, weights):
+    return parameter_block(lin.H, lin.info, lin.rhs, x.C0, x.c0, x.q, lin.residual, mu,
+                           weights, A.eps)[0]
+
+
+@jit
+def max_abs(v):
+    """``max|v|`` as NumPy computes it (NaN propagates; 0 for an empty ``v``)."""
+    top = 0.0
+    for a in range(v.size):
+        x = abs(v[a])
+        if x != x:
+            return np.nan
+        top = max(top, x)
+    return top
+
+
+@jit
+def c0_rounding(q):
+    return 1e-13 * (1.0 + max_abs(q)) ** 2
+
+
+@jit
+def restore_parameter(A, q, root, iterations):
+    """``q`` moved back onto ``c0(q) = 0`` by Gauss–Newton steps in the metric ``root``
+    (empty: Euclidean), each taken when it lowers ``‖c0‖∞`` (runtime/projector.py)."""
+    c0, C0 = c0_eval(A, q)
+    if c0.size == 0:
+        return q.copy()
+    worst = max_abs(c0)
+    if root.shape[0] == 0:
+        root = np.eye(q.size)
+    for _ in range(iterations):
+        if not worst > ROUNDING * (1.0 + max_abs(q)) * 1e-3:
+            break
+        trial = q - retraction_step(root, C0, c0, A.eps)
+        c0_new, C0_new = c0_eval(A, trial)
+        new_worst = max_abs(c0_new)
+        if not new_worst < worst:
+            break
+        q, c0, C0, worst = trial, c0_new, C0_new, new_worst
+    return q.copy()
+
+
+@jit
+def c0_violation(x, root):
+    """``‖c0‖²`` whitened by ``C0 Q̃⁻¹ C0ᵀ``, or 0 below rounding."""
+    if x.c0.size == 0 or max_abs(x.c0) <= c0_rounding(x.q):
+        return 0.0
+    if root.shape[0] == 0:
+        total = 0.0
+        for a in range(x.c0.size):
+            total += x.c0[a] * x.c0[a]
+        return total
+    return whitened_violation(root, x.C0, x.c0, EPS)
+
+
+@jit
+def restore(A, q, mt, iterations):
+    """The point ``(q, m̃)`` with the measures restored (eq. 22) and their violation."""
+    q = np.ascontiguousarray(q).copy()
+    out, viol, c, C, D = restore_all(A, q, np.ascontiguousarray(mt), iterations)
+    return make_point(A, q, out, c, C, D), viol.sum()
+
+
+@jit
+def restored(A, q, mt, root, iterations, retract):
+    """``q`` retracted onto ``c0 = 0`` (in ``root``'s metric, else Euclidean) and its
+    measures restored; returns the point and its violation ``E²`` in cost units."""
+    if retract and A.r:
+        best_q = q
+        best = np.inf
+        first = True
+        for k in range(2 if root.shape[0] else 1):
+            metric = root if k == 0 else np.zeros((0, 0))
+            candidate = restore_parameter(A, q, metric, RETRACTION)
+            worst = max_abs(c0_eval(A, candidate)[0])
+            if first or worst < best:
+                best_q, best, first = candidate, worst, False
+            if worst <= c0_rounding(candidate):
+                break
+        q = best_q
+    x, violation = restore(A, q, mt, iterations)
+    return x, violation + c0_violation(x, root)
+
+
+@jit
+def feasible(violation, cost):
+    """The equations hold: their violation negligible against the cost."""
+    return violation <= 1e-10 * max(1.0, cost)
+
+
+@jit
+def on_constraints(x, violation):
+    """The measures on their equations and the parameter on its constraints (rounding)."""
+    return feasible(violation, x.cost) and (x.c0.size == 0 or
+                                            max_abs(x.c0) <= c0_rounding(x.q))
+
+
+@jit
+def cost_rounding(A):
+    """The rounding level of the cost ``L²`` (runtime/verify.py)."""
+    eps = 10 * np.finfo(np.float64).eps
+    total = 0.0
+    for j in range(A.size.size):
+        total += A.size[j] * (eps * A.scale[j]) ** 2
+    return total + np.finfo(np.float64).tiny
+
+
+@jit
+def negligible(A, q_old, q_new, mt_old, mt_new, xtol):
+    """Each component of q moves by less than ``xtol`` of itself, each measure by less than
+    ``xtol`` standard deviations, or by no more than the values' rounding."""
+    rounding = ROUNDING * max_abs(q_old)
+    for a in range(q_old.size):
+        if abs(q_new[a] - q_old[a]) > xtol * abs(q_old[a]) + rounding:
+            return False
+    for j in range(A.size.size):
+        if A.size[j] == 0:
+            continue
+        top = 0.0
+        d = A.Dn[j]
+        for i in range(A.start[j], A.start[j] + A.size[j]):
+            moved = quad(mt_new[i] - mt_old[i], A.Q[i], d)
+            if moved != moved:
+                top = np.nan
+                break
+            top = max(top, moved)
+        if top > (xtol + ROUNDING * A.scale[j]) ** 2:
+            return False
+    return True
+
+
+@jit
+def relations_hold(A, q):
+    """The model's inequality relations (appendix F) hold at ``q`` (in ``r`` for a reduced
+    model: at ``T r + t``): in each clause of inequalities, at least one."""
+    if A.slack_addr == 0:
+        return True
+    full = A.T @ q + A.t
+    values = np.empty(A.kinds.size)
+    call3(A.slack_addr, np.ascontiguousarray(full), A.k, values)
+    for a in range(A.clauses.shape[0]):
+        any_holds = False
+        for i in range(A.kinds.size):
+            if not A.clauses[a, i]:
+                continue
+            v = values[i]
+            kind = A.kinds[i]
+            holds = v >= 0 if kind == 0 else (v > 0 if kind == 1 else
+                                              (np.isfinite(v) and v != 0))
+            any_holds = any_holds or holds
+        if not any_holds:
+            return False
+    return True
+
+
+@jit
+def has_relations(A):
+    return A.slack_addr != 0
+
+
+@jit
+def multipliers(x, gradient):
+    """``λ0``: least-squares multipliers of the parameter constraints, ``C0ᵀ λ0 = −∇F``."""
+    r, n = x.C0.shape
+    if r == 0:
+        return np.zeros(0)
+    if not (np.all(np.isfinite(x.C0)) and np.all(np.isfinite(gradient))):
+        return np.full(r, np.nan)
+    # NumPy's default cut-off (rcond=None): ε·max(n, r)
+    return np.linalg.lstsq(np.ascontiguousarray(x.C0.T), -gradient,
+                           rcond=np.finfo(np.float64).eps * max(n, r))[0]
+
+
+@jit
+def constraint_curvature(A, q, lam0):
+    """``Σ λ0k ∇²c0k`` by central differences of the constraints' Jacobian."""
+    n = q.size
+    K = np.zeros((n, n))
+    scale = max_abs(q)
+    for j in range(n):
+        h = 1e-5 * max(abs(q[j]), 1e-3 * scale, 1e-8)
+        up, down = q.copy(), q.copy()
+        up[j] += h
+        down[j] -= h
+        diff = c0_eval(A, up)[1] - c0_eval(A, down)[1]
+        for a in range(n):
+            acc = 0.0
+            for k in range(lam0.size):
+                acc += diff[k, a] * lam0[k]
+            K[a, j] = acc / (2 * h)
+    return 0.5 * (K + K.T)
+
+
+@jit
+def lagrangian(A, x, lin, proj):
+    """The linearisation with the constraints' curvature ``Σ λ0k ∇²c0k`` (its positive
+    part) added to the information, and its projector's point (runtime/iterate.py)."""
+    lam0 = multipliers(x, lin.gradient)
+    nonzero = False
+    for a in range(lam0.size):
+        nonzero = nonzero or lam0[a] != 0
+    if not nonzero:
+        return lin, proj
+    K = constraint_curvature(A, x.q, lam0)
+    for s in range(A.strict_idx.size):
+        index = A.strict_idx[s]
+        K[index, :] = 0.0
+        K[:, index] = 0.0
+    if not np.all(np.isfinite(K)):
+        return lin, proj
+    w, V = np.linalg.eigh(K)
+    top = 0.0
+    for a in range(lin.H.shape[0]):
+        top = max(top, abs(lin.H[a, a]))
+    if not np.all(np.isfinite(w)) or not max(w.max(), 0.0) > 1e-14 * top:
+        return lin, proj
+    K = (V * np.maximum(w, 0.0)) @ V.T
+    model = Lin(lin.info + K, lin.H + K, lin.rhs, lin.gradient, lin.Cbar, lin.rbar, lin.E,
+                lin.L, lin.inv, lin.residual)
+    ok, proj_model = solve(A, x, model, 0.0, np.zeros(0))
+    if not ok:
+        return lin, proj
+    return model, proj_model
+
+
+@jit
+def info_root(A, lin):
+    """The closest square root of the information (the metric of retractions)."""
+    return closest_root(lin.info, max(A.eps, REDUNDANT))
+
+
+@jit
+def nearer_points(A, x):
+    """``x`` with each measure at the nearer of its nearest point and the one restored
+    from its observed value; ``changed`` False when no measure has a nearer one."""
+    other, _ = restore(A, x.q, A.m, 30)
+    if not finite(other):
+        return False, x
+    on = violations_all(A, other.c, other.D) <= UNREACHED
+    mt, c, C, D = x.mt.copy(), x.c.copy(), x.C.copy(), x.D.copy()
+    changed = False
+    for i in range(A.chan.size):
+        d = A.Dn[A.chan[i]]
+        d_x = quad(x.mt[i] - A.m[i], A.Q[i], d)
+        d_o = quad(other.mt[i] - A.m[i], A.Q[i], d)
+        if on[i] and d_o < d_x - 1e-9 * (1.0 + d_x):
+            changed = True
+            mt[i], c[i], C[i], D[i] = other.mt[i], other.c[i], other.C[i], other.D[i]
+    if not changed:
+        return False, x
+    return True, make_point(A, x.q.copy(), mt, c, C, D)
+
+
+@jit
+def restored_flat(A, q, mt, root, iterations, retract):
+    """:func:`restored` as a plain tuple (``x``'s fields, then the violation): the values
+    Python receives (engine/iterate.py: ``run_flat`` says why)."""
+    x, violation = restored(A, q, mt, root, iterations, retract)
+    return x.q, x.mt, x.c0, x.C0, x.c, x.C, x.D, x.delta, x.cost, violation
+
+
+@jit
+def evaluate_flat(A, q, mt):
+    """:func:`evaluate` as a plain tuple of ``x``'s fields."""
+    x = evaluate(A, q, mt)
+    return x.q, x.mt, x.c0, x.C0, x.c, x.C, x.D, x.delta, x.cost

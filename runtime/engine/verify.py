@@ -1,0 +1,309 @@
+"""The end of the iteration checked (SPEC §2: a success is a local minimum): stationary, no
+negative curvature of the Lagrangian on the constraints' tangent space, every parameter seen
+by the data, no slope along a lost direction (runtime/iterate.py, "The end"). Kernels.
+
+A verdict is ``Verdict(stationary, decrement, cost, curvature, direction, plateau,
+plateau_vector)``: ``curvature`` NaN where it was not measured, ``direction`` empty without
+one; ``plateau`` 0 none, 1 the information of the components ``plateau_vector != 0`` has
+vanished, 2 the equations lost the direction ``plateau_vector`` along which the cost falls.
+"""
+
+from __future__ import annotations
+
+from collections import namedtuple
+
+import numpy as np
+
+from kanagen.common.jit import jit
+
+from ..sqrt import REDUNDANT, closest_root
+from .linear import linearise, seen_components
+from .points import (
+    c0_eval,
+    cost_rounding,
+    feasible,
+    finite,
+    lagrangian,
+    multipliers,
+    project_point,
+    restore,
+    restored,
+)
+
+STATIONARY = 1e-10  # decrement over cost below which a point is stationary
+NEGATIVE = 1e-5  # curvature (relative to the information) below -this is negative
+STEP = 1e-3  # central-difference step, in standard deviations of the parameter
+VANISHED = 1e-12  # information fallen by this factor since the start: a plateau
+SCREEN = 0.05  # least forward-difference curvature above which no central check is needed
+LOST = 1e-12  # least eigenvalue of the scaled information, relative: a direction lost
+SLOPE = 1e3  # the gradient along it, in rounding levels of its terms, above which it falls
+
+Verdict = namedtuple("Verdict", ["stationary", "decrement", "cost", "curvature", "direction",
+                                 "plateau", "plateau_vector"])
+
+
+@jit
+def verdict(stationary, decrement, cost, curvature, direction):
+    """A verdict without a plateau."""
+    return Verdict(stationary, decrement, cost, curvature, direction, 0, np.zeros(0))
+
+
+@jit
+def is_minimum(v):
+    return v.stationary and v.plateau == 0 and not v.curvature < -NEGATIVE
+
+
+@jit
+def decrement(x, lin, proj):
+    """``½ sᵀ H s`` of the tangential part of the projector's step."""
+    s = proj.q - x.q
+    normal = proj.residual - lin.residual
+    return max(0.5 * (s @ (lin.H @ s)) - 0.5 * normal, 0.0)
+
+
+@jit
+def stationary(A, x, lin, proj):
+    return decrement(x, lin, proj) <= STATIONARY * x.cost + cost_rounding(A)
+
+
+@jit
+def tangent_space(C0, seen):
+    """Columns spanning the null space of ``C0`` on the components ``seen``."""
+    n = seen.size
+    idx = np.flatnonzero(seen)
+    E = np.zeros((n, idx.size))
+    for a in range(idx.size):
+        E[idx[a], a] = 1.0
+    if C0.shape[0] == 0 or idx.size == 0:
+        return E
+    _, S, Vt = np.linalg.svd(C0 @ E)
+    rank = 0
+    if S.size and S[0] > 0:
+        for a in range(S.size):
+            rank += 1 if S[a] > 1e-10 * S[0] else 0
+    return E @ np.ascontiguousarray(Vt[rank:].T)
+
+
+@jit
+def tangent_basis(x, info):
+    """The tangent space of ``c0 = 0`` on the seen components, orthonormal in the
+    information (directions without information left out)."""
+    Z = tangent_space(x.C0, seen_components(info, x.C0, x.q))
+    if Z.shape[1] == 0:
+        return Z
+    G = Z.T @ info @ Z
+    G = 0.5 * (G + G.T)
+    w, U = np.linalg.eigh(G)
+    top = max(w.max(), np.finfo(np.float64).tiny) if w.size else np.finfo(np.float64).tiny
+    keep = np.flatnonzero(w > 1e-14 * max(top, np.finfo(np.float64).tiny))
+    out = np.zeros((Z.shape[0], keep.size))
+    for a in range(keep.size):
+        out[:, a] = Z @ (np.ascontiguousarray(U[:, keep[a]]) / np.sqrt(w[keep[a]]))
+    return out
+
+
+@jit
+def plateau_mask(x, info, info_start):
+    """The components whose information fell by twelve orders of magnitude since the start
+    (not those the constraints pin); empty when none."""
+    n = x.q.size
+    if info_start.size == 0:
+        return np.zeros(n, dtype=np.bool_), False
+    gone = np.zeros(n, dtype=np.bool_)
+    for a in range(n):
+        before = abs(info_start[a])
+        gone[a] = before > 0 and abs(info[a, a]) <= VANISHED * before
+    if x.C0.shape[0]:
+        free = tangent_space(x.C0, np.ones(n, dtype=np.bool_))
+        for a in range(n):
+            norm = 0.0
+            for b in range(free.shape[1]):
+                norm += free[a, b] ** 2
+            gone[a] = gone[a] and np.sqrt(norm) > 1e-6
+    return gone, gone.any()
+
+
+@jit
+def weakest(info, x):
+    """The least eigenvalue of ``info`` on the tangent space, scaled to a unit diagonal,
+    relative to the largest, and its direction (``ok`` False without one)."""
+    n = x.q.size
+    seen = np.zeros(n, dtype=np.bool_)
+    for a in range(n):
+        seen[a] = info[a, a] > 0
+    Z = tangent_space(x.C0, seen)
+    if Z.shape[1] < 1:
+        return False, 0.0, np.zeros(0)
+    M = Z.T @ info @ Z
+    M = 0.5 * (M + M.T)
+    k = M.shape[0]
+    d = np.empty(k)
+    for a in range(k):
+        d[a] = np.sqrt(abs(M[a, a]))
+    if not np.all(np.isfinite(M)) or not np.all(d > 0):
+        return False, 0.0, np.zeros(0)
+    scaled = np.empty((k, k))
+    for a in range(k):
+        for b in range(k):
+            scaled[a, b] = M[a, b] / (d[a] * d[b])
+    w, U = np.linalg.eigh(scaled)
+    if not w[-1] > 0:
+        return False, 0.0, np.zeros(0)
+    return True, w[0] / w[-1], Z @ (U[:, 0] / d)
+
+
+@jit
+def lost_direction(A, x, lin):
+    """A direction the equations no longer see along which the cost still falls, scaled to
+    a largest component of one, its sign the falling one (``found`` False without one)."""
+    ok, least, u = weakest(lin.info, x)
+    if not ok or least > LOST:
+        return False, np.zeros(0)
+    slope = lin.gradient @ u
+    terms = 0.0
+    M, pmax, n = lin.Cbar.shape
+    au = np.abs(u)
+    for i in range(M):
+        p = A.P[A.chan[i]]
+        for a in range(p):
+            acc = 0.0
+            for j in range(n):
+                acc += abs(lin.Cbar[i, a, j]) * au[j]
+            terms += abs(lin.rbar[i, a]) * acc
+    if not abs(slope) > SLOPE * np.finfo(np.float64).eps * terms:
+        return False, np.zeros(0)
+    return True, -np.sign(slope) * u / np.max(au)
+
+
+@jit
+def profile_gradient(A, x, q):
+    """The exact gradient of the profile at ``q`` (measures restored from ``x``'s)."""
+    y, _ = restore(A, q, x.mt, 30)
+    if not finite(y):
+        return False, np.zeros(0)
+    return True, linearise(A, y.q, y.mt, y.c, y.C, y.D, y.c0, y.C0)[3]
+
+
+@jit
+def lagrangian_gradient(A, x, q, lam0, exact_at_x, gradient_x):
+    """The gradient of ``F + λ0ᵀ c0`` at ``q`` (``exact_at_x``: ``q`` is ``x.q`` and the
+    projector's gradient there is ``gradient_x``)."""
+    if exact_at_x:
+        ok, g = True, gradient_x.copy()
+    else:
+        ok, g = profile_gradient(A, x, q)
+    if not ok:
+        return False, g
+    if lam0.size:
+        g = g + c0_eval(A, q)[1].T @ lam0
+    return True, g
+
+
+@jit
+def least_eigen(K, W):
+    """The least eigenvalue of the symmetrised ``K`` and its direction ``W u`` (``ok``
+    False when not finite)."""
+    K = 0.5 * (K + K.T)
+    if not np.all(np.isfinite(K)):
+        return False, 0.0, np.zeros(0)
+    w, U = np.linalg.eigh(K)
+    return True, w[0], W @ np.ascontiguousarray(U[:, 0])
+
+
+@jit
+def sided_gradients(A, x, W, lam0, step, gradient_x):
+    """The Lagrangian's gradient at ``x.q + step W[:, j]`` for every column (``ok`` False
+    when one cannot be evaluated)."""
+    k = W.shape[1]
+    out = np.zeros((x.q.size, k))
+    for j in range(k):
+        ok, g = lagrangian_gradient(A, x, x.q + step * W[:, j], lam0, False, gradient_x)
+        if not ok:
+            return False, out
+        out[:, j] = g
+    return True, out
+
+
+@jit
+def least_curvature(A, x, W, lam0, step, plus, have_plus, gradient_x):
+    """The least eigenvalue of ``Wᵀ ∇²(F + λ0ᵀ c0) W`` by central differences."""
+    if not have_plus:
+        ok, plus = sided_gradients(A, x, W, lam0, step, gradient_x)
+        if not ok:
+            return False, 0.0, np.zeros(0)
+    ok, minus = sided_gradients(A, x, W, lam0, -step, gradient_x)
+    if not ok:
+        return False, 0.0, np.zeros(0)
+    K = W.T @ (plus - minus) / (2 * step)
+    return least_eigen(np.ascontiguousarray(K.T), W)
+
+
+@jit
+def verify(A, x, lin, proj, info_start, at_rounding, model_lin, model_proj):
+    """The checks at ``x`` (runtime/verify.py: ``verify``)."""
+    dec = decrement(x, model_lin, model_proj)
+    if not (at_rounding or stationary(A, x, model_lin, model_proj)):
+        return verdict(False, dec, x.cost, np.nan, np.zeros(0))
+    gone, any_gone = plateau_mask(x, lin.info, info_start)
+    if any_gone:
+        return Verdict(True, dec, x.cost, np.nan, np.zeros(0), 1, gone.astype(np.float64))
+    lost, u = lost_direction(A, x, lin)
+    if lost:
+        return Verdict(True, dec, x.cost, np.nan, np.zeros(0), 2, u)
+    if x.cost <= 10.0 * cost_rounding(A):
+        return verdict(True, dec, x.cost, 0.0, np.zeros(0))
+    W = tangent_basis(x, lin.info)
+    if W.shape[1] == 0:
+        return verdict(True, dec, x.cost, 0.0, np.zeros(0))
+    lam0 = multipliers(x, lin.gradient)
+    ok_here, here = lagrangian_gradient(A, x, x.q, lam0, True, lin.gradient)
+    ok, plus = sided_gradients(A, x, W, lam0, STEP, lin.gradient)
+    if not ok:
+        return verdict(True, dec, x.cost, np.nan, np.zeros(0))
+    K = np.zeros((W.shape[1], W.shape[1]))
+    for j in range(W.shape[1]):
+        K[:, j] = W.T @ (plus[:, j] - here) / STEP
+    ok, screen, direction = least_eigen(np.ascontiguousarray(K.T), W)
+    if ok and screen >= SCREEN:
+        return verdict(True, dec, x.cost, screen, direction)
+    ok, least, direction = least_curvature(A, x, W, lam0, STEP, plus, True, lin.gradient)
+    if not ok:
+        return verdict(True, dec, x.cost, np.nan, np.zeros(0))
+    if least < -NEGATIVE:
+        ok, again, _ = least_curvature(A, x, W, lam0, STEP / 4, plus, False, lin.gradient)
+        if not ok or not abs(again - least) <= 0.1 * abs(least) + NEGATIVE:
+            return verdict(True, dec, x.cost, np.nan, np.zeros(0))
+    return verdict(True, dec, x.cost, least, direction)
+
+
+@jit
+def escape(A, x, lin, direction):
+    """A restored point lower than ``x`` along the negative-curvature direction (both
+    senses, a few lengths), or ``found`` False."""
+    root = closest_root(lin.info, max(A.eps, REDUNDANT))
+    found = False
+    best, best_violation = x, 0.0
+    for length in (1.0, 3.0, 0.3, 10.0, 0.1, 30.0):
+        for sign in (1.0, -1.0):
+            q = x.q + sign * length * direction
+            y, violation = restored(A, q, x.mt, root, 30, True)
+            if finite(y) and feasible(violation, y.cost) and y.cost < x.cost * (1 - 1e-10) \
+                    and (not found or y.cost < best.cost):
+                best, best_violation, found = y, violation, True
+        if found:
+            return True, best, best_violation
+    return False, x, 0.0
+
+
+@jit
+def verify_at(A, x, info_start, at_rounding):
+    """:func:`verify` at the restored point ``x`` with the step's model there, as a plain
+    tuple of the verdict's fields (``ok`` False where the projector fails)."""
+    ok, lin, proj = project_point(A, x, 0.0, np.zeros(0))
+    if not ok:
+        v = Verdict(False, np.nan, x.cost, np.nan, np.zeros(0), 0, np.zeros(0))
+    else:
+        mlin, mproj = lagrangian(A, x, lin, proj)
+        v = verify(A, x, lin, proj, info_start, at_rounding, mlin, mproj)
+    return (v.stationary, v.decrement, v.cost, v.curvature, v.direction, v.plateau,
+            v.plateau_vector)
