@@ -108,8 +108,10 @@ def announce() -> None:
         return
     _announced = True
     folder = NUMBA.config.CACHE_DIR
-    if folder and os.path.isdir(folder) and any(os.scandir(folder)):
-        return
+    # numba makes its folders when the kernels are defined; compiled ones leave index files
+    for _, _, files in os.walk(folder or ""):
+        if any(name.endswith(".nbi") for name in files):
+            return
     sys.stderr.write(f"kanagen: compiling the estimator's kernels for this machine (once, a "
                      f"few minutes; cached in {folder})...\n")
     sys.stderr.flush()

@@ -14,6 +14,7 @@ from types import ModuleType
 
 import numpy as np
 
+from ..common.jit import announce
 from ..common.slack import slack_value
 from . import kernels as generic_kernels
 from .backends import NumpyFunctions
@@ -79,6 +80,7 @@ class ModelFamily:
 
     def __init__(self, module: ModuleType, use_generated_kernels: bool = True,
                  functions=None, eliminate_linear: bool = False, fastpath=None):
+        announce()  # a family's first kernels: the first compile on a machine takes minutes
         self.module = module
         #: the compiled estimator (backend "compiled", docs/fastpath.md), or None
         self.fastpath = fastpath
