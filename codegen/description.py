@@ -105,7 +105,6 @@ class Description:
     models: tuple[tuple[str, ModelEntry], ...]
     derived: Function | None
     slack_measures: Function | None
-    kernels: tuple[tuple[int, int], ...]  # (p, k) sizes of the per-measure algebra
 
 
 def _function(name, kind, summary, inputs, outputs, pairs=()) -> Function:
@@ -253,7 +252,7 @@ def slack_function(family: Family) -> Function:
 
 def describe(family: Family, source_name: str) -> Description:
     """The description of everything generated for ``family``."""
-    functions, models, shapes = [], [], set()
+    functions, models = [], []
     made: dict[tuple, str] = {}
 
     def measure(channel, eqs, fname, reduction=None):
@@ -271,7 +270,6 @@ def describe(family: Family, source_name: str) -> Description:
             overridden = eqs != ch.equations
             fname = f"measure_{ch.name}" + (f"__{model.name}" if overridden else "")
             channels.append((ch.name, measure(ch.name, eqs, fname)))
-            shapes.add((len(eqs), len(ch.corrected)))
         reduction = linear_reduction(family, model.name)
         entry = ModelEntry(f"c0_{model.name}", tuple(channels))
         if reduction is not None:
@@ -294,7 +292,6 @@ def describe(family: Family, source_name: str) -> Description:
         models=tuple(models),
         derived=derived_function(family) if family.derived else None,
         slack_measures=slack_function(family) if family.slack else None,
-        kernels=tuple(sorted(shapes)),
     )
 
 

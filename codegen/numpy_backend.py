@@ -1,5 +1,6 @@
 """The NumPy backend: one Python module per family, vectorised over the measures of a channel,
-with the per-measure algebra of the projector unrolled for its fixed sizes (report §6)."""
+and each function's row form (one measure, every entry written: report §6's unrolled code,
+which the compiled engine calls, runtime/engine/rows.py)."""
 
 from __future__ import annotations
 
@@ -108,7 +109,6 @@ def context(desc: Description) -> dict:
                     "reduced": {"c0": e.reduced_c0, "channels": list(e.reduced_channels)}
                     if e.reduction else None}
                    for name, e in desc.models],
-        "kernels": [list(s) for s in desc.kernels],
     }
 
 

@@ -23,7 +23,7 @@ from pathlib import Path
 
 _RUNTIME = Path(__file__).resolve().parent.parent / "runtime"
 #: The sources that define ``@jit`` kernels (globs under the runtime package).
-KERNEL_SOURCES = ("sqrt.py", "projector.py", "engine/*.py")
+KERNEL_SOURCES = ("sqrt.py", "engine/*.py")
 
 
 def _sources_digest() -> str:
@@ -62,7 +62,39 @@ def _import_numba():
             del sys.modules["yaml"]
     if not os.environ.get("NUMBA_CACHE_DIR"):
         numba.config.CACHE_DIR = _cache_dir()
+        _locate_by_package(numba)
     return numba
+
+
+def _locate_by_package(numba) -> None:
+    """Cache kanagen's kernels under their package's folder name (``runtime``, ``engine``,
+    ``generated``), not under a hash of their absolute path as numba does: the same
+    sources imported from an installed copy and from a source tree (the tests) then share
+    one compile (numba checks each entry against a hash of its source's content)."""
+    try:
+        from numba.core import caching
+    except ImportError:  # pragma: no cover - another numba layout
+        return
+    base = getattr(caching, "UserProvidedCacheLocator", None) or \
+        getattr(caching, "_UserProvidedCacheLocator", None)
+    impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl", None)
+    if base is None or impl is None:  # pragma: no cover - another numba layout
+        return
+    roots = {str(_RUNTIME), str(_RUNTIME / "engine"), str(_RUNTIME.parent / "generated")}
+
+    class PackageLocator(base):
+        @classmethod
+        def from_function(cls, py_func, py_file):
+            if os.path.dirname(os.path.abspath(py_file)) not in roots:
+                return None
+            return super().from_function(py_func, py_file)
+
+        @classmethod
+        def get_suitable_cache_subpath(cls, py_file):
+            return "kanagen_" + os.path.basename(os.path.dirname(os.path.abspath(py_file)))
+
+    if not any(getattr(c, "__name__", "") == "PackageLocator" for c in impl._locator_classes):
+        impl._locator_classes = [PackageLocator, *impl._locator_classes]
 
 
 #: numba, or None where it cannot be imported.

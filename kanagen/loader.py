@@ -40,7 +40,7 @@ def default_backend() -> str:
 
 
 def load(spec: str | Path | Family, *, backend: str | None = None,
-         use_generated_kernels: bool = True, eliminate_linear: bool = False,
+         eliminate_linear: bool = False,
          limits: Limits = DEFAULT) -> ModelFamily:
     """Load a model family.
 
@@ -58,9 +58,6 @@ def load(spec: str | Path | Family, *, backend: str | None = None,
         "compiled"; where no C compiler works, one
         :class:`~kanagen.codegen.compile.CompileWarning` and "numpy"). "compiled" asked
         for by name falls back to "casadi" with the same warning.
-    use_generated_kernels : bool
-        Use the unrolled per-measure algebra of the generated module (default) or the
-        generic runtime implementation.
     eliminate_linear : bool
         Fit models with linear parameter constraints in their free components (the
         constraints solved at build time, report §6); same results.
@@ -108,11 +105,11 @@ def load(spec: str | Path | Family, *, backend: str | None = None,
         if backend == "compiled":
             compiled = _compiled(casadi_module, module, by_default)
             if compiled is None and by_default:
-                return ModelFamily(module, use_generated_kernels, None, eliminate_linear)
+                return ModelFamily(module, None, eliminate_linear)
             functions, fastpath = compiled or (None, None)
         if functions is None:
             functions = CasadiFunctions(casadi_module, module.FAMILY["derived"])
-    return ModelFamily(module, use_generated_kernels, functions, eliminate_linear, fastpath)
+    return ModelFamily(module, functions, eliminate_linear, fastpath)
 
 
 def _compiled(casadi_module, module, by_default: bool):

@@ -16,7 +16,6 @@ import numpy as np
 
 from ..common.jit import announce
 from ..common.slack import slack_value
-from . import kernels as generic_kernels
 from .backends import NumpyFunctions
 from .minimal import generic_free_dof
 
@@ -69,17 +68,16 @@ class ModelFamily:
     """A compiled model family: evaluates equations and Jacobians through generated code.
 
     Obtain one with :func:`kanagen.load`. ``module`` is the generated NumPy module (the
-    family's metadata and unrolled per-measure algebra); ``functions`` the backend that
-    evaluates the equations (default: the same NumPy module, :mod:`kanagen.runtime.backends`).
-    ``use_generated_kernels=False`` switches the per-measure algebra to the generic runtime
-    implementation (same results). ``eliminate_linear=True`` fits the models that have
+    family's metadata, its functions and their row forms, which the engine compiles);
+    ``functions`` the backend that evaluates the equations (default: the same NumPy module,
+    :mod:`kanagen.runtime.backends`). ``eliminate_linear=True`` fits the models that have
     linear constraints in their free components (:meth:`reduction`). ``fastpath``: the
     compiled estimator that :func:`kanagen.fit` uses where it applies
     (:mod:`kanagen.runtime.fastpath`).
     """
 
-    def __init__(self, module: ModuleType, use_generated_kernels: bool = True,
-                 functions=None, eliminate_linear: bool = False, fastpath=None):
+    def __init__(self, module: ModuleType, functions=None, eliminate_linear: bool = False,
+                 fastpath=None):
         announce()  # a family's first kernels: the first compile on a machine takes minutes
         self.module = module
         #: the compiled estimator (backend "compiled", docs/fastpath.md), or None
@@ -115,7 +113,6 @@ class ModelFamily:
         self.null_model: str = meta["null_model"]
         #: Components added for inequalities (appendix F), last in q; not "the parameter".
         self.slack_names = tuple(meta.get("slack", ()))
-        self.use_generated_kernels = use_generated_kernels
         self._reductions = {
             name: Reduction(np.array(r["free"], dtype=int), np.array(r["T"], dtype=float),
                             np.array(r["t"], dtype=float))
@@ -323,13 +320,6 @@ class ModelFamily:
             return {}
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             return self.functions.derived(np.asarray(q, dtype=float), self._k(constants))
-
-    def kernel(self, p: int, k: int):
-        """The (whiten, correct) pair for p equations and k corrected components."""
-        if self.use_generated_kernels and (p, k) in self.module.KERNELS:
-            return self.module.KERNELS[(p, k)]
-        return generic_kernels.whiten, generic_kernels.correct
-
 
 class AssumedConstantsWarning(UserWarning):
     """A fit relies on a constant's default that stands for something of the data (a

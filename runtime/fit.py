@@ -32,15 +32,9 @@ def make_problem(fam: ModelFamily, model: str, data: Mapping | None = None,
     if channels is None:
         channels = tuple(channel_data(fam, {} if data is None else data, info, exact))
     k = fam.constant_vector(constants)
-    measures, kernels = [], []
-    for ch in channels:
-        measures.append(fam.measurement_function(model, ch.name))
-        p = _equation_count(fam, model, ch.name, k)
-        kernels.append(fam.kernel(p, len(ch.index)))
     return Problem(
         c0=fam.c0_function(model),
-        measures=tuple(measures),
-        kernels=tuple(kernels),
+        measures=tuple(fam.measurement_function(model, ch.name) for ch in channels),
         channels=channels,
         q0=q0 if checked else parameter_vector(fam, q0),
         Q0=Q0 if checked else prior_information(Q0, fam.n),
@@ -53,13 +47,6 @@ def make_problem(fam: ModelFamily, model: str, data: Mapping | None = None,
         rows=model_rows(fam, model),
     )
 
-
-
-def _equation_count(fam: ModelFamily, model: str, channel: str, k: np.ndarray) -> int:
-    width = len(fam.channel(channel).components)
-    with np.errstate(all="ignore"):
-        c, _, _ = fam.measurement_function(model, channel)(fam.q0, np.zeros((0, width)), k)
-    return c.shape[1]
 
 
 def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,

@@ -41,7 +41,6 @@ class Problem:
 
     c0: Callable  # q, k -> (c0, C0)
     measures: tuple[Callable, ...]  # per channel: q, X, k -> (c, C, D)
-    kernels: tuple[tuple[Callable, Callable], ...]  # per channel: (whiten, correct)
     channels: tuple[ChannelData, ...]
     q0: np.ndarray
     Q0: np.ndarray

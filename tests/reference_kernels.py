@@ -5,15 +5,16 @@ For each measure, with ``Q_i⁺ = Gᵀ G`` (``G = L_Q⁻¹``, ``L_Q`` the closes
 applies ``L⁻¹`` to any stacked right-hand sides; ``correct`` returns ``Gᵀ Eᵀ L⁻ᵀ z``, the
 measure correction ``Q⁺ Dᵀ S⁻ (r − C q)`` given the whitened ``z = r̄ − C̄ q``.
 
-Generated modules carry the same two functions unrolled for their fixed sizes (report §6);
-this generic version is the reference they are tested against, and the fallback.
+The engine's per-measure algebra (runtime/engine/measures.py: ``factor``, ``whiten_column``,
+``correct``) is tested against this NumPy version, vectorised over the measures
+(tests/test_codegen.py).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .sqrt import reduced_solve, reduced_sqrt
+from kanagen.runtime.sqrt import reduced_solve, reduced_sqrt
 
 
 def whiten(D: np.ndarray, G: np.ndarray, B: np.ndarray, eps: float):
