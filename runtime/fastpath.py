@@ -1,14 +1,14 @@
 """The compiled kernels of the robust search: ctypes glue to ``kg_coherence``, ``kg_minimal``
 and the sampling calls (docs/fastpath.md).
 
-``codegen/c/kanagen_fast.c`` is a port of the NumPy runtime's measure projection (eq. 22–24),
-square roots and minimal solve (eq. 21), compiled with a family's CasADi C into the library
-of ``kanagen.load(..., backend="compiled")`` (the default backend). :class:`FastPath` packs a
-problem into flat arrays and calls them: the robust search's scoring and samples, and the
-local fit's restorations of the measures (the iteration around them is Python on every
-backend). tests/test_fastpath.py holds both to the NumPy runtime (to 1e-10, or bit for bit)
-and, with tests/port_fingerprints.py, names the Python functions whose change the C must
-follow; nothing is checked at run time.
+``codegen/c/kanagen_fast.c`` is a port of the engine's measure projection (eq. 22–24;
+runtime/engine/measures.py), of the square roots and of the minimal solve (eq. 21), compiled
+with a family's CasADi C into the library of ``kanagen.load(..., backend="compiled")`` (the
+default backend). :class:`FastPath` packs a problem into flat arrays and calls them: the
+robust search's scoring and samples (the local fit runs in the engine on every backend,
+docs/engine.md). tests/test_fastpath.py holds the C to the Python (to 1e-10, or bit for bit)
+and, with tests/port_fingerprints.py, names the functions whose change the C must follow;
+nothing is checked at run time.
 """
 
 from __future__ import annotations
@@ -44,8 +44,8 @@ class FastPath:
     :attr:`has_twins`),
     ``kg_closest_root`` (:meth:`closest_sqrt`, for the tests) and the sampling calls
     ``kg_sample``, ``kg_search`` and ``kg_choice_draw`` that runtime/fastsample.py drives.
-    (The compiled local fit, ``kg_fit``, was removed on 2026-11-25, issue 17: the local fit
-    runs runtime/iterate.py on every backend.)
+    (The compiled local fit, ``kg_fit``, was removed on 2026-11-25, and ``kg_project`` on
+    2026-11-26, issue 17: the local fit runs in the engine on every backend.)
 
     Parameters
     ----------
