@@ -3,9 +3,8 @@
 A kernel is written once, in the subset of Python and NumPy that numba compiles (loops over
 small fixed-size matrices, no Python objects); the same source runs interpreted where numba
 is missing or ``NUMBA_DISABLE_JIT=1`` is set (for debugging: slower, the same answers up to
-rounding). Compiled kernels are cached on disk (numba's cache: ``__pycache__`` beside the
-source, or the user's cache directory when that is read-only), so a kernel is compiled once
-per machine and signature.
+rounding). Compiled kernels are cached on disk (numba's cache, in the user's cache directory:
+:func:`_cache_dir`), so a kernel is compiled once per machine and signature.
 
 Numba's cache keys a kernel by its own file only: a kernel calling a kernel of another file
 would keep the old callee after that file changed. The cache directory is therefore named
@@ -108,14 +107,6 @@ def jit(function):
     if NUMBA is None:
         return function
     return NUMBA.njit(cache=True, error_model="numpy")(function)
-
-
-def jit_inline(function):
-    """:func:`jit` for a small kernel inlined into its callers (numba's IR inlining): its
-    array arguments then cost no reference counting per call."""
-    if NUMBA is None:
-        return function
-    return NUMBA.njit(cache=True, nogil=True, error_model="numpy", inline="always")(function)
 
 
 def interrupted(exc: BaseException) -> bool:

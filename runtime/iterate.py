@@ -72,7 +72,8 @@ from kanagen.common.jit import interrupted
 from .engine import iterate as engine
 from .engine import points as engine_points
 from .engine.data import arrays, pack_measures, unpack_evals, unpack_measures
-from .projector import Linearisation, Point, Problem, Projection, linearise, solve
+from .engine.measures import RESTORE_STEPS
+from .projector import Linearisation, Point, Problem, Projection
 from .verify import Verdict, plateau_text
 
 CONVERGED, MAX_ITER, STALLED, FAILED, BOUNDARY, SADDLE, PLATEAU, INFEASIBLE, UNVERIFIED = \
@@ -157,14 +158,5 @@ def restored(problem: Problem, q: np.ndarray, mt, root: np.ndarray | None = None
     *x, violation = engine_points.restored_flat(
         A, np.ascontiguousarray(q, dtype=float), pack_measures(A, mt),
         np.zeros((0, 0)) if root is None else np.ascontiguousarray(root, dtype=float),
-        30 if iterations is None else int(iterations), bool(retract))
+        RESTORE_STEPS if iterations is None else int(iterations), bool(retract))
     return _point(problem, A, x), float(violation)
-
-
-def project(problem: Problem, x: Point) -> tuple[Linearisation | None, Projection | None]:
-    """The linearisation at ``x`` and the projector's point (None, None where it fails)."""
-    try:
-        lin = linearise(problem, x)
-        return lin, solve(problem, lin)
-    except (np.linalg.LinAlgError, ValueError, ZeroDivisionError, FloatingPointError):
-        return None, None

@@ -120,17 +120,23 @@ def reduced_solve(L: np.ndarray, kept: np.ndarray, B: np.ndarray, transpose: boo
 # -- kernels: one matrix ------------------------------------------------------------------
 
 @jit
+def diagonal_max(S):
+    """``max(diag(S), initial=0)`` as NumPy computes it (NaN propagates)."""
+    top = 0.0
+    for a in range(S.shape[0]):
+        v = S[a, a]
+        if v != v:
+            return np.nan
+        top = max(top, v)
+    return top
+
+
+@jit
 def equilibrium(S):
     """Diagonal scaling that gives ``S`` a unit diagonal; a zero diagonal entry (a component
     nothing informs) takes the matrix scale, so its pivot floor is ε·scale."""
     n = S.shape[0]
-    scale = 0.0
-    for i in range(n):
-        v = S[i, i]
-        if v != v:  # NaN: the scale of NumPy's max, which NaN makes NaN
-            scale = np.nan
-            break
-        scale = max(scale, v)
+    scale = diagonal_max(S)
     if not scale > _TINY:  # S = 0: the closest definite matrix is ε I
         scale = 1.0
     d = np.empty(n)
@@ -173,13 +179,7 @@ def reduced_root(S, eps):
     """:func:`reduced_sqrt` of one matrix: a pivot <= ε·scale or <= :data:`REDUNDANT` times
     its own diagonal drops its row and column, and the factorisation goes on."""
     n = S.shape[0]
-    scale = 0.0
-    for i in range(n):
-        v = S[i, i]
-        if v != v:
-            scale = np.nan
-            break
-        scale = max(scale, v)
+    scale = diagonal_max(S)
     tol = eps * max(scale, _TINY) if scale == scale else np.nan
     L = np.zeros((n, n))
     kept = np.zeros(n, dtype=np.bool_)

@@ -33,6 +33,7 @@ import numpy as np
 from .engine import points as engine_points
 from .engine import verify as engine
 from .engine.data import arrays, pack_evals, pack_measures
+from .engine.points import feasible  # noqa: F401 - the engine's test, for Python callers
 from .projector import Point, Problem
 
 NEGATIVE = engine.NEGATIVE
@@ -80,12 +81,6 @@ def plateau_text(kind: int, vector: np.ndarray, names: tuple[str, ...]) -> str:
     return (f"the equations no longer see the direction {combination} of the parameter, "
             f"along which the cost still falls (the estimate runs off towards a degenerate "
             f"limit of the model; no minimum is attained)")
-
-
-def feasible(violation: float, cost: float) -> bool:
-    """The equations hold: their violation is negligible against the cost (cost units:
-    ``1e-10`` of a squared standard deviation at the least)."""
-    return bool(violation <= 1e-10 * max(1.0, cost))
 
 
 def verify(problem: Problem, x: Point, info_start: np.ndarray | None = None,

@@ -20,11 +20,11 @@ from types import ModuleType
 #: Python functions (and module constants) that codegen/c/kanagen_fast.c ports, by module.
 PORTED: dict[str, tuple[str, ...]] = {
     # kg_coherence: the measures projected onto their equations (eq. 22–24)
-    "engine.measures": ("project_measure", "halving", "eval_measure", "quad", "factor",
-                        "whiten_column", "correct", "worst_abs", "ROUNDING"),
+    "engine.measures": ("project_measure", "halving", "residual_into", "eval_measure", "quad",
+                        "factor", "whiten_column", "correct", "worst_abs", "ROUNDING"),
     "sqrt": ("closest_sqrt", "reduced_sqrt", "reduced_solve", "triangular_solve",
-             "equilibrium", "closest_root", "reduced_root", "solve_lower", "solve_kept",
-             "EPS", "_TINY", "REDUNDANT"),
+             "equilibrium", "diagonal_max", "closest_root", "reduced_root", "solve_lower",
+             "solve_kept", "EPS", "_TINY", "REDUNDANT"),
     # kg_minimal: eq. 21
     "minimal": ("coherence_errors", "minimal_solve_problem", "_solved", "_FREE_STEPS",
                 "_WATCHDOG", "_SLOW"),
@@ -49,8 +49,9 @@ TWIN_MODULES = frozenset({"two_view_starts", "geometry"})
 
 #: Fingerprints of :data:`PORTED` when the C port was last brought in line with them.
 FINGERPRINTS: dict[str, str] = {
-    'engine.measures.project_measure': 'c25f14ec1a44',
+    'engine.measures.project_measure': 'bdeb356c7427',
     'engine.measures.halving': 'bb062a68f777',
+    'engine.measures.residual_into': '75842f52c352',
     'engine.measures.eval_measure': '5578fc3ad8ee',
     'engine.measures.quad': '105e5af99b00',
     'engine.measures.factor': '7f6c2a84e38c',
@@ -62,9 +63,10 @@ FINGERPRINTS: dict[str, str] = {
     'sqrt.reduced_sqrt': 'f908fd4a9e93',
     'sqrt.reduced_solve': '7ef3dfa98e65',
     'sqrt.triangular_solve': '628602a3e7bb',
-    'sqrt.equilibrium': 'b3d39f2bd202',
+    'sqrt.equilibrium': 'b689e5d65daf',
+    'sqrt.diagonal_max': 'f06bff609523',
     'sqrt.closest_root': '63796dd79116',
-    'sqrt.reduced_root': 'd09d6daf4bbb',
+    'sqrt.reduced_root': '5ef7835b63c4',
     'sqrt.solve_lower': '48d384892f3b',
     'sqrt.solve_kept': 'e28eb93738b3',
     'sqrt.EPS': 'cf90b756d02d',

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kanagen.common.jit import NUMBA, announce, jit
+from kanagen.common.jit import NUMBA, jit
 
 from .rows import compiled_row
 
@@ -126,7 +126,6 @@ def arrays(problem) -> Arrays:
     cached = problem.__dict__.get("_arrays")
     if cached is not None:
         return cached
-    announce()
     rows: RowKernels = problem.rows
     channels = problem.channels
     nch = len(channels)

@@ -14,8 +14,7 @@ import numpy as np
 
 from kanagen.common.jit import jit
 
-from ..sqrt import REDUNDANT, closest_root
-from .measures import ROUNDING
+from .measures import RESTORE_STEPS, ROUNDING
 from .points import (
     c0_eval,
     cost_rounding,
@@ -23,6 +22,7 @@ from .points import (
     feasible,
     finite,
     has_relations,
+    info_root,
     lagrangian,
     max_abs,
     multipliers,
@@ -43,7 +43,6 @@ CONVERGED, MAX_ITER, STALLED, FAILED, BOUNDARY, SADDLE, PLATEAU, INFEASIBLE, UNV
 #: the lost direction (the verdict's plateau vector), the verdict's plateau, its description.
 NO_DETAIL, AT_START, IN_PROJECTOR, LOST, PLATEAU_DETAIL, DESCRIBED = range(6)
 
-RESTORE = 30  # restoration steps (runtime/restoration.py: RESTORE_STEPS)
 _ACCEPT = 1e-4
 _EXACT = 0.05
 _SHRINK, _GROW = 0.25, 0.75
@@ -73,11 +72,6 @@ def _none_verdict(cost):
 @jit
 def outcome(x, it, status, detail, v):
     return Out(status, it, x, detail, v)
-
-
-@jit
-def root_of(A, info):
-    return closest_root(info, max(A.eps, REDUNDANT))
 
 
 @jit
@@ -159,7 +153,7 @@ def nearer(A, x, root):
     changed, y = nearer_points(A, x)
     if not changed:
         return False, x, 0.0
-    moved, violation = restored(A, x.q, y.mt, root, RESTORE, False)
+    moved, violation = restored(A, x.q, y.mt, root, RESTORE_STEPS, False)
     if finite(moved) and on_constraints(moved, violation) and moved.cost < x.cost - (
             _COST_NOISE * x.cost + cost_rounding(A)):
         return True, moved, violation
@@ -170,12 +164,12 @@ def nearer(A, x, root):
 def towards_constraints(A, x, violation, target_q, target_mt, root, guard):
     """Eq. 18 while ``x`` is off its equations: a trial that lowers the violation, moved
     onto the constraints once close to them."""
-    trial, tv = restored(A, target_q, target_mt, root, RESTORE, False)
+    trial, tv = restored(A, target_q, target_mt, root, RESTORE_STEPS, False)
     if not (finite(trial) and (not guard or relations_hold(A, trial.q))
             and lowers_violation(trial, tv, x, violation)):
         return False, x, 0.0
     if feasible(tv, trial.cost):
-        onto, ov = restored(A, trial.q, trial.mt, root, RESTORE, True)
+        onto, ov = restored(A, trial.q, trial.mt, root, RESTORE_STEPS, True)
         if finite(onto) and on_constraints(onto, ov):
             return True, onto, ov
     return True, trial, tv
@@ -185,7 +179,7 @@ def towards_constraints(A, x, violation, target_q, target_mt, root, guard):
 def step(A, st, scale, x, violation, lin, proj):
     """An acceptable restored point: the projector's step, shortened, else damped within
     the trust radius (runtime/iterate.py: ``_Run.step``)."""
-    root = root_of(A, lin.info)
+    root = info_root(A, lin.info)
     guard = has_relations(A) and relations_hold(A, x.q)
     lam0 = multipliers(x, lin.gradient)
     on = on_constraints(x, violation)
@@ -212,7 +206,7 @@ def step(A, st, scale, x, violation, lin, proj):
             if taken:
                 return True, trial, tv
         else:
-            trial, tv = restored(A, target_q, target_mt, root, RESTORE, True)
+            trial, tv = restored(A, target_q, target_mt, root, RESTORE_STEPS, True)
             if finite(trial) and (not guard or relations_hold(A, trial.q)) and \
                     on_constraints(trial, tv):
                 pred = predicted_fall(A, x, lin, s, target_q, lam0)
@@ -250,8 +244,8 @@ def end(A, st, info0, x, have_lin, lin, proj, it, verify_end):
             return True, outcome(x, it, FAILED, IN_PROJECTOR, none), x, 0.0
     if not verify_end:
         return True, outcome(x, it, UNVERIFIED, NO_DETAIL, none), x, 0.0
-    root = root_of(A, lin.info)
-    _, violation = restored(A, x.q, x.mt, root, RESTORE, True)
+    root = info_root(A, lin.info)
+    _, violation = restored(A, x.q, x.mt, root, RESTORE_STEPS, True)
     if not feasible(violation, x.cost):
         return True, outcome(x, it, INFEASIBLE, NO_DETAIL, none), x, 0.0
     if st[2] < _ESCAPES:
@@ -328,7 +322,7 @@ def descend(A, st, info0, scale, q_start, x, violation, max_iter, xtol, verify_e
         if crawl >= _CRAWL and verify_end and st[2] < _ESCAPES and it >= next_look and \
                 on_constraints(x, violation):
             next_look = it + _LOOK
-            found, moved, mv = nearer(A, x, root_of(A, lin.info))
+            found, moved, mv = nearer(A, x, info_root(A, lin.info))
             if found:
                 st[2] += 1
                 x, violation = moved, mv
@@ -340,7 +334,7 @@ def descend(A, st, info0, scale, q_start, x, violation, max_iter, xtol, verify_e
             since_progress = 0
     ok, lin, proj = project_point(A, x, 0.0, np.zeros(0))
     if verify_end and ok and feasible(violation, x.cost) and \
-            not nearer(A, x, root_of(A, lin.info))[0]:
+            not nearer(A, x, info_root(A, lin.info))[0]:
         mlin, mproj = lagrangian(A, x, lin, proj)
         start_info = info0 if st[5] != 0 else np.zeros(0)
         v = verify(A, x, lin, proj, start_info, False, mlin, mproj)
@@ -361,7 +355,7 @@ def joint_start(A, st, scale, x, violation, proj0, root):
         s = proj.q - x.q
         if not wnorm(s, w) <= _JOINT * st[0]:
             break
-        trial, tv = restored(A, proj.q, proj.mt, root, RESTORE, True)
+        trial, tv = restored(A, proj.q, proj.mt, root, RESTORE_STEPS, True)
         if not (finite(trial) and on_constraints(trial, tv) and (
                 trial.cost < best.cost or not on_constraints(best, best_violation)) and (
                 not has_relations(A) or relations_hold(A, trial.q))):
@@ -385,10 +379,10 @@ def run(A, q_start, max_iter, xtol, verify_end):
     if not finite(raw):
         return outcome(raw, 0, FAILED, AT_START, _none_verdict(raw.cost)), st[4]
     ok0, lin0, proj0 = project_point(A, raw, 0.0, np.zeros(0))
-    root = root_of(A, lin0.info) if ok0 else np.zeros((0, 0))
-    x, violation = restored(A, q_start, raw.mt, root, RESTORE, True)
+    root = info_root(A, lin0.info) if ok0 else np.zeros((0, 0))
+    x, violation = restored(A, q_start, raw.mt, root, RESTORE_STEPS, True)
     if not (finite(x) and on_constraints(x, violation)):
-        x, violation = restored(A, q_start, raw.mt, np.zeros((0, 0)), RESTORE, False)
+        x, violation = restored(A, q_start, raw.mt, np.zeros((0, 0)), RESTORE_STEPS, False)
     size0 = np.sqrt(q_start @ q_start)
     size0 = size0 if size0 != 0 else 1.0
     st[0] = st[1] = size0
@@ -422,7 +416,7 @@ def run(A, q_start, max_iter, xtol, verify_end):
             point, pv = joint, joint_violation
         elif code == 1:
             dp = damped(A, raw, lin0, st[1], weights(A, st, scale, q_start))
-            point, pv = restored(A, dp.q, dp.mt, root, RESTORE, True)
+            point, pv = restored(A, dp.q, dp.mt, root, RESTORE_STEPS, True)
             if not (finite(point) and on_constraints(point, pv)):
                 continue
         else:

@@ -13,24 +13,13 @@ from kanagen.common.jit import jit
 from ..sqrt import (
     REDUNDANT,
     closest_root,
+    diagonal_max,
     reduced_root,
     solve_kept,
     solve_lower,
     solve_lower_columns,
 )
-from .measures import ROUNDING, correct, factor, whiten_column
-
-
-@jit
-def nan_max_diagonal(S):
-    """``max(diag(S), initial=0)`` as NumPy computes it (NaN propagates)."""
-    top = 0.0
-    for a in range(S.shape[0]):
-        v = S[a, a]
-        if v != v:
-            return np.nan
-        top = max(top, v)
-    return top
+from .measures import ROUNDING, correct, factor, residual_into, whiten_column
 
 
 @jit
@@ -64,11 +53,8 @@ def linearise(A, q, mt, c, C, D, c0, C0):
         factor(D[i], A.G[i], p, d, A.eps, E[i], Li, invi, keptc)
         r = np.zeros(p)
         for a in range(p):
-            acc = 0.0
-            for j in range(d):
-                acc += D[i, a, j] * (mt[i, j] - A.m[i, j])
-            r[a] = acc - c[i, a]
             ranks[i] += 1 if keptc[a] else 0
+        residual_into(D[i], mt[i], A.m[i], c[i], p, d, r)
         whiten_column(Li, invi, r, p, rbar[i])
         whiten_column(Li, invi, c[i], p, cbar)
         for j in range(n):
@@ -103,7 +89,7 @@ def linearise(A, q, mt, c, C, D, c0, C0):
                 for k in range(r0):
                     acc += C0[k, a] * C0[k, b]
                 gram[a, b] = acc
-        top, bottom = nan_max_diagonal(info), nan_max_diagonal(gram)
+        top, bottom = diagonal_max(info), diagonal_max(gram)
         rho = 0.0 if not bottom > 0.0 else (top if top > 0.0 else 1.0) / bottom
         H += rho * gram
         for a in range(n):

@@ -63,18 +63,34 @@ def eval_measure(A, i, q, mt_i, c, C, D, x):
 
 
 @jit
+def equations_max(A):
+    """The most equations a measure has (at least one: the padded arrays' width)."""
+    return max(1, A.P.max()) if A.P.size else 1
+
+
+@jit
 def row_buffer(A, n):
     """A buffer for :func:`eval_measure`: a data row and the kernel's outputs."""
-    pmax = max(1, A.P.max()) if A.P.size else 1
+    pmax = equations_max(A)
     return np.empty(A.X.shape[1] + pmax + pmax * n + pmax * A.m.shape[1])
 
 
 @jit
 def empty_evals(A, n):
-    M = A.chan.size
-    pmax = max(1, A.P.max()) if A.P.size else 1
-    dmax = A.m.shape[1]
-    return np.zeros((M, pmax)), np.zeros((M, pmax, n)), np.zeros((M, pmax, dmax))
+    pmax = equations_max(A)
+    return (np.zeros((A.chan.size, pmax)), np.zeros((A.chan.size, pmax, n)),
+            np.zeros((A.chan.size, pmax, A.m.shape[1])))
+
+
+@jit
+def residual_into(D, m, m_obs, c, p, d, out):
+    """``out = D (m̃ − m) − c``: the right-hand side ``r − C q•`` of a measure's linearised
+    equations (SPEC §2, in increments; with ``q`` fixed, eq. 22's)."""
+    for a in range(p):
+        acc = 0.0
+        for j in range(d):
+            acc += D[a, j] * (m[j] - m_obs[j])
+        out[a] = acc - c[a]
 
 
 @jit
@@ -204,7 +220,7 @@ def scratch(A, n):
     """Buffers of the per-measure algebra, for the largest channel of ``A``: ``E, L, inv,
     kept, y, w1, w2`` (equations), ``dm, step, cand, moved`` (components), ``x``
     (:func:`row_buffer`). Allocated once a kernel call."""
-    p = max(1, A.P.max()) if A.P.size else 1
+    p = equations_max(A)
     d = A.m.shape[1]
     return (np.zeros((p, d)), np.zeros((p, p)), np.zeros(p), np.zeros(p, dtype=np.bool_),
             np.zeros(p), np.zeros(p), np.zeros(p), np.zeros(d), np.zeros(d), np.zeros(d),
@@ -257,11 +273,7 @@ def project_measure(A, i, q, m, iterations, tol, c, C, D, E, L, inv, kept, y, rb
     viol, rank = 0.0, 0
     active = True
     for it in range(iterations):
-        for a in range(p):
-            acc = 0.0
-            for j in range(d):
-                acc += D[a, j] * (m[j] - m_obs[j])
-            y[a] = acc - c[a]  # r − C q with q fixed
+        residual_into(D, m, m_obs, c, p, d, y)
         factor(D, G, p, d, A.eps, E, L, inv, kept)
         whiten_column(L, inv, y, p, rbar)
         whiten_column(L, inv, c, p, cbar)
@@ -428,11 +440,7 @@ def descend(A, i, q, start, top, c, C, D, work):
     for _ in range(_DESCENT):
         if not active:
             break
-        for a in range(p):
-            acc = 0.0
-            for j in range(d):
-                acc += D[a, j] * (values[j] - m_obs[j])
-            r[a] = acc - c[a]
+        residual_into(D, values, m_obs, c, p, d, r)
         factor(D, G, p, d, A.eps, E, L, inv, kept)
         whiten_column(L, inv, r, p, w)
         correct(E, L, inv, G, w, p, d, y, dm)

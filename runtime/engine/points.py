@@ -15,6 +15,7 @@ from kanagen.common.jit import jit
 from ..sqrt import EPS, REDUNDANT, closest_root
 from .linear import corrected, linearise, parameter_block, retraction_step, whitened_violation
 from .measures import (
+    RESTORE_STEPS,
     ROUNDING,
     UNREACHED,
     c0_eval,
@@ -308,16 +309,16 @@ def lagrangian(A, x, lin, proj):
 
 
 @jit
-def info_root(A, lin):
+def info_root(A, info):
     """The closest square root of the information (the metric of retractions)."""
-    return closest_root(lin.info, max(A.eps, REDUNDANT))
+    return closest_root(info, max(A.eps, REDUNDANT))
 
 
 @jit
 def nearer_points(A, x):
     """``x`` with each measure at the nearer of its nearest point and the one restored
     from its observed value; ``changed`` False when no measure has a nearer one."""
-    other, _ = restore(A, x.q, A.m, 30)
+    other, _ = restore(A, x.q, A.m, RESTORE_STEPS)
     if not finite(other):
         return False, x
     on = violations_all(A, other.c, other.D) <= UNREACHED

@@ -79,20 +79,23 @@ if NUMBA is not None:
 
 
 def compiled_row(function, arity: int) -> int:
-    """The address of ``function`` (a generated row form) compiled as a C-callable kernel;
-    interpreted, a key of the Python table."""
+    """The address of ``function`` (a generated row form) compiled as a C-callable kernel,
+    once a process (models share their channels' functions); interpreted, a key of the
+    Python table."""
     with _lock:
         if NUMBA is None or jit.disabled:
             address = id(function)
             _python_rows[address] = function
             return address
-        kernel = NUMBA.cfunc(SIG3 if arity == 3 else SIG4, cache=_cacheable(function),
-                             error_model="numpy")(function)
-        _keep.append(kernel)  # the code lives as long as the process
+        kernel = _compiled.get(function)
+        if kernel is None:
+            kernel = _compiled[function] = NUMBA.cfunc(
+                SIG3 if arity == 3 else SIG4, cache=_cacheable(function),
+                error_model="numpy")(function)  # the code lives as long as the process
         return int(kernel.address)
 
 
-_keep: list = []
+_compiled: dict = {}  # row function -> its compiled kernel
 
 
 def _cacheable(function) -> bool:

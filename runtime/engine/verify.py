@@ -16,13 +16,14 @@ import numpy as np
 
 from kanagen.common.jit import jit
 
-from ..sqrt import REDUNDANT, closest_root
 from .linear import linearise, seen_components
+from .measures import RESTORE_STEPS
 from .points import (
     c0_eval,
     cost_rounding,
     feasible,
     finite,
+    info_root,
     lagrangian,
     multipliers,
     project_point,
@@ -178,7 +179,7 @@ def lost_direction(A, x, lin):
 @jit
 def profile_gradient(A, x, q):
     """The exact gradient of the profile at ``q`` (measures restored from ``x``'s)."""
-    y, _ = restore(A, q, x.mt, 30)
+    y, _ = restore(A, q, x.mt, RESTORE_STEPS)
     if not finite(y):
         return False, np.zeros(0)
     return True, linearise(A, y.q, y.mt, y.c, y.C, y.D, y.c0, y.C0)[3]
@@ -280,13 +281,13 @@ def verify(A, x, lin, proj, info_start, at_rounding, model_lin, model_proj):
 def escape(A, x, lin, direction):
     """A restored point lower than ``x`` along the negative-curvature direction (both
     senses, a few lengths), or ``found`` False."""
-    root = closest_root(lin.info, max(A.eps, REDUNDANT))
+    root = info_root(A, lin.info)
     found = False
     best, best_violation = x, 0.0
     for length in (1.0, 3.0, 0.3, 10.0, 0.1, 30.0):
         for sign in (1.0, -1.0):
             q = x.q + sign * length * direction
-            y, violation = restored(A, q, x.mt, root, 30, True)
+            y, violation = restored(A, q, x.mt, root, RESTORE_STEPS, True)
             if finite(y) and feasible(violation, y.cost) and y.cost < x.cost * (1 - 1e-10) \
                     and (not found or y.cost < best.cost):
                 best, best_violation, found = y, violation, True
