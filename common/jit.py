@@ -21,14 +21,14 @@ import warnings
 from pathlib import Path
 
 _RUNTIME = Path(__file__).resolve().parent.parent / "runtime"
-#: The sources that define ``@jit`` kernels (globs under the runtime package).
-KERNEL_SOURCES = ("sqrt.py", "engine/*.py")
+#: The sources that define ``@jit`` kernels or shape their code (globs under the package).
+KERNEL_SOURCES = ("runtime/sqrt.py", "runtime/engine/*.py", "common/link.py")
 
 
 def _sources_digest() -> str:
     digest = hashlib.sha256()
     for pattern in KERNEL_SOURCES:
-        for path in sorted(_RUNTIME.glob(pattern)):
+        for path in sorted(_RUNTIME.parent.glob(pattern)):
             digest.update(path.name.encode())
             digest.update(path.read_bytes())
     return digest.hexdigest()[:16]
@@ -135,8 +135,8 @@ def announce() -> None:
     for _, _, files in os.walk(folder or ""):
         if any(name.endswith(".nbi") for name in files):
             return
-    sys.stderr.write(f"kanagen: compiling the estimator's kernels for this machine (once, a "
-                     f"few minutes; cached in {folder})...\n")
+    sys.stderr.write(f"kanagen: compiling the estimator's kernels for this machine (once, "
+                     f"about a minute; cached in {folder})...\n")
     sys.stderr.flush()
 
 

@@ -123,7 +123,7 @@ def _compiled(casadi_module, module, by_default: bool):
         library = compile_family(casadi_module, module.FAMILY, cache_dir(), _announce)
         functions = CompiledFunctions(casadi_module, module.FAMILY["derived"],
                                       load_compiled(casadi_module, library), library,
-                                      module.FAMILY)
+                                      module)
         return functions, FastPath.load(library, module)
     except CompileError as exc:
         instead = "the NumPy backend (the same estimates, slower)" if by_default else \

@@ -147,13 +147,18 @@ class CompiledFunctions(CasadiFunctions):
         As :class:`CasadiFunctions`.
     library : path
         The compiled library (:func:`kanagen.codegen.compile.compile_family`).
-    family : dict
-        The NumPy module's ``FAMILY`` (model and channel order, sizes).
+    numpy_module : module
+        The generated NumPy module: its ``FAMILY`` (model and channel order, sizes), and
+        its derived quantities and slack measures, evaluated at one point (16 µs for the
+        conic's six quantities, against 91 µs through a CasADi call and its conversions).
     """
 
     def __init__(self, module: ModuleType, derived_shapes: Mapping[str, tuple[int, ...]],
-                 replace: Mapping, library: Path, family: Mapping):
+                 replace: Mapping, library: Path, numpy_module: ModuleType):
         super().__init__(module, derived_shapes, replace, "compiled")
+        family = numpy_module.FAMILY
+        self.derived = numpy_module.DERIVED
+        self.slack_measures = numpy_module.SLACK_MEASURES
         lib = ctypes.CDLL(str(library))
         self._eval = lib.kg_eval
         self._eval.argtypes = [ctypes.c_void_p] * 2

@@ -49,7 +49,7 @@ TWIN_MODULES = frozenset({"two_view_starts", "geometry"})
 
 #: Fingerprints of :data:`PORTED` when the C port was last brought in line with them.
 FINGERPRINTS: dict[str, str] = {
-    'engine.measures.project_measure': 'bdeb356c7427',
+    'engine.measures.project_measure': 'e658f74f1618',
     'engine.measures.halving': 'bb062a68f777',
     'engine.measures.residual_into': '75842f52c352',
     'engine.measures.eval_measure': '5578fc3ad8ee',

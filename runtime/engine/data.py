@@ -15,17 +15,38 @@ from dataclasses import dataclass
 import numpy as np
 
 from kanagen.common.jit import NUMBA, jit
+from kanagen.common.link import KINDS, kind, link
 
 from .rows import compiled_row
 
-_FIELDS = [
-    "q0", "Q0", "k", "eps",  # prior, constants, pivot threshold
-    "c0_addr", "r",  # the parameter constraints' kernel and their number
-    "chan", "X", "m", "Q", "G",  # per measure: channel, data row, observed values, metric
-    "col", "P", "Dn", "W", "meas_addr", "scale", "size", "start",  # per channel
-    "slack_addr", "kinds", "clauses", "T", "t",  # inequality relations (appendix F)
-    "strict_idx", "strict_pow",  # strict relations' slacks: (component, power)
-]
+#: The fields and their kinds (kanagen.common.link: ``f`` float, ``i`` integer, ``f2`` a
+#: C-ordered float matrix ...): :func:`arrays` makes each field of its kind.
+_SCHEMA = (
+    ("q0", "f1"), ("Q0", "f2"), ("k", "f1"), ("eps", "f"),  # prior, constants, pivot floor
+    ("c0_addr", "i"), ("r", "i"),  # the parameter constraints' kernel and their number
+    # per measure: channel, data row, observed values, metric and its inverse root
+    ("chan", "i1"), ("X", "f2"), ("m", "f2"), ("Q", "f3"), ("G", "f3"),
+    # per channel: corrected columns, equations, corrected count, data width, row kernel
+    ("col", "i2"), ("P", "i1"), ("Dn", "i1"), ("W", "i1"), ("meas_addr", "i1"),
+    ("scale", "f1"), ("size", "i1"), ("start", "i1"),
+    # inequality relations (appendix F), strict relations' slacks (component, power)
+    ("slack_addr", "i"), ("kinds", "i1"), ("clauses", "b2"), ("T", "f2"), ("t", "f1"),
+    ("strict_idx", "i1"), ("strict_pow", "i1"),
+)
+_FIELDS = [name for name, _ in _SCHEMA]
+_DTYPES = {"f": np.float64, "i": np.int64, "b": np.bool_}
+
+
+def _of_kind(value, kind: str):
+    """``value`` as its field's kind: a number, or a C-ordered array of its dtype and rank."""
+    dtype = _DTYPES[kind[0]]
+    if len(kind) == 1:
+        return dtype(value).item()
+    out = np.ascontiguousarray(value, dtype=dtype)
+    if out.ndim != int(kind[1]):
+        raise ValueError(f"engine arrays: a field of kind {kind} has shape {out.shape}")
+    return out
+
 
 if NUMBA is not None and not jit.disabled:
     from numba.core import types
@@ -47,9 +68,12 @@ if NUMBA is not None and not jit.disabled:
                 raise AttributeError(name) from None
 
     structref.define_proxy(_Proxy, ArraysType, _FIELDS)
+    kind("A", lambda: ArraysType([(name, KINDS[k]()) for name, k in _SCHEMA]))
 
     def Arrays(*values):  # noqa: N802 - the record's constructor
         """The arrays of one problem (one model, its measures, its prior) for the kernels."""
+        values = tuple(_of_kind(v, k) for v, (_, k) in zip(values, _SCHEMA, strict=True))
+        link()
         proxy = _Proxy(*values)
         proxy.__dict__["_record"] = values
         return proxy

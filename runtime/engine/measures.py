@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from kanagen.common.jit import jit
+from kanagen.common.link import linked, record_kind
 
 from ..sqrt import REDUNDANT
 from .rows import call3, call4
@@ -215,6 +216,10 @@ def correct(E, L, inv, G, z, p, d, y, dm):
         dm[u] = acc
 
 
+#: The buffers of :func:`scratch` (a plain tuple).
+record_kind("Work", None, "f2 f2 f1 b1 f1 f1 f1 f1 f1 f1 f1 f1")
+
+
 @jit
 def scratch(A, n):
     """Buffers of the per-measure algebra, for the largest channel of ``A``: ``E, L, inv,
@@ -260,7 +265,7 @@ def all_finite(v):
 
 # -- eq. 22: the measures projected for a fixed q ---------------------------------------
 
-@jit
+@linked("A i f1 f1 i f f1 f2 f2 f2 f2 f1 b1 f1 f1 f1 f1 f1 f1 f1 f1")
 def project_measure(A, i, q, m, iterations, tol, c, C, D, E, L, inv, kept, y, rbar, cbar, dm,
                     step, cand, moved, x):
     """Project measure ``i`` onto ``c_i(q, ·) = 0`` from ``m`` (updated in place) in its
@@ -322,7 +327,7 @@ def halving(A, i, q, m, c, C, D, step, p, d, cand, moved, x):
         m[j] = cand[j]
 
 
-@jit
+@linked("A f1 f2 i f")
 def project_all(A, q, mt, iterations, tol):
     """:func:`project_measure` for every measure: ``(m̃, violations, ranks, c, C, D)``."""
     q = np.ascontiguousarray(q)
@@ -371,7 +376,7 @@ def reaching(A, i, top):
     return R
 
 
-@jit
+@linked("A i f1 f1 f1 f2 f2 f2 Work f1 f2 f2")
 def newton(A, i, q, values, c, C, D, G, work, c_new, C_new, D_new):
     """Newton steps of measure ``i`` onto its equations along ``Q⁺Dᵀ`` in the metric ``G``,
     halved where ``|c|`` grows; updates ``values, c, C, D``; True when it is on them."""
@@ -420,7 +425,7 @@ def normal(A, i, q, values, c, C, D, reach, work, spare):
         newton(A, i, q, values, c, C, D, reach, work, *spare)
 
 
-@jit
+@linked("A i f1 f1 f2 f1 f2 f2 Work")
 def descend(A, i, q, start, top, c, C, D, work):
     """Measure ``i`` moved onto ``c(q, ·) = 0`` and down the distance along it from
     ``start``; writes ``c, C, D``; returns ``(m̃, violation)``."""
@@ -472,7 +477,7 @@ def descend(A, i, q, start, top, c, C, D, work):
     return values, violation(c, D, G, p, d, A.eps, work)[0]
 
 
-@jit
+@linked("A f1 f2 i")
 def restore_all(A, q, mt, iterations):
     """The measures projected onto their equations for ``q`` from ``mt`` (eq. 22), those
     left off finished by the descent on the manifold from where they were left and from

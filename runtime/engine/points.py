@@ -11,6 +11,7 @@ from collections import namedtuple
 import numpy as np
 
 from kanagen.common.jit import jit
+from kanagen.common.link import linked, record_kind
 
 from ..sqrt import EPS, REDUNDANT, closest_root
 from .linear import corrected, linearise, parameter_block, retraction_step, whitened_violation
@@ -34,6 +35,9 @@ Pt = namedtuple("Pt", ["q", "mt", "c0", "C0", "c", "C", "D", "delta", "cost"])
 Lin = namedtuple("Lin", ["info", "H", "rhs", "gradient", "Cbar", "rbar", "E", "L", "inv",
                          "residual"])
 Proj = namedtuple("Proj", ["q", "mt", "kept0", "rank0", "residual"])
+record_kind("Pt", Pt, "f1 f2 f1 f2 f2 f3 f3 f f")
+record_kind("Lin", Lin, "f2 f2 f1 f1 f3 f2 f3 f3 f2 f")
+record_kind("Proj", Proj, "f1 f2 b1 i f")
 
 RETRACTION = 64  # Gauss–Newton steps onto c0 = 0, at most (a double root: linear)
 
@@ -60,7 +64,7 @@ def finite(x):
     return np.isfinite(x.delta) and np.isfinite(x.cost)
 
 
-@jit
+@linked("A Pt f f1")
 def project_point(A, x, mu, weights):
     """The linearisation at ``x`` and the projector's point (damped by ``μ diag(w)``);
     ``ok`` False where the projector fails (a zero pivot)."""
@@ -71,7 +75,7 @@ def project_point(A, x, mu, weights):
     return ok, lin, proj
 
 
-@jit
+@linked("A Pt Lin f f1")
 def solve(A, x, lin, mu, weights):
     """The projector's point from a linearisation (eq. 43–44)."""
     dq, kept0, rank0, residual, ok = parameter_block(lin.H, lin.info, lin.rhs, x.C0, x.c0,
@@ -103,7 +107,7 @@ def c0_rounding(q):
     return 1e-13 * (1.0 + max_abs(q)) ** 2
 
 
-@jit
+@linked("A f1 f2 i")
 def restore_parameter(A, q, root, iterations):
     """``q`` moved back onto ``c0(q) = 0`` by Gauss–Newton steps in the metric ``root``
     (empty: Euclidean), each taken when it lowers ``‖c0‖∞`` (runtime/projector.py)."""
@@ -125,7 +129,7 @@ def restore_parameter(A, q, root, iterations):
     return q.copy()
 
 
-@jit
+@linked("Pt f2")
 def c0_violation(x, root):
     """``‖c0‖²`` whitened by ``C0 Q̃⁻¹ C0ᵀ``, or 0 below rounding."""
     if x.c0.size == 0 or max_abs(x.c0) <= c0_rounding(x.q):
@@ -138,7 +142,7 @@ def c0_violation(x, root):
     return whitened_violation(root, x.C0, x.c0, EPS)
 
 
-@jit
+@linked("A f1 f2 i")
 def restore(A, q, mt, iterations):
     """The point ``(q, m̃)`` with the measures restored (eq. 22) and their violation."""
     q = np.ascontiguousarray(q).copy()
@@ -146,7 +150,7 @@ def restore(A, q, mt, iterations):
     return make_point(A, q, out, c, C, D), viol.sum()
 
 
-@jit
+@linked("A f1 f2 f2 i b")
 def restored(A, q, mt, root, iterations, retract):
     """``q`` retracted onto ``c0 = 0`` (in ``root``'s metric, else Euclidean) and its
     measures restored; returns the point and its violation ``E²`` in cost units."""
@@ -243,7 +247,7 @@ def has_relations(A):
     return A.slack_addr != 0
 
 
-@jit
+@linked("Pt f1")
 def multipliers(x, gradient):
     """``λ0``: least-squares multipliers of the parameter constraints, ``C0ᵀ λ0 = −∇F``."""
     r, n = x.C0.shape
@@ -276,7 +280,7 @@ def constraint_curvature(A, q, lam0):
     return 0.5 * (K + K.T)
 
 
-@jit
+@linked("A Pt Lin Proj")
 def lagrangian(A, x, lin, proj):
     """The linearisation with the constraints' curvature ``Σ λ0k ∇²c0k`` (its positive
     part) added to the information, and its projector's point (runtime/iterate.py)."""
@@ -314,7 +318,7 @@ def info_root(A, info):
     return closest_root(info, max(A.eps, REDUNDANT))
 
 
-@jit
+@linked("A Pt")
 def nearer_points(A, x):
     """``x`` with each measure at the nearer of its nearest point and the one restored
     from its observed value; ``changed`` False when no measure has a nearer one."""

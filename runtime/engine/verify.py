@@ -15,6 +15,7 @@ from collections import namedtuple
 import numpy as np
 
 from kanagen.common.jit import jit
+from kanagen.common.link import linked, record_kind
 
 from .linear import linearise, seen_components
 from .measures import RESTORE_STEPS
@@ -41,6 +42,7 @@ SLOPE = 1e3  # the gradient along it, in rounding levels of its terms, above whi
 
 Verdict = namedtuple("Verdict", ["stationary", "decrement", "cost", "curvature", "direction",
                                  "plateau", "plateau_vector"])
+record_kind("Verdict", Verdict, "b f f f f1 i f1")
 
 
 @jit
@@ -67,7 +69,7 @@ def stationary(A, x, lin, proj):
     return decrement(x, lin, proj) <= STATIONARY * x.cost + cost_rounding(A)
 
 
-@jit
+@linked("f2 b1")
 def tangent_space(C0, seen):
     """Columns spanning the null space of ``C0`` on the components ``seen``."""
     n = seen.size
@@ -85,7 +87,7 @@ def tangent_space(C0, seen):
     return E @ np.ascontiguousarray(Vt[rank:].T)
 
 
-@jit
+@linked("Pt f2")
 def tangent_basis(x, info):
     """The tangent space of ``c0 = 0`` on the seen components, orthonormal in the
     information (directions without information left out)."""
@@ -103,7 +105,7 @@ def tangent_basis(x, info):
     return out
 
 
-@jit
+@linked("Pt f2 f1")
 def plateau_mask(x, info, info_start):
     """The components whose information fell by twelve orders of magnitude since the start
     (not those the constraints pin); empty when none."""
@@ -124,7 +126,7 @@ def plateau_mask(x, info, info_start):
     return gone, gone.any()
 
 
-@jit
+@linked("f2 Pt")
 def weakest(info, x):
     """The least eigenvalue of ``info`` on the tangent space, scaled to a unit diagonal,
     relative to the largest, and its direction (``ok`` False without one)."""
@@ -153,7 +155,7 @@ def weakest(info, x):
     return True, w[0] / w[-1], Z @ (U[:, 0] / d)
 
 
-@jit
+@linked("A Pt Lin")
 def lost_direction(A, x, lin):
     """A direction the equations no longer see along which the cost still falls, scaled to
     a largest component of one, its sign the falling one (``found`` False without one)."""
@@ -176,7 +178,7 @@ def lost_direction(A, x, lin):
     return True, -np.sign(slope) * u / np.max(au)
 
 
-@jit
+@linked("A Pt f1")
 def profile_gradient(A, x, q):
     """The exact gradient of the profile at ``q`` (measures restored from ``x``'s)."""
     y, _ = restore(A, q, x.mt, RESTORE_STEPS)
@@ -200,7 +202,7 @@ def lagrangian_gradient(A, x, q, lam0, exact_at_x, gradient_x):
     return True, g
 
 
-@jit
+@linked("f2 f2")
 def least_eigen(K, W):
     """The least eigenvalue of the symmetrised ``K`` and its direction ``W u`` (``ok``
     False when not finite)."""
@@ -211,7 +213,7 @@ def least_eigen(K, W):
     return True, w[0], W @ np.ascontiguousarray(U[:, 0])
 
 
-@jit
+@linked("A Pt f2 f1 f f1")
 def sided_gradients(A, x, W, lam0, step, gradient_x):
     """The Lagrangian's gradient at ``x.q + step W[:, j]`` for every column (``ok`` False
     when one cannot be evaluated)."""
@@ -239,7 +241,7 @@ def least_curvature(A, x, W, lam0, step, plus, have_plus, gradient_x):
     return least_eigen(np.ascontiguousarray(K.T), W)
 
 
-@jit
+@linked("A Pt Lin Proj f1 b Lin Proj")
 def verify(A, x, lin, proj, info_start, at_rounding, model_lin, model_proj):
     """The checks at ``x`` (runtime/verify.py: ``verify``)."""
     dec = decrement(x, model_lin, model_proj)
@@ -277,7 +279,7 @@ def verify(A, x, lin, proj, info_start, at_rounding, model_lin, model_proj):
     return verdict(True, dec, x.cost, least, direction)
 
 
-@jit
+@linked("A Pt Lin f1")
 def escape(A, x, lin, direction):
     """A restored point lower than ``x`` along the negative-curvature direction (both
     senses, a few lengths), or ``found`` False."""

@@ -1,0 +1,176 @@
+"""Kernels compiled on their own and called through an address: ``@linked("A f1 f2 i")``.
+
+numba links a called kernel's code into its caller and optimises the whole again: a kernel
+deep in the call tree is optimised and translated to machine code once for every kernel
+above it (the engine's first compile took ~4 minutes, 90 % of it LLVM re-optimising the
+same callees; docs/engine.md). A *linked* kernel is compiled once, for one declared
+signature, and its callers reach it through a cell holding its address: each caller's code
+holds a call through a pointer, not a copy of the callee. Exceptions propagate as across an
+ordinary call (numba's native calling convention, status and exception record).
+
+The signature is a string of *kinds* (:data:`KINDS`; modules add their own with
+:func:`kind`): a caller's arguments must convert to them (a literal to its type, an array
+to a less specific layout); anything else is a typing error when the caller compiles.
+
+Each cell is a process symbol (``kanagen_link_<module>_<name>``) registered when the kernel
+is defined, so a caller loaded from numba's cache resolves it at once; the cell is filled
+by :func:`link` (every linked kernel compiled, or loaded from the cache, in definition
+order), which the engine calls before its first kernel runs. A call through an empty cell
+raises instead of jumping to address zero. Interpreted (numba missing, or
+``NUMBA_DISABLE_JIT=1``) a linked kernel is its Python function.
+"""
+
+from __future__ import annotations
+
+import re
+import threading
+
+from kanagen.common.jit import NUMBA, jit
+
+_lock = threading.RLock()
+_LINKED: list = []  # every linked kernel, in definition order
+#: kind name -> a function making its numba type (made when first needed)
+KINDS: dict = {}
+
+
+def kind(name: str, make) -> None:
+    """Name a numba type for signatures: ``make()`` returns it."""
+    KINDS[name] = make
+
+
+def record_kind(name: str, record, kinds: str) -> None:
+    """Name the numba type of the named tuple class ``record`` whose fields are ``kinds``."""
+    def make():
+        from numba import types
+        return types.BaseTuple.from_types([KINDS[k]() for k in kinds.split()], record)
+    kind(name, make)
+
+
+if NUMBA is not None and not jit.disabled:
+    import numpy as np
+    from llvmlite import binding as ll
+    from llvmlite import ir
+    from numba import types
+    from numba.core import cgutils
+    from numba.core.errors import TypingError
+    from numba.core.typing.templates import AbstractTemplate, infer_global, signature
+    from numba.extending import lower_builtin
+
+    for _name, _type in {
+        "f": types.float64, "i": types.int64, "b": types.boolean,
+        "f1": types.float64[::1], "f2": types.float64[:, ::1], "f3": types.float64[:, :, ::1],
+        "i1": types.int64[::1], "i2": types.int64[:, ::1],
+        "b1": types.boolean[::1], "b2": types.boolean[:, ::1],
+    }.items():
+        kind(_name, lambda t=_type: t)
+
+    class _Linked:
+        """One linked kernel: its dispatcher, declared kinds, cell, and its callers' typing
+        and code."""
+
+        def __init__(self, function, kinds: str):
+            self.name = function.__name__
+            self.kinds = kinds.split()
+            self.kernel = NUMBA.njit(cache=True, error_model="numpy")(function)
+            self.symbol = "kanagen_link_" + re.sub(r"\W", "_", function.__module__) + \
+                "_" + self.name
+            self.cell = np.zeros(1, dtype=np.int64)
+            ll.add_symbol(self.symbol, self.cell.ctypes.data)
+            self.signature = None
+
+        def resolve(self):
+            """Compile (or load) the kernel for its signature and fill its cell."""
+            with _lock:
+                if self.signature is None:
+                    argtypes = tuple(KINDS[k]() for k in self.kinds)
+                    self.kernel.compile(argtypes)
+                    result = self.kernel.overloads[argtypes]
+                    self.cell[0] = result.library.get_pointer_to_function(
+                        result.fndesc.llvm_func_name)
+                    self.signature = result.signature
+            return self.signature
+
+        def typer(self, context, args):
+            """The return type for a call with arguments of types ``args``."""
+            sig = self.resolve()
+            if len(args) != len(sig.args):
+                raise TypingError(f"{self.name} takes {len(sig.args)} arguments "
+                                  f"({' '.join(self.kinds)}), got {len(args)}")
+            for at, (given, declared) in enumerate(zip(args, sig.args, strict=True)):
+                if context.can_convert(given, declared) is None:
+                    raise TypingError(f"{self.name}: argument {at} is {given}, "
+                                      f"declared {declared} ({self.kinds[at]})")
+            return sig.return_type
+
+        def lower(self, context, builder, signature, llargs):
+            """A call through the cell, the arguments converted to the declared kinds."""
+            sig = self.signature
+            values = [context.cast(builder, value, given, declared)
+                      for value, given, declared in zip(llargs, signature.args, sig.args,
+                                                          strict=True)]
+            module = builder.module
+            cell = module.globals.get(self.symbol)
+            if cell is None:
+                cell = ir.GlobalVariable(module, ir.IntType(64), self.symbol)
+            address = builder.load(cell)
+            with cgutils.if_unlikely(builder, cgutils.is_null(builder, address)):
+                context.call_conv.return_user_exc(
+                    builder, RuntimeError, (f"kanagen: {self.name} called before "
+                                            "kanagen.common.link.link()",))
+            fnty = context.call_conv.get_function_type(sig.return_type, sig.args)
+            function = builder.inttoptr(address, fnty.as_pointer())
+            status, out = context.call_conv.call_function(builder, function, sig.return_type,
+                                                          sig.args, values)
+            with cgutils.if_unlikely(builder, status.is_error):
+                context.call_conv.return_status_propagate(builder, status)
+            return out
+
+    def _make(function, kinds: str):
+        entry = _Linked(function, kinds)
+        _LINKED.append(entry)
+
+        def stub(*args):
+            link()
+            return entry.kernel(*args)
+
+        class Call(AbstractTemplate):  # a caller's code: a call through the cell
+            key = stub
+
+            def generic(self, args, kws):
+                if kws:
+                    raise TypingError(f"{entry.name}: no keyword arguments")
+                return signature(entry.typer(self.context, args), *args)
+
+        infer_global(stub, types.Function(Call))
+        lower_builtin(stub, types.VarArg(types.Any))(entry.lower)
+
+        stub.__name__ = stub.__qualname__ = function.__name__
+        stub.__doc__ = function.__doc__
+        stub.__module__ = function.__module__
+        stub.__wrapped__ = function
+        stub.kernel = entry.kernel
+        return stub
+
+
+def linked(kinds: str):
+    """Decorate a kernel to be compiled on its own for the signature ``kinds`` (a string
+    of :data:`KINDS` names) and called through its address."""
+    def decorate(function):
+        if NUMBA is None or jit.disabled:
+            return function
+        return _make(function, kinds)
+    return decorate
+
+
+_filled = 0  # how many of _LINKED (a prefix) have their cells filled
+
+
+def link() -> None:
+    """Fill every linked kernel's cell (compiled, or loaded from numba's cache)."""
+    global _filled
+    if _filled == len(_LINKED):
+        return
+    with _lock:
+        for entry in _LINKED[_filled:]:
+            entry.resolve()
+        _filled = len(_LINKED)

@@ -1,0 +1,120 @@
+"""Linked kernels (kanagen.common.link): compiled once, called through an address."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kanagen.common.jit import NUMBA, jit
+from kanagen.common.link import _LINKED, link, linked
+
+pytestmark = pytest.mark.skipif(NUMBA is None or jit.disabled, reason="numba kernels only")
+
+
+@linked("f1 f")
+def _scaled(v, s):
+    if s < 0:
+        raise ValueError("a negative scale")
+    out = v * s
+    return out, out.sum()
+
+
+@jit
+def _twice(v):
+    a, total = _scaled(v, 2)  # a literal integer, converted to the declared float
+    b, more = _scaled(a, 1.5)
+    return b, total + more
+
+
+@jit
+def _negative(v):
+    return _scaled(v, -1.0)
+
+
+@jit
+def _wrong(v):
+    return _scaled(v.astype(np.int64), 1.0)
+
+
+def _entry():
+    return next(e for e in _LINKED if e.name == "_scaled")
+
+
+def test_called_from_a_kernel_as_written():
+    v = np.arange(4.0)
+    b, total = _twice(v)
+    np.testing.assert_array_equal(b, v * 3.0)
+    assert total == pytest.approx(v.sum() * 2 + v.sum() * 3)
+    # from Python: the same kernel
+    out, s = _scaled(v, 2.0)
+    np.testing.assert_array_equal(out, 2 * v)
+    assert _entry().cell[0] != 0
+
+
+def test_exceptions_cross_the_call():
+    with pytest.raises(ValueError, match="negative scale"):
+        _negative(np.ones(3))
+
+
+def test_an_argument_of_another_kind_is_a_typing_error_naming_it():
+    from numba.core.errors import TypingError
+
+    with pytest.raises(TypingError, match=r"_scaled: argument 0 is array\(int64"):
+        _wrong(np.ones(3))
+
+
+def test_an_empty_cell_raises_instead_of_jumping_to_zero():
+    _twice(np.ones(2))  # compiled (and the cell filled)
+    entry = _entry()
+    address = int(entry.cell[0])
+    entry.cell[0] = 0
+    try:
+        with pytest.raises(RuntimeError, match="_scaled called before"):
+            _twice(np.ones(2))
+    finally:
+        entry.cell[0] = address
+    link()
+    assert _twice(np.ones(2))[1] == pytest.approx(2 * 2 + 2 * 3)
+
+
+def test_the_engine_kernels_are_linked_once_each():
+    from kanagen.runtime.engine import iterate  # noqa: F401 - defines every kernel
+
+    names = [e.symbol for e in _LINKED]
+    assert len(names) == len(set(names))
+    engine = [e for e in _LINKED if ".engine." in e.kernel.py_func.__module__]
+    assert len(engine) >= 30
+    link()
+    for e in engine:
+        assert e.cell[0] != 0 and len(e.kernel.signatures) >= 1, e.name
+
+
+_FIT = """
+import json, sys
+import numpy as np, kanagen
+t = np.linspace(0, np.pi, 30)
+xy = np.c_[100 + 50 * np.cos(t), 80 + 30 * np.sin(t)] + \\
+    np.random.default_rng(0).normal(0, 1, (30, 2))
+r = kanagen.fit(kanagen.load("conic"), "conic", data={"point": xy}, info={"point": 1.0},
+                q0=[1, 0, 1, -200, -160, 15000.0])
+print(json.dumps([r.status, r.iterations, r.cost, r.q.tolist()]))
+"""
+
+
+def test_interpreted_kernels_give_the_compiled_answers():
+    """``NUMBA_DISABLE_JIT=1``: the linked kernels are their Python functions; the same fit."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    runs = []
+    for disabled in ("1", "0"):
+        env = dict(os.environ, NUMBA_DISABLE_JIT=disabled)
+        out = subprocess.run([sys.executable, "-c", _FIT], env=env, capture_output=True,
+                             text=True, timeout=600, check=True)
+        runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    (s1, it1, cost1, q1), (s2, it2, cost2, q2) = runs
+    assert (s1, it1) == (s2, it2) == (0, 7)
+    assert cost1 == pytest.approx(cost2, rel=1e-10)
+    np.testing.assert_allclose(q1, q2, rtol=1e-10, atol=1e-12)
