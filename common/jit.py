@@ -125,7 +125,8 @@ _announced = False
 
 def announce() -> None:
     """Say, once a process, that the kernels are being compiled when the cache holds none
-    of them yet (the first fit on a machine, or after kanagen changed): it takes minutes."""
+    of them yet (the first fit on a machine, or after kanagen changed): it takes about a
+    minute. The caches of older kernels are pruned then (:func:`prune`)."""
     global _announced
     if _announced or NUMBA is None or jit.disabled:
         return
@@ -138,6 +139,36 @@ def announce() -> None:
     sys.stderr.write(f"kanagen: compiling the estimator's kernels for this machine (once, "
                      f"about a minute; cached in {folder})...\n")
     sys.stderr.flush()
+    if not os.environ.get("NUMBA_CACHE_DIR"):
+        prune(Path(folder))
+
+
+#: The caches of other kernel sources kept besides the current one (the most recently
+#: written: other kanagen versions in use on the machine).
+KEEP_OTHERS = 2
+
+
+def prune(current: Path) -> list[Path]:
+    """Remove the caches of kernel sources other than ``current`` (its siblings, named by
+    digest) except the :data:`KEEP_OTHERS` most recently written: each holds 30–140 MB,
+    and every kanagen upgrade starts a new one. Returns the folders removed."""
+    import shutil
+
+    def written(folder: Path) -> float:
+        return max((f.stat().st_mtime for f in folder.rglob("*") if f.is_file()),
+                   default=folder.stat().st_mtime)
+
+    try:
+        others = [f for f in current.parent.iterdir() if f.is_dir() and f != current
+                  and len(f.name) == 16 and all(c in "0123456789abcdef" for c in f.name)]
+        others.sort(key=written, reverse=True)
+    except OSError:
+        return []
+    removed = []
+    for folder in others[KEEP_OTHERS:]:
+        shutil.rmtree(folder, ignore_errors=True)
+        removed.append(folder)
+    return removed
 
 
 #: True when kernels run interpreted (numba missing, or ``NUMBA_DISABLE_JIT=1``).

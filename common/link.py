@@ -68,10 +68,16 @@ if NUMBA is not None and not jit.disabled:
         """One linked kernel: its dispatcher, declared kinds, cell, and its callers' typing
         and code."""
 
-        def __init__(self, function, kinds: str):
+        def __init__(self, function, kinds: str, python: bool):
             self.name = function.__name__
             self.kinds = kinds.split()
-            self.kernel = NUMBA.njit(cache=True, error_model="numpy")(function)
+            self.function = function
+            # the callers need its native code only: no wrappers (their boxing of named
+            # tuples of arrays is most of the code of a small kernel)
+            self.kernel = NUMBA.njit(cache=True, error_model="numpy",
+                                     no_cpython_wrapper=not python,
+                                     no_cfunc_wrapper=True)(function)
+            self._python = self.kernel if python else None
             self.symbol = "kanagen_link_" + re.sub(r"\W", "_", function.__module__) + \
                 "_" + self.name
             self.cell = np.zeros(1, dtype=np.int64)
@@ -125,13 +131,21 @@ if NUMBA is not None and not jit.disabled:
                 context.call_conv.return_status_propagate(builder, status)
             return out
 
-    def _make(function, kinds: str):
-        entry = _Linked(function, kinds)
+        def python(self):
+            """The kernel as Python calls it: itself when declared ``python=True``, else a
+            twin compiled with its wrapper, not cached (tests, explorations)."""
+            with _lock:
+                if self._python is None:
+                    self._python = NUMBA.njit(error_model="numpy")(self.function)
+            return self._python
+
+    def _make(function, kinds: str, python: bool):
+        entry = _Linked(function, kinds, python)
         _LINKED.append(entry)
 
         def stub(*args):
             link()
-            return entry.kernel(*args)
+            return entry.python()(*args)
 
         class Call(AbstractTemplate):  # a caller's code: a call through the cell
             key = stub
@@ -152,13 +166,14 @@ if NUMBA is not None and not jit.disabled:
         return stub
 
 
-def linked(kinds: str):
+def linked(kinds: str, python: bool = False):
     """Decorate a kernel to be compiled on its own for the signature ``kinds`` (a string
-    of :data:`KINDS` names) and called through its address."""
+    of :data:`KINDS` names) and called through its address; ``python=True``: the runtime
+    calls it from Python too (its cached code then has the Python wrapper)."""
     def decorate(function):
         if NUMBA is None or jit.disabled:
             return function
-        return _make(function, kinds)
+        return _make(function, kinds, python)
     return decorate
 
 

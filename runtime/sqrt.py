@@ -221,7 +221,8 @@ def solve_lower_columns(L, B, transpose):
         x = solve_lower(L, np.ascontiguousarray(B[:, c]), transpose)
         if x.size != B.shape[0]:
             return np.empty((0, 0))
-        X[:, c] = x
+        for a in range(x.size):
+            X[a, c] = x[a]
     return X
 
 
@@ -271,6 +272,7 @@ def _solve_kept_batch(L, kept, Y, transpose):
     out = np.empty(Y.shape)
     for b in range(Y.shape[0]):
         for c in range(Y.shape[2]):
-            out[b, :, c] = solve_kept(L[b], kept[b], np.ascontiguousarray(Y[b, :, c]),
-                                      transpose)
+            x = solve_kept(L[b], kept[b], np.ascontiguousarray(Y[b, :, c]), transpose)
+            for a in range(x.size):
+                out[b, a, c] = x[a]
     return out

@@ -118,3 +118,26 @@ def test_interpreted_kernels_give_the_compiled_answers():
     assert (s1, it1) == (s2, it2) == (0, 7)
     assert cost1 == pytest.approx(cost2, rel=1e-10)
     np.testing.assert_allclose(q1, q2, rtol=1e-10, atol=1e-12)
+
+
+def test_old_kernel_caches_are_pruned_to_the_most_recent(tmp_path):
+    import os
+
+    from kanagen.common.jit import KEEP_OTHERS, prune
+
+    root = tmp_path / "numba"
+    current = root / "0123456789abcdef"
+    current.mkdir(parents=True)
+    others = []
+    for age in range(5):
+        folder = root / f"{age:016x}"
+        (folder / "kanagen_engine").mkdir(parents=True)
+        entry = folder / "kanagen_engine" / "x.nbi"
+        entry.write_text("index")
+        os.utime(entry, (1e9 - age * 1e5, 1e9 - age * 1e5))
+        others.append(folder)
+    (root / "not-a-digest").mkdir()
+    removed = prune(current)
+    assert sorted(removed) == sorted(others[KEEP_OTHERS:])
+    assert current.exists() and (root / "not-a-digest").exists()
+    assert all(f.exists() for f in others[:KEEP_OTHERS])

@@ -23,7 +23,7 @@ from ..sqrt import (
 from .measures import ROUNDING, correct, factor, residual_into, whiten_column
 
 
-@linked("A f1 f2 f2 f3 f3 f1 f2")
+@linked("A f1 f2 f2 f3 f3 f1 f2", python=True)
 def linearise(A, q, mt, c, C, D, c0, C0):
     """The whitened linearisation at ``(q, m̃)`` (equations ``c, C, D`` there): returns
     ``(info, H, rhs, gradient, Cbar, rbar, E, L, inv, kept, ranks, residual)``.
@@ -138,7 +138,7 @@ def equilibrium_weights(H):
     return diag
 
 
-@linked("f2 f2 f1 f2 f1 f1 f f f1 f")
+@linked("f2 f2 f1 f2 f1 f1 f f f1 f", python=True)
 def parameter_block(H, info, rhs, C0, c0, q, residual, mu, weights, eps):
     """``Δq`` of eq. 43 (damped by ``μ diag(w)``; ``w`` empty: the equilibrium weights of
     ``H``), the rows of ``C0`` kept, their rank and the residual E² (``ok`` False on a zero

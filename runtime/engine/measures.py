@@ -84,6 +84,15 @@ def empty_evals(A, n):
 
 
 @jit
+def copy_into(dst, src):
+    """``dst[...] = src`` for C-ordered arrays of one size, without the broadcasting
+    check whose error message (built at run time) is most of a small kernel's code."""
+    flat, values = dst.reshape(dst.size), src.reshape(src.size)
+    for a in range(values.size):
+        flat[a] = values[a]
+
+
+@jit
 def residual_into(D, m, m_obs, c, p, d, out):
     """``out = D (m̃ − m) − c``: the right-hand side ``r − C q•`` of a measure's linearised
     equations (SPEC §2, in increments; with ``q`` fixed, eq. 22's)."""
@@ -327,7 +336,7 @@ def halving(A, i, q, m, c, C, D, step, p, d, cand, moved, x):
         m[j] = cand[j]
 
 
-@linked("A f1 f2 i f")
+@linked("A f1 f2 i f", python=True)
 def project_all(A, q, mt, iterations, tol):
     """:func:`project_measure` for every measure: ``(m̃, violations, ranks, c, C, D)``."""
     q = np.ascontiguousarray(q)
@@ -404,10 +413,11 @@ def newton(A, i, q, values, c, C, D, G, work, c_new, C_new, D_new):
                 cand[j] = values[j] + alpha * step[j]
             eval_measure(A, i, q, cand, c_new, C_new, D_new, x)
             if worst_abs(c_new, p) < worst:
-                values[:d] = cand[:d]
-                c[:] = c_new
-                C[:] = C_new
-                D[:] = D_new
+                for j in range(d):
+                    values[j] = cand[j]
+                copy_into(c, c_new)
+                copy_into(C, C_new)
+                copy_into(D, D_new)
                 done = True
                 break
             alpha /= 2
@@ -465,10 +475,10 @@ def descend(A, i, q, start, top, c, C, D, work):
                 worst = worst_abs(c, p)
                 if d_trial < distance and worst_abs(c2, p) <= worst + 1e-12 * (1 + worst):
                     shift = quad(trial - values, Q, d)
-                    values[:] = trial
-                    c[:] = c2
-                    C[:] = C2
-                    D[:] = D2
+                    copy_into(values, trial)
+                    copy_into(c, c2)
+                    copy_into(C, C2)
+                    copy_into(D, D2)
                     distance = d_trial
                     break
                 alpha /= 2
@@ -477,7 +487,7 @@ def descend(A, i, q, start, top, c, C, D, work):
     return values, violation(c, D, G, p, d, A.eps, work)[0]
 
 
-@linked("A f1 f2 i")
+@linked("A f1 f2 i", python=True)
 def restore_all(A, q, mt, iterations):
     """The measures projected onto their equations for ``q`` from ``mt`` (eq. 22), those
     left off finished by the descent on the manifold from where they were left and from
@@ -507,9 +517,12 @@ def restore_all(A, q, mt, iterations):
             else:
                 better = v_new < (old if np.isfinite(old) else np.inf)
             if better:
-                out[i, :d] = m_new
+                for j in range(d):
+                    out[i, j] = m_new[j]
                 viol[i] = v_new
-                c[i], C[i], D[i] = c2, C2, D2
+                copy_into(c[i], c2)
+                copy_into(C[i], C2)
+                copy_into(D[i], D2)
     return out, viol, c, C, D
 
 

@@ -20,6 +20,7 @@ from .measures import (
     ROUNDING,
     UNREACHED,
     c0_eval,
+    copy_into,
     eval_all,
     point_values,
     quad,
@@ -334,7 +335,10 @@ def nearer_points(A, x):
         d_o = quad(other.mt[i] - A.m[i], A.Q[i], d)
         if on[i] and d_o < d_x - 1e-9 * (1.0 + d_x):
             changed = True
-            mt[i], c[i], C[i], D[i] = other.mt[i], other.c[i], other.C[i], other.D[i]
+            copy_into(mt[i], other.mt[i])
+            copy_into(c[i], other.c[i])
+            copy_into(C[i], other.C[i])
+            copy_into(D[i], other.D[i])
     if not changed:
         return False, x
     return True, make_point(A, x.q.copy(), mt, c, C, D)

@@ -101,7 +101,9 @@ def tangent_basis(x, info):
     keep = np.flatnonzero(w > 1e-14 * max(top, np.finfo(np.float64).tiny))
     out = np.zeros((Z.shape[0], keep.size))
     for a in range(keep.size):
-        out[:, a] = Z @ (np.ascontiguousarray(U[:, keep[a]]) / np.sqrt(w[keep[a]]))
+        column = Z @ (np.ascontiguousarray(U[:, keep[a]]) / np.sqrt(w[keep[a]]))
+        for b in range(column.size):
+            out[b, a] = column[b]
     return out
 
 
@@ -187,7 +189,7 @@ def profile_gradient(A, x, q):
     return True, linearise(A, y.q, y.mt, y.c, y.C, y.D, y.c0, y.C0)[3]
 
 
-@jit
+@linked("A Pt f1 f1 b f1")
 def lagrangian_gradient(A, x, q, lam0, exact_at_x, gradient_x):
     """The gradient of ``F + λ0ᵀ c0`` at ``q`` (``exact_at_x``: ``q`` is ``x.q`` and the
     projector's gradient there is ``gradient_x``)."""
@@ -223,11 +225,12 @@ def sided_gradients(A, x, W, lam0, step, gradient_x):
         ok, g = lagrangian_gradient(A, x, x.q + step * W[:, j], lam0, False, gradient_x)
         if not ok:
             return False, out
-        out[:, j] = g
+        for a in range(g.size):
+            out[a, j] = g[a]
     return True, out
 
 
-@jit
+@linked("A Pt f2 f1 f f2 b f1")
 def least_curvature(A, x, W, lam0, step, plus, have_plus, gradient_x):
     """The least eigenvalue of ``Wᵀ ∇²(F + λ0ᵀ c0) W`` by central differences."""
     if not have_plus:
@@ -265,7 +268,9 @@ def verify(A, x, lin, proj, info_start, at_rounding, model_lin, model_proj):
         return verdict(True, dec, x.cost, np.nan, np.zeros(0))
     K = np.zeros((W.shape[1], W.shape[1]))
     for j in range(W.shape[1]):
-        K[:, j] = W.T @ (plus[:, j] - here) / STEP
+        column = W.T @ (plus[:, j] - here) / STEP
+        for a in range(column.size):
+            K[a, j] = column[a]
     ok, screen, direction = least_eigen(np.ascontiguousarray(K.T), W)
     if ok and screen >= SCREEN:
         return verdict(True, dec, x.cost, screen, direction)
