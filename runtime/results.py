@@ -71,32 +71,10 @@ def constrained_covariance(info: np.ndarray, C0: np.ndarray) -> np.ndarray:
     move get an infinite variance (not the pseudo-inverse's zero, which would claim
     certainty).
     """
-    n = info.shape[0]
-    if not (np.all(np.isfinite(info)) and np.all(np.isfinite(C0))):
-        return np.full((n, n), np.nan)
-    if C0.shape[0]:
-        _, S, Vt = np.linalg.svd(C0)
-        rank = int(np.count_nonzero(S > 1e-12 * S[0])) if S.size and S[0] > 0 else 0
-        Z = Vt[rank:].T
-    else:
-        Z = np.eye(n)
-    if Z.shape[1] == 0:
-        return np.zeros((n, n))
-    H = Z.T @ info @ Z
-    H = 0.5 * (H + H.T)
-    diag = np.abs(np.diag(H))
-    d = np.sqrt(np.where(diag > 0, diag, max(float(diag.max(initial=0.0)), 1.0)))
-    w, V = np.linalg.eigh(H / np.outer(d, d))
-    scale = np.abs(w).max(initial=0.0)
-    null = np.abs(w) <= 1e-12 * scale if scale > 0 else np.ones_like(w, dtype=bool)
-    inv_w = np.where(null, 0.0, 1.0 / np.where(null, 1.0, w))
-    ZV = Z @ (V / d[:, None])
-    cov = (ZV * inv_w) @ ZV.T
-    cov = 0.5 * (cov + cov.T)
-    free = np.any(np.abs(Z @ V[:, null]) > 1e-8, axis=1)
-    cov[free, :] = np.inf
-    cov[:, free] = np.inf
-    return cov
+    from .engine.covariance import constrained_covariance as kernel  # numba: on first use
+
+    info = np.ascontiguousarray(info, dtype=float)
+    return kernel(info, np.ascontiguousarray(C0, dtype=float).reshape(-1, info.shape[0]))
 
 
 def propagate(J: np.ndarray, covariance: np.ndarray) -> np.ndarray:
@@ -113,15 +91,21 @@ def propagate(J: np.ndarray, covariance: np.ndarray) -> np.ndarray:
 def derived_values(fam, q: np.ndarray, covariance: np.ndarray,
                    k: np.ndarray, model: str | None = None) -> dict[str, DerivedValue]:
     """Derived quantities at ``q`` with covariances ``J Σ Jᵀ`` (those ``model`` reports;
-    ``fam`` a :class:`~kanagen.runtime.family.ModelFamily`)."""
-    out = {}
+    ``fam`` a :class:`~kanagen.runtime.family.ModelFamily`): one propagation of all their
+    Jacobians stacked, each quantity's covariance its diagonal block."""
     wanted = fam.model(model).derived if model is not None else None
     with np.errstate(all="ignore"):
-        for name, (value, jac) in fam.derived(q, k).items():
-            if wanted is not None and name not in wanted:
-                continue
-            J = jac.reshape(-1, fam.n)
-            out[name] = DerivedValue(value, propagate(J, covariance), jac)
+        items = [(name, value, jac) for name, (value, jac) in fam.derived(q, k).items()
+                 if wanted is None or name in wanted]
+        if not items:
+            return {}
+        rows = [jac.reshape(-1, fam.n) for _, _, jac in items]
+        joint = propagate(np.concatenate(rows), covariance)
+    out, at = {}, 0
+    for (name, value, jac), J in zip(items, rows, strict=True):
+        block = joint[at:at + J.shape[0], at:at + J.shape[0]].copy()
+        out[name] = DerivedValue(value, block, jac)
+        at += J.shape[0]
     return out
 
 

@@ -1,0 +1,74 @@
+"""The covariance of the estimate under its constraints (runtime/results.py:
+``constrained_covariance`` documents it and is its entry point)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kanagen.common.jit import jit
+
+
+@jit
+def null_basis(C0, n):
+    """An orthonormal basis of the null space of ``C0`` (rank: singular values above
+    1e-12 of the largest)."""
+    if C0.shape[0] == 0:
+        return np.eye(n)
+    _, S, Vt = np.linalg.svd(C0)
+    rank = 0
+    if S.size and S[0] > 0:
+        for a in range(S.size):
+            rank += 1 if S[a] > 1e-12 * S[0] else 0
+    return np.ascontiguousarray(Vt[rank:].T)
+
+
+@jit
+def constrained_covariance(info, C0):
+    """``Z (Zᵀ Q̃ Z)⁻¹ Zᵀ`` with ``Z`` a basis of the null space of ``C0``; an infinite
+    variance on the components that an unobservable direction moves; NaN where ``info``
+    or ``C0`` is not finite."""
+    n = info.shape[0]
+    if not (np.all(np.isfinite(info)) and np.all(np.isfinite(C0))):
+        return np.full((n, n), np.nan)
+    Z = null_basis(C0, n)
+    k = Z.shape[1]
+    if k == 0:
+        return np.zeros((n, n))
+    H = Z.T @ info @ Z
+    H = 0.5 * (H + H.T)
+    top = 0.0
+    for a in range(k):
+        top = max(top, abs(H[a, a]))
+    d = np.empty(k)
+    for a in range(k):
+        diag = abs(H[a, a])
+        d[a] = np.sqrt(diag if diag > 0 else max(top, 1.0))
+    scaled = np.empty((k, k))
+    for a in range(k):
+        for b in range(k):
+            scaled[a, b] = H[a, b] / (d[a] * d[b])
+    w, V = np.linalg.eigh(scaled)
+    scale = 0.0
+    for a in range(k):
+        scale = max(scale, abs(w[a]))
+    inv_w = np.zeros(k)
+    null = np.zeros(k, dtype=np.bool_)
+    for a in range(k):
+        null[a] = abs(w[a]) <= 1e-12 * scale if scale > 0 else True
+        inv_w[a] = 0.0 if null[a] else 1.0 / w[a]
+    VD = np.empty((k, k))
+    for a in range(k):
+        for b in range(k):
+            VD[a, b] = V[a, b] / d[a]
+    ZV = Z @ VD
+    cov = (ZV * inv_w) @ ZV.T
+    cov = 0.5 * (cov + cov.T)
+    ZN = Z @ V
+    for i in range(n):
+        free = False
+        for b in range(k):
+            free = free or (null[b] and abs(ZN[i, b]) > 1e-8)
+        if free:
+            cov[i, :] = np.inf
+            cov[:, i] = np.inf
+    return cov
