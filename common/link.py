@@ -27,7 +27,7 @@ import threading
 
 from kanagen.common.jit import NUMBA, jit
 
-_lock = threading.RLock()
+_lock = threading.RLock()  # numba's compiler lock where numba is (see below)
 _LINKED: list = []  # every linked kernel, in definition order
 #: kind name -> a function making its numba type (made when first needed)
 KINDS: dict = {}
@@ -48,6 +48,11 @@ def record_kind(name: str, record, kinds: str) -> None:
 
 if NUMBA is not None and not jit.disabled:
     import numpy as np
+    from numba.core.compiler_lock import global_compiler_lock
+
+    # One lock for linking and compiling: a kernel being compiled (under numba's lock)
+    # resolves the linked kernels it calls, while link() compiles them.
+    _lock = global_compiler_lock
     from llvmlite import binding as ll
     from llvmlite import ir
     from numba import types

@@ -35,16 +35,20 @@ _SCHEMA = (
 )
 _FIELDS = [name for name, _ in _SCHEMA]
 _DTYPES = {"f": np.float64, "i": np.int64, "b": np.bool_}
+#: Per field: its dtype and rank (0: a number).
+_LAYOUT = tuple((_DTYPES[kind[0]], int(kind[1:] or 0)) for _, kind in _SCHEMA)
 
 
-def _of_kind(value, kind: str):
+def _of_kind(value, dtype, rank: int):
     """``value`` as its field's kind: a number, or a C-ordered array of its dtype and rank."""
-    dtype = _DTYPES[kind[0]]
-    if len(kind) == 1:
+    if rank == 0:
         return dtype(value).item()
+    if type(value) is np.ndarray and value.dtype == dtype and value.ndim == rank and \
+            value.flags.c_contiguous:
+        return value
     out = np.ascontiguousarray(value, dtype=dtype)
-    if out.ndim != int(kind[1]):
-        raise ValueError(f"engine arrays: a field of kind {kind} has shape {out.shape}")
+    if out.ndim != rank:
+        raise ValueError(f"engine arrays: a field of rank {rank} has shape {out.shape}")
     return out
 
 
@@ -72,7 +76,8 @@ if NUMBA is not None and not jit.disabled:
 
     def Arrays(*values):  # noqa: N802 - the record's constructor
         """The arrays of one problem (one model, its measures, its prior) for the kernels."""
-        values = tuple(_of_kind(v, k) for v, (_, k) in zip(values, _SCHEMA, strict=True))
+        values = tuple(_of_kind(v, dtype, rank)
+                       for v, (dtype, rank) in zip(values, _LAYOUT, strict=True))
         link()
         proxy = _Proxy(*values)
         proxy.__dict__["_record"] = values
