@@ -39,7 +39,8 @@ def kind(name: str, make) -> None:
 
 
 def record_kind(name: str, record, kinds: str) -> None:
-    """Name the numba type of the named tuple class ``record`` whose fields are ``kinds``."""
+    """Name the numba type of the named tuple class ``record`` whose fields are ``kinds``
+    (``record`` None: a plain tuple)."""
     def make():
         from numba import types
         return types.BaseTuple.from_types([KINDS[k]() for k in kinds.split()], record)
@@ -48,18 +49,18 @@ def record_kind(name: str, record, kinds: str) -> None:
 
 if NUMBA is not None and not jit.disabled:
     import numpy as np
-    from numba.core.compiler_lock import global_compiler_lock
-
-    # One lock for linking and compiling: a kernel being compiled (under numba's lock)
-    # resolves the linked kernels it calls, while link() compiles them.
-    _lock = global_compiler_lock
     from llvmlite import binding as ll
     from llvmlite import ir
     from numba import types
     from numba.core import cgutils
+    from numba.core.compiler_lock import global_compiler_lock
     from numba.core.errors import TypingError
     from numba.core.typing.templates import AbstractTemplate, infer_global, signature
     from numba.extending import lower_builtin
+
+    # One lock for linking and compiling: a kernel being compiled (under numba's lock)
+    # resolves the linked kernels it calls, while link() compiles them.
+    _lock = global_compiler_lock
 
     for _name, _type in {
         "f": types.float64, "i": types.int64, "b": types.boolean,
