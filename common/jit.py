@@ -139,6 +139,7 @@ def announce() -> None:
     sys.stderr.write(f"kanagen: compiling the estimator's kernels for this machine (once, "
                      f"about a minute; cached in {folder})...\n")
     sys.stderr.flush()
+    jit.compiling = True  # kanagen.common.link shows the kernels' progress on a terminal
     if not os.environ.get("NUMBA_CACHE_DIR"):
         prune(Path(folder))
 
@@ -171,5 +172,7 @@ def prune(current: Path) -> list[Path]:
     return removed
 
 
+#: True when :func:`announce` found the cache empty: the kernels are being compiled.
+jit.compiling = False
 #: True when kernels run interpreted (numba missing, or ``NUMBA_DISABLE_JIT=1``).
 jit.disabled = NUMBA is None or bool(NUMBA.config.DISABLE_JIT)

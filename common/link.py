@@ -23,6 +23,7 @@ raises instead of jumping to address zero. Interpreted (numba missing, or
 from __future__ import annotations
 
 import re
+import sys
 import threading
 
 from kanagen.common.jit import NUMBA, jit
@@ -187,11 +188,33 @@ _filled = 0  # how many of _LINKED (a prefix) have their cells filled
 
 
 def link() -> None:
-    """Fill every linked kernel's cell (compiled, or loaded from numba's cache)."""
+    """Fill every linked kernel's cell (compiled, or loaded from numba's cache); while
+    the kernels are first compiled (:func:`kanagen.common.jit.announce`), a progress bar
+    on a terminal's stderr."""
     global _filled
     if _filled == len(_LINKED):
         return
     with _lock:
-        for entry in _LINKED[_filled:]:
-            entry.resolve()
+        entries = _LINKED[_filled:]
+        if jit.compiling and _on_terminal():
+            import click
+
+            with click.progressbar(entries, label="kanagen: compiling the kernels",
+                                   file=sys.stderr, item_show_func=_current) as bar:
+                for entry in bar:
+                    entry.resolve()
+        else:
+            for entry in entries:
+                entry.resolve()
         _filled = len(_LINKED)
+
+
+def _on_terminal() -> bool:
+    try:
+        return sys.stderr.isatty()
+    except (AttributeError, ValueError):  # replaced or closed
+        return False
+
+
+def _current(entry) -> str:
+    return "" if entry is None else entry.name

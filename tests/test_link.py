@@ -141,3 +141,25 @@ def test_old_kernel_caches_are_pruned_to_the_most_recent(tmp_path):
     assert sorted(removed) == sorted(others[KEEP_OTHERS:])
     assert current.exists() and (root / "not-a-digest").exists()
     assert all(f.exists() for f in others[:KEEP_OTHERS])
+
+
+def _progress_kernel(v):
+    return v + 1.0
+
+
+def test_a_first_compile_shows_its_progress_on_a_terminal(monkeypatch):
+    import io
+    import sys
+
+    kernel = linked("f")(_progress_kernel)  # a kernel not linked yet
+    monkeypatch.setattr(jit, "compiling", True)
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    err = Terminal()
+    monkeypatch.setattr(sys, "stderr", err)
+    link()
+    assert "kanagen: compiling the kernels" in err.getvalue()
+    assert kernel(1.0) == 2.0
