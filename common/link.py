@@ -26,12 +26,22 @@ import re
 import sys
 import threading
 
+import numpy as np
+
 from kanagen.common.jit import NUMBA, jit
 
 _lock = threading.RLock()  # numba's compiler lock where numba is (see below)
 _LINKED: list = []  # every linked kernel, in definition order
 #: kind name -> a function making its numba type (made when first needed)
 KINDS: dict = {}
+#: The letters of the basic kinds: ``f`` a float, ``i`` an integer, ``b`` a boolean; with
+#: a rank, a C-ordered array of them (``f2``: a float matrix).
+DTYPES = {"f": np.float64, "i": np.int64, "b": np.bool_}
+
+
+def layout(name: str) -> tuple:
+    """A basic kind's NumPy dtype and rank (0: a number)."""
+    return DTYPES[name[0]], int(name[1:] or 0)
 
 
 def kind(name: str, make) -> None:
@@ -49,7 +59,6 @@ def record_kind(name: str, record, kinds: str) -> None:
 
 
 if NUMBA is not None and not jit.disabled:
-    import numpy as np
     from llvmlite import binding as ll
     from llvmlite import ir
     from numba import types
@@ -63,13 +72,11 @@ if NUMBA is not None and not jit.disabled:
     # resolves the linked kernels it calls, while link() compiles them.
     _lock = global_compiler_lock
 
-    for _name, _type in {
-        "f": types.float64, "i": types.int64, "b": types.boolean,
-        "f1": types.float64[::1], "f2": types.float64[:, ::1], "f3": types.float64[:, :, ::1],
-        "i1": types.int64[::1], "i2": types.int64[:, ::1],
-        "b1": types.boolean[::1], "b2": types.boolean[:, ::1],
-    }.items():
-        kind(_name, lambda t=_type: t)
+    for _letter, _dtype in DTYPES.items():
+        _scalar = NUMBA.from_dtype(_dtype)
+        for _rank in range(4):
+            kind(_letter + (str(_rank) if _rank else ""),
+                 lambda s=_scalar, r=_rank: types.Array(s, r, "C") if r else s)
 
     class _Linked:
         """One linked kernel: its dispatcher, declared kinds, cell, and its callers' typing
@@ -169,7 +176,6 @@ if NUMBA is not None and not jit.disabled:
         stub.__doc__ = function.__doc__
         stub.__module__ = function.__module__
         stub.__wrapped__ = function
-        stub.kernel = entry.kernel
         return stub
 
 

@@ -120,6 +120,14 @@ def reduced_solve(L: np.ndarray, kept: np.ndarray, B: np.ndarray, transpose: boo
 # -- kernels: one matrix ------------------------------------------------------------------
 
 @jit
+def put_column(M, j, v):
+    """``M[:, j] = v``, without the broadcasting check whose error message (built at run
+    time) is most of a small kernel's code."""
+    for a in range(v.size):
+        M[a, j] = v[a]
+
+
+@jit
 def diagonal_max(S):
     """``max(diag(S), initial=0)`` as NumPy computes it (NaN propagates)."""
     top = 0.0
@@ -221,8 +229,7 @@ def solve_lower_columns(L, B, transpose):
         x = solve_lower(L, np.ascontiguousarray(B[:, c]), transpose)
         if x.size != B.shape[0]:
             return np.empty((0, 0))
-        for a in range(x.size):
-            X[a, c] = x[a]
+        put_column(X, c, x)
     return X
 
 
@@ -272,7 +279,6 @@ def _solve_kept_batch(L, kept, Y, transpose):
     out = np.empty(Y.shape)
     for b in range(Y.shape[0]):
         for c in range(Y.shape[2]):
-            x = solve_kept(L[b], kept[b], np.ascontiguousarray(Y[b, :, c]), transpose)
-            for a in range(x.size):
-                out[b, a, c] = x[a]
+            put_column(out[b], c, solve_kept(L[b], kept[b], np.ascontiguousarray(Y[b, :, c]),
+                                             transpose))
     return out

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kanagen.common.jit import NUMBA, jit
-from kanagen.common.link import KINDS, kind, link
+from kanagen.common.link import KINDS, kind, layout, link
 
 from .rows import compiled_row
 
@@ -34,9 +34,8 @@ _SCHEMA = (
     ("strict_idx", "i1"), ("strict_pow", "i1"),
 )
 _FIELDS = [name for name, _ in _SCHEMA]
-_DTYPES = {"f": np.float64, "i": np.int64, "b": np.bool_}
 #: Per field: its dtype and rank (0: a number).
-_LAYOUT = tuple((_DTYPES[kind[0]], int(kind[1:] or 0)) for _, kind in _SCHEMA)
+_LAYOUT = tuple(layout(kind) for _, kind in _SCHEMA)
 
 
 def _of_kind(value, dtype, rank: int):

@@ -17,6 +17,7 @@ import numpy as np
 from kanagen.common.jit import jit
 from kanagen.common.link import linked, record_kind
 
+from ..sqrt import put_column
 from .linear import linearise, seen_components
 from .measures import RESTORE_STEPS
 from .points import (
@@ -101,9 +102,7 @@ def tangent_basis(x, info):
     keep = np.flatnonzero(w > 1e-14 * max(top, np.finfo(np.float64).tiny))
     out = np.zeros((Z.shape[0], keep.size))
     for a in range(keep.size):
-        column = Z @ (np.ascontiguousarray(U[:, keep[a]]) / np.sqrt(w[keep[a]]))
-        for b in range(column.size):
-            out[b, a] = column[b]
+        put_column(out, a, Z @ (np.ascontiguousarray(U[:, keep[a]]) / np.sqrt(w[keep[a]])))
     return out
 
 
@@ -225,8 +224,7 @@ def sided_gradients(A, x, W, lam0, step, gradient_x):
         ok, g = lagrangian_gradient(A, x, x.q + step * W[:, j], lam0, False, gradient_x)
         if not ok:
             return False, out
-        for a in range(g.size):
-            out[a, j] = g[a]
+        put_column(out, j, g)
     return True, out
 
 
@@ -268,9 +266,7 @@ def verify(A, x, lin, proj, info_start, at_rounding, model_lin, model_proj):
         return verdict(True, dec, x.cost, np.nan, np.zeros(0))
     K = np.zeros((W.shape[1], W.shape[1]))
     for j in range(W.shape[1]):
-        column = W.T @ (plus[:, j] - here) / STEP
-        for a in range(column.size):
-            K[a, j] = column[a]
+        put_column(K, j, W.T @ (plus[:, j] - here) / STEP)
     ok, screen, direction = least_eigen(np.ascontiguousarray(K.T), W)
     if ok and screen >= SCREEN:
         return verdict(True, dec, x.cost, screen, direction)
