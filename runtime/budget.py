@@ -56,32 +56,42 @@ class SampleBudget:
                                       search.sample_size + search.base_size)
 
     @staticmethod
-    def floor(search: ModelSearch, least: int = 0) -> float:
-        """The least inlier ratio of the sampled pool an adaptive budget plans for. A search
-        from scratch: :data:`~kanagen.runtime.lattice.RELEVANT` (a structure explaining
-        fewer measures is no base of the lattice). A child drawing its extra measures among
-        its parent's outliers: a fifth of its parent's inliers among them — a child that
-        explains fewer extra measures wins only on its fit of the parent's inliers, which
-        the parent's estimate refined in the child's model tries (the estimator's
-        ``_from_parent``). ``least``: the inliers the model must reach to be chosen at all
-        (a :data:`~kanagen.runtime.lattice.MORE_SUPPORT` th of the most any model explains
-        so far, :func:`~kanagen.runtime.lattice.select`): a structure smaller than that does
-        not matter, and the plan need not be sure to find one."""
+    def floor(search: ModelSearch, need: float = 0) -> tuple[float, float, float]:
+        """The least inlier ratios of the sampled pool, of the base (a child's samples
+        among its parent's inliers) and of the whole channel an adaptive budget plans for:
+        a structure with fewer does not matter, and the plan need not be sure to find one.
+
+        ``need``: the inliers of the sampled channel a structure must explain to matter —
+        to be chosen at all (a :data:`~kanagen.runtime.lattice.MORE_SUPPORT` th of the most
+        any model explains so far, :func:`~kanagen.runtime.lattice.select`) and, for a
+        child, to replace its parent (:func:`~kanagen.runtime.lattice.support_needed`).
+
+        A search from scratch: at least :data:`~kanagen.runtime.lattice.RELEVANT` of the
+        pool (a structure explaining fewer measures is no base of the lattice). A child
+        drawing its extra measures among its parent's outliers: a fifth of its parent's
+        inliers among them — a child that explains fewer extra measures wins only on its
+        fit of the parent's inliers, which the parent's estimate refined in the child's
+        model tries (the estimator's ``_from_parent``) — and of the base, what ``need``
+        asks for beyond the whole pool: a child that explains little of its parent's
+        inliers cannot replace it, however few its best sample explains."""
         pool = max(search.pool.size, 1)
+        share = min(1.0, need / max(search.problem.channels[search.channel].size, 1))
         if search.base is None or not search.pool.size:
-            return min(1.0, max(lattice.RELEVANT, least / pool))
+            return min(1.0, max(lattice.RELEVANT, need / pool)), 0.0, share
+        base = max(search.base.size, 1)
         extra = (lattice.MORE_SUPPORT - 1) * search.base.size / pool
-        return min(1.0, max(extra, lattice.RELEVANT, (least - search.base.size) / pool))
+        return (min(1.0, max(extra, lattice.RELEVANT, (need - search.base.size) / pool)),
+                min(1.0, max(0.0, (need - search.pool.size) / base)), share)
 
     def now(self, search: ModelSearch, budget: int, cap: int | None = None,
-            least: int = 0) -> int:
+            need: float = 0) -> int:
         """The samples the search plans in all now. Adaptive: eq. 25 at its best estimate's
         inlier ratio (``budget`` while it has none), at least ``min_samples``, at most
         ``cap`` (``budget`` for a resumed search or a model with nothing to sample) and
         ``samples_per_model`` (default :data:`MODEL_CAP`)."""
         if not self.adaptive:
             return budget
-        needed = search.samples_needed(self.confidence, self.floor(search, least))
+        needed = search.samples_needed(self.confidence, self.floor(search, need))
         plan = budget if needed is None else needed
         for bound in (cap, self.samples_per_model or MODEL_CAP):
             if bound is not None:
@@ -90,7 +100,7 @@ class SampleBudget:
         return max(plan, least, 1)
 
     def limit(self, search: ModelSearch, budget: int, batch: int,
-              cap: int | None = None, least: int = 0) -> int:
+              cap: int | None = None, need: float = 0) -> int:
         """Samples the next step may draw (at least one): the batch, within the plan — which
         changes only with a better estimate, and that ends a batch."""
-        return max(min(batch, self.now(search, budget, cap, least) - search.samples), 1)
+        return max(min(batch, self.now(search, budget, cap, need) - search.samples), 1)

@@ -40,9 +40,11 @@ from .phi import phi as get_phi
 from .projector import Problem
 from .results import ModelState
 from .robust import ModelSearch, RobustEstimate
+from .scoring import ransac, relevance
 from .scoring import scorer as get_scorer
 from .walk import LatticeWalk
 
+_PROBE = "(probe)"  # the parent of a probe's search (_start_probe): none of the lattice
 _RESUME_FRACTION = 10  # a re-queued model draws a tenth of a fresh search's samples
 _BRIEF = 10  # iterations of the final refinement of a model that cannot win (_hopeless)
 #: iterations of a model's final refinement at most: a fit that crawls along a valley (a
@@ -84,9 +86,13 @@ class Estimator:
         Default True: each model's search draws the samples of eq. 25 at the inlier ratio of
         its best estimate so far, updated as samples come (as adaptive RANSAC does; at
         least ``min_samples``; :class:`~kanagen.runtime.budget.SampleBudget`): fewer than
-        the assumed ``inlier_ratio`` asks on easy data, more on hard data. False: eq. 25 at
-        the assumed ``inlier_ratio`` (0.5) for every model, whatever the data.
-        :attr:`planned` is the samples the search plans in all so far.
+        the assumed ``inlier_ratio`` asks on easy data, more on hard data — and no more than
+        finds any structure that could be chosen: the lattice's most general models are
+        probed first (a short search from all the measures), and a model searched later
+        plans for the support a structure needs to matter beside the strongest explanation
+        found (:meth:`_need`). False: eq. 25 at the assumed ``inlier_ratio`` (0.5) for every
+        model, whatever the data, and no probe. :attr:`planned` is the samples the search
+        plans in all so far.
     q0, Q0, constants : the prior and the constants, as for :func:`kanagen.fit`.
     model : str, optional
         Search this model only (no lattice); default: the lattice from the null model.
@@ -207,6 +213,7 @@ class Estimator:
         with self._lock:
             gone = set(np.asarray(ids, dtype=int).tolist())
             self._measures.remove(gone)
+            self._probed.clear()  # what the probes found may have been among them
             for state in self._walk.forget(np.fromiter(gone, dtype=int, count=len(gone))):
                 self._requeue(state.parent or state.model)
                 self._requeue(state.model)
@@ -308,11 +315,12 @@ class Estimator:
         with self._lock:
             total = self._samples
             if self._search is not None:
-                _, _, search, budget, cap, least = self._search
-                total += max(self.budget.now(search, budget, cap, least) - search.samples, 0)
+                _, _, search, budget, cap, need = self._search
+                total += max(self.budget.now(search, budget, cap, need) - search.samples, 0)
             if not self._done:
                 total += sum(1 if self.fam.free_dof(m, self._constants) == 0 else
-                             self.budget.min_samples for m in self._walk.queued())
+                             self.budget.min_samples
+                             for m in self._probes + self._walk.queued())
             return total
 
     def step(self) -> bool:
@@ -364,13 +372,18 @@ class Estimator:
         root = self.model or self.fam.null_model
         self._walk = LatticeWalk(self.fam, root, self._null_state(root), bool(self.model),
                                  self.phi, self._refit)
-        # (model, parent, search, budget, the most it may grow to, the inliers it must
-        # reach to matter: SampleBudget.now)
-        self._search: tuple[str, str | None, ModelSearch, int, int | None, int] | None = None
+        # (model, parent, search, budget, the most it may grow to, the inliers of the
+        # sampled channel it must reach to matter: SampleBudget.now)
+        self._search: tuple[str, str | None, ModelSearch, int, int | None, float] | None = None
         self._samples = 0
         self._done = False
         self._measures.invalidate()
         self.history = []
+        #: the most general models probed before the lattice (_start_probe) and what each
+        #: probe found: {model: (inliers its best estimate explains, samples drawn)}
+        self._probes = [] if self.model or not self.budget.adaptive else \
+            lattice.tops(self.fam, root)
+        self._probed: dict[str, tuple[int, int]] = {}
 
     def _restart_if_idle(self) -> None:
         if self._done or self._search is None:
@@ -408,8 +421,8 @@ class Estimator:
         if self._search is None and not self._start_next():
             self._finish()
             return False
-        model, parent, search, budget, cap, least = self._search
-        limit = self.budget.limit(search, budget, batch, cap, least)
+        model, parent, search, budget, cap, need = self._search
+        limit = self.budget.limit(search, budget, batch, cap, need)
         before, previous = search.samples, self.history[-1][1] if self.history else -np.inf
         level = max(previous, self._best_relevance(search))
         search.step(limit)
@@ -417,9 +430,12 @@ class Estimator:
         self.history.extend((self._samples + i, level) for i in range(1, done))
         self._samples += done
         self.history.append((self._samples, max(previous, self._best_relevance(search))))
-        if search.samples >= self.budget.now(search, budget, cap, least) or search.exhausted:
+        if search.samples >= self.budget.now(search, budget, cap, need) or search.exhausted:
             self._search = None
-            self._conclude(model, parent, search)
+            if parent is _PROBE:
+                self._probed_support(search)
+            else:
+                self._conclude(model, parent, search)
         return True
 
     def _best_relevance(self, search: ModelSearch) -> float:
@@ -429,6 +445,8 @@ class Estimator:
         return max(done, current)
 
     def _start_next(self) -> bool:
+        if self._probes and len(self._measures):
+            return self._start_probe(self._probes.pop(0))
         while (entry := self._walk.pop()) is not None:
             model, parent, resume = entry
             if not len(self._measures):
@@ -437,28 +455,7 @@ class Estimator:
             problem, ids, channel = self._problem_for(model)
             parent_state = self._walk.states.get(parent) if parent else None
             start = parent_state.q if parent_state is not None else self.q0
-            pool = base = parent_free = ranks = None
-            if parent_state is not None and parent_state.samples and \
-                    parent_state.inliers.size >= lattice.RELEVANT * sum(len(i) for i in ids):
-                # the extra measures among those not coherent with the parent (report §5),
-                # the rest of the sample among the parent's inliers (a parent that explains
-                # next to nothing is no base: the child is searched afresh)
-                ch_ids = ids[channel]
-                pool = np.flatnonzero(np.isin(ch_ids, parent_state.outliers))
-                base = np.flatnonzero(np.isin(ch_ids, parent_state.inliers))
-                name = problem.channels[channel].name
-                ranks = manifold_ranks(problem, self.fam.with_slacks(start, problem.k, model))
-                across = self._walk.across(parent, ranks[channel])
-                parent_free = lattice.fixed_by(
-                    self.fam, parent_state, self.fam.free_dof(parent, self._constants), model,
-                    name, self._walk.corrected.get(parent, {}).get(name), self._constants,
-                    across)
-            search = ModelSearch(self.fam, model, problem, channel, start, self._rng,
-                                 self.scale, self.scorer, pool=pool, parent_free=parent_free,
-                                 base=base, initializer=self.initializers.get(model),
-                                 local=self.local if pool is None else 0.0,
-                                 max_threshold=self.max_threshold, ranks=ranks,
-                                 ceiling=self.ceiling)
+            search = self._model_search(model, parent_state, problem, ids, channel, start)
             if search.exhausted:
                 self._walk.skip(model, parent)
                 continue
@@ -470,10 +467,91 @@ class Estimator:
             if resume is not None:  # re-queued: resume from its estimate, a few more samples
                 search.seed_estimate(resume)
                 budget = cap = max(1, budget // _RESUME_FRACTION)
-            self._search = (model, parent, search, budget, cap, self._walk.least_support())
+            elif model in self._probed:  # the probe's samples count (not its estimate)
+                search.drawn_afresh = self._probed[model][1]
+            self._search = (model, parent, search, budget, cap,
+                            self._need(parent_state, search, ids))
             self.status = f"searching {model}"
             return True
         return False
+
+    def _model_search(self, model: str, parent: ModelState | None, problem: Problem,
+                      ids: list[np.ndarray], channel: int, start: np.ndarray) -> ModelSearch:
+        """The search of ``model``: its extra measures among those not coherent with its
+        parent and the rest of its samples among the parent's inliers (report §5) — unless
+        the parent explains next to nothing: then the child is searched afresh."""
+        def search(pool=None, base=None, parent_free=None, ranks=None) -> ModelSearch:
+            return ModelSearch(self.fam, model, problem, channel, start, self._rng,
+                               self.scale, self.scorer, pool=pool, parent_free=parent_free,
+                               base=base, initializer=self.initializers.get(model),
+                               local=self.local if pool is None else 0.0,
+                               max_threshold=self.max_threshold, ranks=ranks,
+                               ceiling=self.ceiling)
+
+        if parent is None or not parent.samples or \
+                parent.inliers.size < lattice.RELEVANT * sum(len(i) for i in ids):
+            return search()
+        ch_ids = ids[channel]
+        name = problem.channels[channel].name
+        ranks = manifold_ranks(problem, self.fam.with_slacks(start, problem.k, model))
+        across = self._walk.across(parent.model, ranks[channel])
+        parent_free = lattice.fixed_by(
+            self.fam, parent, self.fam.free_dof(parent.model, self._constants), model,
+            name, self._walk.corrected.get(parent.model, {}).get(name), self._constants,
+            across)
+        return search(np.flatnonzero(np.isin(ch_ids, parent.outliers)),
+                      np.flatnonzero(np.isin(ch_ids, parent.inliers)), parent_free, ranks)
+
+    def _start_probe(self, model: str) -> bool:
+        """A short search of a most general model from all the measures, before the lattice
+        (:attr:`_probes`): the strongest explanation of the data, found first, tells every
+        model's budget the support it must reach to matter (:meth:`_need`) — a model that
+        fits next to nothing of the data (a plane among the matches of a 3-D scene) is
+        then not searched to its cap for a structure that could not be chosen. Its samples
+        count in the model's own search later (:attr:`ModelSearch.drawn_afresh`). Its
+        estimate is no state of the lattice, nor a candidate of the model's search: a child
+        extends its parent's structure (report §5), and a structure found from all the
+        measures may be none the lattice reaches (a conic of two parallel lines straddling
+        the points of a line, which the first-order error scores above the line)."""
+        problem, _, channel = self._problem_for(model)
+        search = ModelSearch(self.fam, model, problem, channel, self.q0, self._rng,
+                             self.scale, self.scorer,
+                             initializer=self.initializers.get(model), local=self.local,
+                             max_threshold=self.max_threshold, ceiling=self.ceiling)
+        budget = self._budget(search, None)
+        if self._horizon is not None:  # a share of the run's samples left, as a model's
+            budget = min(budget, (self._horizon - self._samples) //
+                         (self._walk.unsettled() + len(self._probes) + 1))
+        if search.exhausted or budget < self.budget.min_samples:
+            return self._start_next()  # too short a run to spend samples on a probe
+        self._search = (model, _PROBE, search, budget, budget, 0.0)
+        self.status = f"probing {model}"
+        return True
+
+    def _probed_support(self, search: ModelSearch) -> None:
+        """What the probe found (:meth:`_start_probe`): the inliers its best estimate
+        explains, and its samples."""
+        inliers = 0
+        if search.best_errors is not None:
+            inliers = sum(r.size for r in search.split(search.best_errors, self.window)[1])
+        self._probed[search.model] = (inliers, search.samples)
+
+    def _need(self, parent: ModelState | None, search: ModelSearch,
+              ids: list[np.ndarray]) -> float:
+        """The inliers of the sampled channel a structure of the searched model must explain
+        to matter (:meth:`SampleBudget.floor`): to be chosen at all
+        (:meth:`~kanagen.runtime.walk.LatticeWalk.least_support`, and a
+        :data:`~kanagen.runtime.lattice.MORE_SUPPORT` th of what the probes explain) and to
+        replace its parent (:func:`~kanagen.runtime.lattice.support_needed`: a bound on the
+        inliers when the score is eq. 29's relevance or the ransac-like one) — less the
+        measures of the other channels, which it may explain too."""
+        total = sum(len(i) for i in ids)
+        probed = max((n for n, _ in self._probed.values()), default=0)
+        need = max(float(self._walk.least_support()), probed / lattice.MORE_SUPPORT)
+        if parent is not None and parent.samples and search.score_fn in (relevance, ransac):
+            across = self._walk.across(parent.model, search.ranks[search.channel])
+            need = max(need, lattice.support_needed(parent, across, total))
+        return max(need - (total - len(ids[search.channel])), 0.0)
 
     def _share(self, budget: int) -> int | None:
         """The most samples an adaptive budget may grow to, within a :meth:`run`: an equal

@@ -44,6 +44,15 @@ def reachable(fam: ModelFamily, root: str) -> set[str]:
     return seen
 
 
+def tops(fam: ModelFamily, root: str) -> list[str]:
+    """The most general models the lattice reaches from ``root`` (no alternatives of their
+    own), in the family's order; none when the lattice is the root alone."""
+    models = reachable(fam, root)
+    if len(models) < 2:
+        return []
+    return [m for m in fam.models if m in models and not fam.model(m).alternatives]
+
+
 def lattice_parents(fam: ModelFamily, model: str, among: set[str]) -> list[str]:
     """The models of ``among`` that name ``model`` as an alternative."""
     return [m for m in fam.models if m in among
@@ -132,6 +141,17 @@ def beats(parent: ModelState, state: ModelState, shape: Shape, replaces: Replace
     if state.relevance < SUPPORT * parent.relevance:
         return False
     return replaces(parent, state)
+
+
+def support_needed(parent: ModelState, across: bool, measures: int) -> float:
+    """The fewest inliers a child of ``parent`` explains when it replaces it (:func:`beats`):
+    across a change of equations per measure a fifth more than its parent
+    (:func:`explains_more`); else it keeps :data:`SUPPORT` of its parent's relevance, and
+    each inlier adds at most ``1 / measures`` to a relevance (eq. 29, or the share of
+    inliers of the ransac-like score)."""
+    if across:
+        return MORE_SUPPORT * parent.inliers.size
+    return SUPPORT * parent.relevance * measures
 
 
 def hopeless(parent: ModelState, relevance: float, inliers: int, across: bool) -> bool:

@@ -224,6 +224,9 @@ class ModelSearch:
         self.best_score = -np.inf
         self.best_errors: tuple[np.ndarray, ...] | None = None
         self._needed: tuple = (None, None, None)  # samples_needed of the best estimate
+        #: samples of this model drawn before from every measure of the channel (a probe of
+        #: the estimator's): eq. 25 counts what they would have found (samples_needed)
+        self.drawn_afresh = 0
         self.history: list[tuple[int, float]] = []
 
     @property
@@ -252,30 +255,49 @@ class ModelSearch:
         self.best_errors = errors
         self.best_score = self.score_fn(np.concatenate(errors), self.scale)
 
-    def samples_needed(self, confidence: float, floor: float = 0.0) -> int | None:
+    def samples_needed(self, confidence: float,
+                       floor: tuple[float, ...] = (0.0, 0.0, 0.0)) -> int | None:
         """Eq. 25 with the inlier fractions (errors below ``L*``) of the best estimate so far
         in the pools the samples are drawn from — adaptive budgets (None before any
         estimate, or when no sample can be all inliers). ``floor``: the least inlier
-        fraction of the pool planned for (a structure with fewer would not matter)."""
+        fractions of the pool, of the base and of the channel planned for (a structure with
+        fewer would not matter: :meth:`~kanagen.runtime.budget.SampleBudget.floor`).
+
+        With :attr:`drawn_afresh` samples of the model drawn before from every measure, the
+        chance that all of them and the samples planned here miss the structure planned for
+        is what the confidence leaves: a child's samples (its extra measures among its
+        parent's outliers) then only make up what those did not settle."""
         if self.best_errors is None or not self.pool.size:
             return None
-        key = (confidence, floor)
+        key = (confidence, tuple(floor), self.drawn_afresh)
         if self._needed[0] is self.best_errors and self._needed[1] == key:
             return self._needed[2]  # the best estimate has not changed since
         needed = self._samples_needed(confidence, floor)
         self._needed = (self.best_errors, key, needed)
         return needed
 
-    def _samples_needed(self, confidence: float, floor: float = 0.0) -> int | None:
+    def _samples_needed(self, confidence: float, floor: tuple[float, ...]) -> int | None:
         good = self.best_errors[self.channel] < self.scale
-        p = max(float(np.mean(good[self.pool])), min(floor, 1.0)) ** self.sample_size
+        pool = max(float(np.mean(good[self.pool])), min(floor[0], 1.0))
+        p, found = pool ** self.sample_size, pool * self.pool.size
         if self.base_size:
-            p *= float(np.mean(good[self.base])) ** self.base_size
+            base = max(float(np.mean(good[self.base])), min(floor[1], 1.0))
+            p, found = p * base ** self.base_size, found + base * self.base.size
         if p <= 0.0:
             return None
         if p >= 1.0:
             return 1
-        return math.ceil(math.log1p(-confidence) / math.log1p(-p))
+        miss = math.log1p(-confidence)
+        if self.drawn_afresh:  # what full samples from every measure missed already
+            share = min(max(found / max(self.problem.channels[self.channel].size, 1),
+                            floor[2]), 1.0)
+            size = self.sample_size + self.base_size
+            if share >= 1.0:
+                return 0
+            miss -= self.drawn_afresh * math.log1p(-share ** size)
+            if miss >= 0.0:
+                return 0
+        return math.ceil(miss / math.log1p(-p))
 
     @property
     def exhausted(self) -> bool:

@@ -367,3 +367,50 @@ def test_a_fit_says_which_intrinsics_it_assumed(fam):
     assert given.assumed == {} and (state is None or state.assumed == {})
     conic = kanagen.load("conic")  # its f0 is a conditioning scale: nothing to assume
     assert conic.assumptions == {} and conic.assumed() == {}
+
+
+def test_models_that_cannot_be_chosen_draw_few_samples(fam):
+    """A general motion (200 of 286 matches): a plane, a rotation or a zoom explains a few
+    dozen matches at most, and could be chosen only with a fifth of the most any model
+    explains. The lattice's most general model is probed first (a short search from all the
+    matches: its 200 inliers), so their budgets plan for 167 inliers, not for a tenth of the
+    matches to their cap (before: 2363 planar samples, 459 rotation samples, 6863 in all,
+    3888 of them the general model's, which now counts the probe's samples too)."""
+    s = two_view_scene("general", n=200, outliers=0.3, sigma=0.5, seed=5000)
+    est = kanagen.Estimator(fam, seed=5000, constants=s.constants)
+    est.add_measures("match", s.data, info=1.0 / s.sigma**2)
+    best = est.run(max_samples=10_000)
+    drawn = {st.model: st.samples for st in est.states()}
+    assert best.model == "general" and best.inliers.size >= 195
+    assert drawn["planar"] <= 100 and drawn["rotation"] <= 40 and drawn["zoom"] <= 20
+    assert est.samples <= 2500
+    assert "probe" not in " ".join(st.model for st in est.states())
+
+
+def test_a_probe_s_samples_count_in_the_model_s_search(fam):
+    """Eq. 25 across two ways of sampling: full samples from every match drawn before (the
+    probe's) miss a structure of share w with (1 − w⁷)ⁿ; the child's samples make up only
+    what they leave of the confidence — none when they settled it."""
+    from kanagen.runtime.budget import SampleBudget
+
+    s = two_view_scene("general", n=200, outliers=0.3, sigma=0.5, seed=5000)
+    est = kanagen.Estimator(fam, seed=5000, constants=s.constants)
+    est.add_measures("match", s.data, info=1.0 / s.sigma**2)
+    seen = {}
+    original = est._model_search
+
+    def spy(model, *args):
+        seen[model] = original(model, *args)
+        return seen[model]
+
+    est._model_search = spy
+    est.run(max_samples=10_000)
+    search = seen["general"]
+    assert search.base is not None and search.drawn_afresh > 0
+    floor = SampleBudget.floor(search, 0.0)
+    with_probe = search.samples_needed(0.99, floor)
+    drawn, search.drawn_afresh = search.drawn_afresh, 0
+    alone = search.samples_needed(0.99, floor)
+    assert with_probe < alone
+    search.drawn_afresh = 10 * drawn
+    assert search.samples_needed(0.99, floor) == 0
