@@ -15,7 +15,7 @@ import numpy as np
 from .family import ModelFamily
 from .fit import fit_problem
 from .influence import Influence
-from .iterate import MAX_ITER
+from .iterate import MAX_ITER, UNVERIFIED
 from .minimal import coherence_errors
 from .projector import Problem
 from .results import FitResult
@@ -184,7 +184,35 @@ class Refinement:
         :data:`_REFINE_ROUNDS` refinements): ``(fit, inliers, errors, threshold)``, the fit
         on the reported inliers. ``first(rows)``: more starts of the first refinement (a
         closed form on the inliers), which keeps the fit of least cost. ``short_of``: see
-        :meth:`~kanagen.runtime.robust.ModelSearch.finish`."""
+        :meth:`~kanagen.runtime.robust.ModelSearch.finish`.
+
+        The rounds' fits are not verified (their ends are starts of the next); the reported
+        fit is (:meth:`_verified`)."""
+        result, rows, errors, threshold = self._rounds(q, errors, q0, Q0, first, window,
+                                                       max_iter, short_of)
+        if result is None or not np.all(np.isfinite(result.q)):
+            return result, rows, errors, threshold
+        verified = self._verified(result, rows, q0, Q0, max_iter)
+        if verified.q is not result.q and not np.array_equal(verified.q, result.q) and \
+                np.all(np.isfinite(verified.q)):
+            errors = self.errors(verified.q)  # at the reported q
+            threshold = self.split(errors, window)[0]
+        return verified, rows, errors, threshold
+
+    def _verified(self, fit: FitResult, rows, q0, Q0, max_iter: int) -> FitResult:
+        """The rounds' last fit, its end verified (:func:`~kanagen.runtime.iterate.iterate`):
+        a stationary point goes on from where it stopped (at once a verified minimum, or
+        left along its negative curvature as a verified fit would), one stopped at its cap
+        is checked where it stopped — as a verified fit's cap is; any other end is kept."""
+        if fit.status not in (UNVERIFIED, MAX_ITER):
+            return fit
+        return fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=fit.q,
+                           q0=q0, Q0=Q0, max_iter=max_iter if fit.status == UNVERIFIED else 0)
+
+    def _rounds(self, q: np.ndarray, errors, q0: np.ndarray, Q0: np.ndarray,
+                first: Callable | None, window: float, max_iter: int,
+                short_of: float | None):
+        """:meth:`rounds`, its fits not verified."""
         errors = self.admitted(q, errors)
         threshold, rows = self.split(errors, window)
         result = None
@@ -216,7 +244,7 @@ class Refinement:
             per_round = min(max_iter, _ROUND_ITER)
         else:
             result = fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=q,
-                                 q0=q0, Q0=Q0, max_iter=max_iter)
+                                 q0=q0, Q0=Q0, max_iter=max_iter, verify=False)
             if np.all(np.isfinite(result.q)):
                 errors = self.errors(result.q)
                 threshold = self.split(errors, window)[0]
@@ -244,7 +272,7 @@ class Refinement:
                 if _same(new, rows):
                     break
                 fit = fit_problem(self.fam, self.model, self.problem.subset(new),
-                                  q_start=result.q, q0=q0, Q0=Q0, max_iter=max_iter)
+                                  q_start=result.q, q0=q0, Q0=Q0, max_iter=max_iter, verify=False)
                 if not np.all(np.isfinite(fit.q)):
                     break
                 result, rows, errors = fit, new, self.errors(fit.q)
@@ -294,7 +322,7 @@ class Refinement:
             trial_rows = _without(rows, out)
             trial_sample = self.problem.subset(trial_rows)
             trial = fit_problem(self.fam, self.model, trial_sample, q_start=fit.q, q0=q0,
-                                Q0=Q0, max_iter=max_iter)
+                                Q0=Q0, max_iter=max_iter, verify=False)
             if not np.all(np.isfinite(trial.q)):
                 break
             trial_errors = self.errors(trial.q)
@@ -342,7 +370,7 @@ class Refinement:
             return None
         rest = _without(rows, suspects)
         others = fit_problem(self.fam, self.model, self.problem.subset(rest), q_start=fit.q,
-                             q0=q0, Q0=Q0, max_iter=max_iter)
+                             q0=q0, Q0=Q0, max_iter=max_iter, verify=False)
         if not np.all(np.isfinite(others.q)):
             return None
         errors = self.errors(others.q)
@@ -354,7 +382,7 @@ class Refinement:
         if len(out) < suspects.size:
             rest = _without(rows, out)
             others = fit_problem(self.fam, self.model, self.problem.subset(rest),
-                                 q_start=others.q, q0=q0, Q0=Q0, max_iter=max_iter)
+                                 q_start=others.q, q0=q0, Q0=Q0, max_iter=max_iter, verify=False)
             if not np.all(np.isfinite(others.q)):
                 return None
             errors = self.errors(others.q)
@@ -370,7 +398,7 @@ class Refinement:
         if laps:
             lap = min(lap, _LAP)
         fits = [fit_problem(self.fam, self.model, sample, q_start=start, q0=q0, Q0=Q0,
-                            max_iter=lap) for start in starts]
+                            max_iter=lap, verify=False) for start in starts]
         costs = [f.cost if np.isfinite(f.cost) else np.inf for f in fits]
         least = min(costs)
         # a tie (an estimate and an equivalent one: t and −t of an essential matrix) goes to
@@ -392,7 +420,7 @@ class Refinement:
         while fit.status == MAX_ITER and done < max_iter and np.all(np.isfinite(fit.q)):
             lap = min(_LAP, max_iter - done) if laps else max_iter - done
             more = fit_problem(self.fam, self.model, sample, q_start=fit.q, q0=q0, Q0=Q0,
-                               max_iter=lap)
+                               max_iter=lap, verify=False)
             done += lap
             if laps and not fit.cost - more.cost >= _PROGRESS * abs(fit.cost):
                 return more if more.cost <= fit.cost else fit
