@@ -491,6 +491,9 @@ def _report_robust(est, fam, channel, X, json_out, to_err, opts, *, spec,
                f"L* = {_scale_text(record, opts)}, scorer {opts.scorer}, {samples} sample(s): "
                f"{record['stop_reason']}", err=to_err)
     click.echo(_lattice_table(est.states(), record["model"]), err=to_err)
+    for model, probe in est.probes.items():
+        click.echo(f"  ({model} probed first, from all measures: {probe['samples']} "
+                   f"sample(s), {probe['inliers']} inlier(s))", err=to_err)
     if record["found"]:
         click.echo(_state_summary(est.best(), measures), err=to_err)
         if corrected is not None:

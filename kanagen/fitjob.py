@@ -346,7 +346,7 @@ def estimator_to_json(est: Estimator, chosen: str | None, measures: int | None =
                 "samples": s.samples, "accepted": s.accepted, "threshold": s.threshold,
                 "status": s.status, "chosen": s.model == chosen}
                for s in est.states()]
-    out = {"model": chosen, "lattice": lattice,
+    out = {"model": chosen, "lattice": lattice, "probes": est.probes,
            "history": [[int(n), float(r)] for n, r in est.history]}
     best = est.best() if chosen is not None else None
     if best is None:

@@ -366,6 +366,15 @@ class Estimator:
         with self._lock:
             return list(self._walk.states.values())
 
+    @property
+    def probes(self) -> dict[str, dict[str, int]]:
+        """The most general models probed before the lattice (a short search from all the
+        measures: see ``adaptive``) and what each found: ``{model: {"inliers": n,
+        "samples": k}}`` — its samples count in :attr:`samples`, not in the model's
+        state."""
+        with self._lock:
+            return {m: {"inliers": n, "samples": k} for m, (n, k) in self._probed.items()}
+
     # -- internals ------------------------------------------------------------------------------
     def _restart(self) -> None:
         self._rng = np.random.default_rng(self.seed)

@@ -88,6 +88,11 @@ def test_robust_fit_chooses_the_circle_and_writes_json(run, circle_csv, tmp_path
     assert rows["line"]["parent"] is None and rows["circle"]["parent"] == "line"
     for row in res["lattice"]:
         assert {"dof", "cost", "relevance", "inliers", "samples", "accepted"} <= set(row)
+    # the lattice's most general model probed first: its samples in the total, said apart
+    probe = res["probes"]["conic"]
+    assert probe["samples"] > 0 and probe["inliers"] > 0
+    assert f"conic probed first, from all measures: {probe['samples']} sample(s)" in text
+    assert res["total_samples"] == probe["samples"] + sum(r["samples"] for r in res["lattice"])
     assert list(res["params"]) == ["A", "B", "C", "D", "E", "F"]
     assert set(res["std"]) == set(res["params"])
     assert set(res["slacks"]) == {"s_ellipse", "s_proper"}
