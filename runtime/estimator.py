@@ -516,8 +516,9 @@ class Estimator:
         (:attr:`_probes`): the strongest explanation of the data, found first, tells every
         model's budget the support it must reach to matter (:meth:`_need`) — a model that
         fits next to nothing of the data (a plane among the matches of a 3-D scene) is
-        then not searched to its cap for a structure that could not be chosen. Its samples
-        count in the model's own search later (:attr:`ModelSearch.drawn_afresh`). Its
+        then not searched to its cap for a structure that could not be chosen. Its samples,
+        uniform ones, count in the model's own search later (:attr:`ModelSearch.drawn_afresh`:
+        eq. 25's chance is a uniform sample's). Its
         estimate is no state of the lattice, nor a candidate of the model's search: a child
         extends its parent's structure (report §5), and a structure found from all the
         measures may be none the lattice reaches (a conic of two parallel lines straddling
@@ -525,7 +526,7 @@ class Estimator:
         problem, _, channel = self._problem_for(model)
         search = ModelSearch(self.fam, model, problem, channel, self.q0, self._rng,
                              self.scale, self.scorer,
-                             initializer=self.initializers.get(model), local=self.local,
+                             initializer=self.initializers.get(model),
                              max_threshold=self.max_threshold, ceiling=self.ceiling)
         budget = self._budget(search, None)
         if self._horizon is not None:  # a share of the run's samples left, as a model's

@@ -195,11 +195,19 @@ def best_pose(poses, y1: np.ndarray, y2: np.ndarray) -> tuple[np.ndarray, np.nda
     sample of outliers, say) goes to the smaller rotation (the larger trace), then to the
     ``t`` whose largest component is positive: the order of ``poses`` follows the SVD's
     arbitrary basis, the choice does not."""
+    seen: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+
     def key(pose):
         R, t = pose
-        d1, d2 = depths(R, t, y1, y2)
-        return (int(np.count_nonzero((d1 > 0) & (d2 > 0))), float(np.trace(R)),
-                float(np.sign(t[int(np.argmax(np.abs(t)))])))
+        for R0, t0, d1, d2 in seen:  # (R, −t) of a pose done: its depths negated, exactly
+            if np.array_equal(R, R0) and np.array_equal(t, -t0):
+                front = np.count_nonzero((d1 < 0) & (d2 < 0))
+                break
+        else:
+            d1, d2 = depths(R, t, y1, y2)
+            seen.append((R, t, d1, d2))
+            front = np.count_nonzero((d1 > 0) & (d2 > 0))
+        return (int(front), float(np.trace(R)), float(np.sign(t[int(np.argmax(np.abs(t)))])))
 
     return max(poses, key=key)
 

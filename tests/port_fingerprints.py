@@ -107,7 +107,7 @@ FINGERPRINTS: dict[str, str] = {
     'geometry.focal_lengths': '39c84f8e93d6',
     'geometry.essential_poses': 'b863be224cb9',
     'geometry.depths': 'd929c1fd98c6',
-    'geometry.best_pose': '7dbb992250cc',
+    'geometry.best_pose': 'd36b79168e9c',
     'geometry.nearest_essential': '898b1d686f05',
     'geometry.homography_poses': 'e6c7f0b6a730',
     'geometry.rotation_from_pairs': 'd48c00712efd',
