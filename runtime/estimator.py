@@ -517,12 +517,12 @@ class Estimator:
         model's budget the support it must reach to matter (:meth:`_need`) — a model that
         fits next to nothing of the data (a plane among the matches of a 3-D scene) is
         then not searched to its cap for a structure that could not be chosen. Its samples,
-        uniform ones, count in the model's own search later (:attr:`ModelSearch.drawn_afresh`:
-        eq. 25's chance is a uniform sample's). Its
-        estimate is no state of the lattice, nor a candidate of the model's search: a child
-        extends its parent's structure (report §5), and a structure found from all the
-        measures may be none the lattice reaches (a conic of two parallel lines straddling
-        the points of a line, which the first-order error scores above the line)."""
+        uniform ones, count in the model's own search later (eq. 25's chance is a uniform
+        sample's: :attr:`ModelSearch.drawn_afresh`). Its estimate is no state of the
+        lattice, nor a candidate of the model's search: a child extends its parent's
+        structure (report §5), and a structure found from all the measures may be none the
+        lattice reaches (a conic of two parallel lines straddling the points of a line,
+        which the first-order error scores above the line)."""
         problem, _, channel = self._problem_for(model)
         search = ModelSearch(self.fam, model, problem, channel, self.q0, self._rng,
                              self.scale, self.scorer,

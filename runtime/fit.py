@@ -140,9 +140,14 @@ def check_options(max_iter, xtol, eps) -> None:
 
 def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0=None,
                 Q0=None, max_iter: int = 100, xtol: float = 1e-10,
-                verify: bool = True) -> FitResult:
+                verify: bool = True, brief: bool = False, derive: bool = True) -> FitResult:
     """:func:`fit` on a validated problem (optionally with another prior ``q0``, ``Q0``);
-    ``verify=False``: its end is not checked (:func:`~.iterate.iterate`; never a success)."""
+    ``verify=False``: its end is not checked (:func:`~.iterate.iterate`; never a success).
+    ``brief``: a hypothesis whose estimate alone is used (a robust search's local
+    optimisation): the result's information, covariance and derived quantities are not
+    computed (NaN, empty), nor its corrected measures and degrees of freedom (0).
+    ``derive=False``: no derived quantities (a fit that may be superseded: the caller
+    derives them for the one it keeps, :func:`~kanagen.runtime.results.derived_values`)."""
     if (q0 is not None and q0 is not problem.q0) or (Q0 is not None and Q0 is not problem.Q0):
         problem = replace(problem, q0=problem.q0 if q0 is None else q0,
                           Q0=problem.Q0 if Q0 is None else Q0)
@@ -159,6 +164,15 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
         with np.errstate(all="ignore"):
             x = evaluate(problem, red.full(out.point.q), out.point.mt)
         lin = proj = None
+    if brief:
+        n = fam.n
+        return FitResult(model=model, params=fam.params_dict(x.q), q=x.q.copy(), measures={},
+                         info=np.full((n, n), np.nan), covariance=np.full((n, n), np.nan),
+                         cost=x.cost, dof=0, residual=np.nan, constraint_violation=x.delta,
+                         iterations=out.iterations, success=False, status=out.status,
+                         message=out.message, ranks={}, derived={},
+                         slacks=fam.slack_dict(x.q), units=fam.units,
+                         pinned=fam.pinned(model))
     if lin is None or lin.x is not x:  # the outputs are taken at the returned point
         try:
             with np.errstate(all="ignore"):
@@ -194,7 +208,7 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
         status=out.status,
         message=out.message,
         ranks={ch.name: r for ch, r in zip(problem.channels, ranks, strict=True)},
-        derived=derived_values(fam, x.q, covariance, problem.k, model),
+        derived=derived_values(fam, x.q, covariance, problem.k, model) if derive else {},
         slacks=fam.slack_dict(x.q),
         units=fam.units,
         pinned=fam.pinned(model),

@@ -9,6 +9,7 @@ import functools
 import itertools
 import math
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
@@ -18,7 +19,7 @@ from .influence import Influence
 from .iterate import MAX_ITER, UNVERIFIED
 from .minimal import coherence_errors
 from .projector import Problem
-from .results import FitResult
+from .results import FitResult, derived_values
 
 _REFINE_ROUNDS = 6  # threshold-and-refine rounds at most (they stop when the inliers do)
 _ROUND_ITER = 20  # iterations of a refinement round whose inliers may still change
@@ -170,7 +171,7 @@ class Refinement:
         if sum(r.size for r in rows) <= self.min_rows:
             return None
         fit = fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=q,
-                          max_iter=max_iter, verify=False)  # its estimate alone is used
+                          max_iter=max_iter, verify=False, brief=True)  # its estimate alone
         if not np.all(np.isfinite(fit.q)):
             return None
         refined = self.errors(fit.q, iterations=1, ranks=self.ranks)
@@ -191,13 +192,27 @@ class Refinement:
         result, rows, errors, threshold = self._rounds(q, errors, q0, Q0, first, window,
                                                        max_iter, short_of)
         if result is None or not np.all(np.isfinite(result.q)):
-            return result, rows, errors, threshold
-        verified = self._verified(result, rows, q0, Q0, max_iter)
+            return self._derived(result), rows, errors, threshold
+        verified = self._derived(self._verified(result, rows, q0, Q0, max_iter))
         if verified.q is not result.q and not np.array_equal(verified.q, result.q) and \
                 np.all(np.isfinite(verified.q)):
             errors = self.errors(verified.q)  # at the reported q
             threshold = self.split(errors, window)[0]
         return verified, rows, errors, threshold
+
+    def _fit(self, sample: Problem, start: np.ndarray, q0, Q0, max_iter: int) -> FitResult:
+        """A round's fit of the model on ``sample`` from ``start``: not verified and without
+        derived quantities — its end is a start of the next round; :meth:`rounds` verifies
+        and derives the one it reports."""
+        return fit_problem(self.fam, self.model, sample, q_start=start, q0=q0, Q0=Q0,
+                           max_iter=max_iter, verify=False, derive=False)
+
+    def _derived(self, fit: FitResult | None) -> FitResult | None:
+        """``fit`` with its derived quantities (the rounds' fits are made without)."""
+        if fit is None or fit.derived:
+            return fit
+        return replace(fit, derived=derived_values(self.fam, fit.q, fit.covariance,
+                                                   self.problem.k, self.model))
 
     def _verified(self, fit: FitResult, rows, q0, Q0, max_iter: int) -> FitResult:
         """The rounds' last fit, its end verified (:func:`~kanagen.runtime.iterate.iterate`):
@@ -243,8 +258,7 @@ class Refinement:
             rows = new
             per_round = min(max_iter, _ROUND_ITER)
         else:
-            result = fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=q,
-                                 q0=q0, Q0=Q0, max_iter=max_iter, verify=False)
+            result = self._fit(self.problem.subset(rows), q, q0, Q0, max_iter)
             if np.all(np.isfinite(result.q)):
                 errors = self.errors(result.q)
                 threshold = self.split(errors, window)[0]
@@ -271,8 +285,7 @@ class Refinement:
                 new = _less(new, out)
                 if _same(new, rows):
                     break
-                fit = fit_problem(self.fam, self.model, self.problem.subset(new),
-                                  q_start=result.q, q0=q0, Q0=Q0, max_iter=max_iter, verify=False)
+                fit = self._fit(self.problem.subset(new), result.q, q0, Q0, max_iter)
                 if not np.all(np.isfinite(fit.q)):
                     break
                 result, rows, errors = fit, new, self.errors(fit.q)
@@ -321,8 +334,7 @@ class Refinement:
                     break
             trial_rows = _without(rows, out)
             trial_sample = self.problem.subset(trial_rows)
-            trial = fit_problem(self.fam, self.model, trial_sample, q_start=fit.q, q0=q0,
-                                Q0=Q0, max_iter=max_iter, verify=False)
+            trial = self._fit(trial_sample, fit.q, q0, Q0, max_iter)
             if not np.all(np.isfinite(trial.q)):
                 break
             trial_errors = self.errors(trial.q)
@@ -369,8 +381,7 @@ class Refinement:
         if suspects.size == 0:
             return None
         rest = _without(rows, suspects)
-        others = fit_problem(self.fam, self.model, self.problem.subset(rest), q_start=fit.q,
-                             q0=q0, Q0=Q0, max_iter=max_iter, verify=False)
+        others = self._fit(self.problem.subset(rest), fit.q, q0, Q0, max_iter)
         if not np.all(np.isfinite(others.q)):
             return None
         errors = self.errors(others.q)
@@ -381,8 +392,7 @@ class Refinement:
             return None
         if len(out) < suspects.size:
             rest = _without(rows, out)
-            others = fit_problem(self.fam, self.model, self.problem.subset(rest),
-                                 q_start=others.q, q0=q0, Q0=Q0, max_iter=max_iter, verify=False)
+            others = self._fit(self.problem.subset(rest), others.q, q0, Q0, max_iter)
             if not np.all(np.isfinite(others.q)):
                 return None
             errors = self.errors(others.q)
@@ -397,8 +407,7 @@ class Refinement:
         lap = min(max_iter, _ROUND_ITER) if len(starts) > 1 else max_iter
         if laps:
             lap = min(lap, _LAP)
-        fits = [fit_problem(self.fam, self.model, sample, q_start=start, q0=q0, Q0=Q0,
-                            max_iter=lap, verify=False) for start in starts]
+        fits = [self._fit(sample, start, q0, Q0, lap) for start in starts]
         costs = [f.cost if np.isfinite(f.cost) else np.inf for f in fits]
         least = min(costs)
         # a tie (an estimate and an equivalent one: t and −t of an essential matrix) goes to
@@ -419,8 +428,7 @@ class Refinement:
         goes on."""
         while fit.status == MAX_ITER and done < max_iter and np.all(np.isfinite(fit.q)):
             lap = min(_LAP, max_iter - done) if laps else max_iter - done
-            more = fit_problem(self.fam, self.model, sample, q_start=fit.q, q0=q0, Q0=Q0,
-                               max_iter=lap, verify=False)
+            more = self._fit(sample, fit.q, q0, Q0, lap)
             done += lap
             if laps and not fit.cost - more.cost >= _PROGRESS * abs(fit.cost):
                 return more if more.cost <= fit.cost else fit

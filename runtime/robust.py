@@ -440,7 +440,7 @@ class ModelSearch:
                 continue
             if self.overdetermined:  # a hypothesis, scored next: its end is not verified
                 fit = fit_problem(self.fam, self.model, sample, q_start=start, max_iter=20,
-                                  verify=False)
+                                  verify=False, brief=True)
                 if fit.status in (CONVERGED, UNVERIFIED) and np.all(np.isfinite(fit.q)):
                     out.append(fit.q)
                 continue
