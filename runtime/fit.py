@@ -144,8 +144,8 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
     """:func:`fit` on a validated problem (optionally with another prior ``q0``, ``Q0``);
     ``verify=False``: its end is not checked (:func:`~.iterate.iterate`; never a success).
     ``brief``: a hypothesis whose estimate alone is used (a robust search's local
-    optimisation): the result's information, covariance and derived quantities are not
-    computed (NaN, empty), nor its corrected measures and degrees of freedom (0).
+    optimisation): nothing is projected at the returned point — its information and
+    covariance are NaN, its ranks 0, no derived quantities — and it is never a success.
     ``derive=False``: no derived quantities (a fit that may be superseded: the caller
     derives them for the one it keeps, :func:`~kanagen.runtime.results.derived_values`)."""
     if (q0 is not None and q0 is not problem.q0) or (Q0 is not None and Q0 is not problem.Q0):
@@ -164,16 +164,9 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
         with np.errstate(all="ignore"):
             x = evaluate(problem, red.full(out.point.q), out.point.mt)
         lin = proj = None
-    if brief:
-        n = fam.n
-        return FitResult(model=model, params=fam.params_dict(x.q), q=x.q.copy(), measures={},
-                         info=np.full((n, n), np.nan), covariance=np.full((n, n), np.nan),
-                         cost=x.cost, dof=0, residual=np.nan, constraint_violation=x.delta,
-                         iterations=out.iterations, success=False, status=out.status,
-                         message=out.message, ranks={}, derived={},
-                         slacks=fam.slack_dict(x.q), units=fam.units,
-                         pinned=fam.pinned(model))
-    if lin is None or lin.x is not x:  # the outputs are taken at the returned point
+    if brief:  # a hypothesis: no outputs at the returned point
+        lin, derive = None, False
+    elif lin is None or lin.x is not x:  # the outputs are taken at the returned point
         try:
             with np.errstate(all="ignore"):
                 lin, proj = project(problem, x)
@@ -189,7 +182,8 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
         ranks = tuple(np.zeros(ch.size, dtype=int) for ch in problem.channels)
         covariance = np.full((n, n), np.nan)
     dof = n - rank0 + int(sum(int(r.sum()) for r in ranks))
-    success = out.status == CONVERGED and _feasible(x, out.start_violation, residual, ranks)
+    success = not brief and out.status == CONVERGED and \
+        _feasible(x, out.start_violation, residual, ranks)
     measures = {ch.name: ch.with_corrected(m) for ch, m in zip(problem.channels, x.mt,
                                                                  strict=True)}
     return FitResult(
