@@ -8,7 +8,8 @@ The issue's floor: 30 points on half an ellipse, iid Gaussian noise of standard 
   (geometric distance) estimate -- without failing more often than ODR, and
 * fit in a median time at most 1/20 of ``scipy.odr``'s (issue 5, which subsumes issue 2's 1/5):
   the floor applies to kanagen's fastest backend, ``kanagen.load("conic",
-  backend="compiled")`` (the compiled estimator, docs/fastpath.md); the table also reports
+  backend="compiled")`` (the family's equations compiled to C; the estimator's kernels are
+  numba's on every backend, docs/engine.md); the table also reports
   the NumPy backend and, with ``--backends``, the uncompiled CasADi one.
 
 Set-up
@@ -899,8 +900,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         if fam.backend != backend:
             print(f"kanagen[{backend}]: not available here (backend {fam.backend!r}), skipped")
             continue
-        if backend == "compiled" and fam.fastpath is None:
-            print("kanagen[compiled]: the compiled estimator is off (see the warning above)")
         fams[backend] = fam
     fam = kanagen.load("conic")
     with_odrpack = odrpack_available() and not args.no_odrpack

@@ -6,9 +6,7 @@ outliers in a 640 × 480 image.
 
 * *projector iteration*: one application of the projector at a point near the solution —
   the equations evaluated, linearised, whitened and solved (``evaluate``, ``linearise``,
-  ``solve`` of :mod:`kanagen.runtime.projector`); on the compiled backend, the compiled
-  estimator (docs/fastpath.md) run for one iteration (``kanagen.fit(..., max_iter=1)``,
-  which also restores the measures and computes the covariance).
+  ``solve`` of :mod:`kanagen.runtime.projector`).
 * *robust sample*: one step of the random search (:class:`kanagen.runtime.robust.
   ModelSearch`): draw a minimal sample, solve it (eq. 21), score every measure (eq. 24,
   29). Steps that improve the best estimate also refine it (LO-RANSAC); the median over
@@ -83,9 +81,6 @@ def projector_iteration(fam: kanagen.ModelFamily, xy: np.ndarray, repeats: int
                         ) -> tuple[float, float]:
     """Seconds of one projector iteration at the ellipse (see the module docstring)."""
     q = ellipse_vector()
-    if fam.fastpath is not None:  # the compiled estimator: evaluate, restore, project once
-        return median_time(lambda: kanagen.fit(fam, "conic", data={"point": xy}, q0=q,
-                                               max_iter=0), repeats)
     problem = make_problem(fam, "conic", {"point": xy}, None, q0=q)
 
     def step():

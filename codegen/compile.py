@@ -1,15 +1,13 @@
 """``--compile``: C from CasADi's code generator, compiled with the system C compiler.
 
 The CasADi functions of a family (its generated CasADi module's ``FUNCTIONS``) go through
-``casadi.CodeGenerator`` into C, followed by the family's tables
-(``templates/c/family.c.jinja``) and the compiled fast path of the estimator
-(``c/kanagen_fast.c``, docs/fastpath.md), the closed-form initialisers
-(``c/kanagen_geometry.c``: only when a model of the family names one of them,
-:func:`uses_twins`) and a robust search's sample (``c/kanagen_sample.c``), all in one
-translation unit compiled into a shared
-library in a cache folder keyed by the spec hash, the kanagen version, the generator and the
-CasADi version. The CasADi functions are loaded back with ``casadi.external`` (same names,
-inputs and outputs), the estimator through :mod:`kanagen.runtime.fastpath`. The C compiler is
+``casadi.CodeGenerator`` into C, followed by the family's tables and its evaluation entry
+points (``templates/c/family.c.jinja``: ``kg_eval``, the equations of all the measures in one
+call), in one translation unit compiled into a shared library in a cache folder keyed by the
+spec hash, the kanagen version, the generator and the CasADi version. The CasADi functions
+are loaded back with ``casadi.external`` (same names, inputs and outputs), ``kg_eval``
+through :class:`kanagen.runtime.backends.CompiledFunctions`. The estimator's kernels are
+not in it: they are numba's, one source for every backend (docs/engine.md). The C compiler is
 ``$CC`` (split like a shell word list), else the first of ``cc``, ``gcc``, ``clang`` on the
 PATH.
 
@@ -38,16 +36,6 @@ CFLAGS = ("-O3", "-ffp-contract=off", "-shared", "-fPIC")
 #: instruction, without a branch to set ``errno`` on negative input (the same values; the
 #: estimator never reads errno).
 TUNING = ("-fno-semantic-interposition", "-fno-math-errno")
-_FAST_C = Path(__file__).with_name("c") / "kanagen_fast.c"
-#: the closed-form initialisers of the two-view family (after _FAST_C: it uses its SVD),
-#: compiled in when a model names one of them (uses_twins)
-_GEOMETRY_C = Path(__file__).with_name("c") / "kanagen_geometry.c"
-#: the initializers whose compiled twins _GEOMETRY_C holds (``kg_<name>``), in the order
-#: of kanagen_sample.c's table (runtime/fastpath.py: TWINS, which the tests compare)
-TWIN_INITIALIZERS = ("two_view_fundamental", "two_view_homography", "two_view_rotation",
-                     "two_view_translation")
-#: one random sample of a robust search in one call (after both: it calls them)
-_SAMPLE_C = Path(__file__).with_name("c") / "kanagen_sample.c"
 _TIMEOUT = 300  # seconds
 
 
@@ -84,16 +72,9 @@ def cache_key(sha256: str) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 
-def uses_twins(family: dict) -> bool:
-    """Does a model of ``family`` (a NumPy module's ``FAMILY``) name an initializer with a
-    compiled twin? Only then is ``c/kanagen_geometry.c`` compiled into its library."""
-    return any(m.get("initializer") in TWIN_INITIALIZERS for m in family["models"].values())
-
-
 def c_source(module: ModuleType, family: dict) -> str:
-    """One C unit: every CasADi function of the generated module ``module``, the tables of
-    ``family`` (the NumPy module's ``FAMILY``) and the estimator's fast path (with the
-    two-view closed forms when the family names one: :func:`uses_twins`)."""
+    """One C unit: every CasADi function of the generated module ``module``, then the
+    tables and evaluation entry points of ``family`` (the NumPy module's ``FAMILY``)."""
     import casadi
 
     generator = casadi.CodeGenerator(f"{family['name']}.c", {"with_header": False})
@@ -102,9 +83,7 @@ def c_source(module: ModuleType, family: dict) -> str:
     from .backend import environment
 
     tables = environment("c").get_template("family.c.jinja").render(**_tables(module, family))
-    parts = (_FAST_C, _GEOMETRY_C, _SAMPLE_C) if uses_twins(family) else (_FAST_C, _SAMPLE_C)
-    return "\n".join([generator.dump(), tables]
-                     + [path.read_text(encoding="utf-8") for path in parts])
+    return "\n".join([generator.dump(), tables])
 
 
 def _tables(module: ModuleType, family: dict) -> dict:
@@ -112,10 +91,7 @@ def _tables(module: ModuleType, family: dict) -> dict:
     import math
 
     channels = list(family["channels"].items())
-    index, index_off, p = [], [], []
-    for _, ch in channels:
-        index_off.append(len(index))
-        index += [ch["components"].index(c) for c in ch["corrected"]]
+    p = []
     models, measures = [], []
     for mi, entry in enumerate(module.MODELS.values()):
         models.append({"c0": entry["c0"].name(), "p0": entry["c0"].size1_out(0)})
@@ -128,20 +104,14 @@ def _tables(module: ModuleType, family: dict) -> dict:
     functions = list(module.FUNCTIONS)
     largest = max((math.prod(f.size_out(i)) for f in functions for i in range(f.n_out())),
                   default=1)
-    ps = {m["p"] for m in measures}
-    ks = {len(ch["corrected"]) for _, ch in channels}
     return {
         "source": module.SPEC_SOURCE, "sha256": module.SPEC_SHA256, "name": family["name"],
-        "maxp": max(ps, default=0), "maxk": max(ks, default=0),
-        "maxw": max((len(ch["components"]) for _, ch in channels), default=0),
-        "uniform_p": ps.pop() if len(ps) == 1 else 0,
-        "uniform_k": ks.pop() if len(ks) == 1 else 0,
         "n": n, "nk": len(family["constants"]),
         "channels": [{"width": len(ch["components"]), "ncorr": len(ch["corrected"])}
                      for _, ch in channels],
-        "index": index, "index_off": index_off, "p": p, "models": models,
+        "p": p, "models": models,
         "measures": measures, "nderived": len(family["derived"]),
-        "nslack": len(family["slack_kinds"]), "twins": int(uses_twins(family)),
+        "nslack": len(family["slack_kinds"]),
         "sz": {"arg": max(f.sz_arg() for f in functions), "res": max(f.sz_res() for f in functions),
                "iw": max(f.sz_iw() for f in functions), "w": max(f.sz_w() for f in functions),
                "buf": largest},
@@ -150,8 +120,8 @@ def _tables(module: ModuleType, family: dict) -> dict:
 
 def compile_family(module: ModuleType, family: dict, cache: Path,
                    announce: Callable[[str, float | None], None] | None = None) -> Path:
-    """The shared library of a generated CasADi module and of the fast path of its family
-    (``family``: the NumPy module's ``FAMILY``), compiled once into ``cache``.
+    """The shared library of a generated CasADi module and of its family's evaluation entry
+    points (``family``: the NumPy module's ``FAMILY``), compiled once into ``cache``.
     ``announce(name, seconds)``: called before a compile (``seconds`` None) and after it.
 
     Raises

@@ -50,9 +50,10 @@ def load(spec: str | Path | Family, *, backend: str | None = None,
         A YAML spec file; the name of a shipped family (``"conic"``); or a validated
         :class:`kanagen.modelspec.Family` (e.g. from :func:`kanagen.modelspec.family_from_data`).
     backend : {"compiled", "numpy", "casadi"}, optional
-        What evaluates the equations: the family compiled to C (CasADi's code generator,
-        the estimator's compiled kernels and the system C compiler: compiled once per
-        machine and spec, cached, a line on stderr while it compiles; docs/fastpath.md);
+        What evaluates the equations outside the estimator's kernels (which are numba's on
+        every backend, docs/engine.md): the family compiled to C (CasADi's code generator
+        and the system C compiler: compiled once per machine and spec, cached, a line on
+        stderr while it compiles);
         the generated NumPy module; or the generated CasADi functions. Same estimates to
         rounding level. Default: :func:`default_backend` (``$KANAGEN_BACKEND``, else
         "compiled"; where no C compiler works, one
@@ -98,33 +99,29 @@ def load(spec: str | Path | Family, *, backend: str | None = None,
             module = _shipped_by_name(str(spec))
     if family is not None:
         module = _module_for(family, "numpy")
-    functions = fastpath = None
+    functions = None
     if backend != "numpy":
         casadi_module = _module_for(family, "casadi") if family is not None else \
             _shipped_by_name(f"{module.FAMILY['name']}_casadi")
         if backend == "compiled":
-            compiled = _compiled(casadi_module, module, by_default)
-            if compiled is None and by_default:
+            functions = _compiled(casadi_module, module, by_default)
+            if functions is None and by_default:
                 return ModelFamily(module, None, eliminate_linear)
-            functions, fastpath = compiled or (None, None)
         if functions is None:
             functions = CasadiFunctions(casadi_module, module.FAMILY["derived"])
-    return ModelFamily(module, functions, eliminate_linear, fastpath)
+    return ModelFamily(module, functions, eliminate_linear)
 
 
 def _compiled(casadi_module, module, by_default: bool):
-    """The compiled functions and fast path of a family, or None with one warning (per
-    family and process) when it cannot be compiled; a first compile says so on stderr."""
+    """The compiled functions of a family, or None with one warning (per family and
+    process) when it cannot be compiled; a first compile says so on stderr."""
     from .codegen.compile import CompileError, CompileWarning, compile_family, load_compiled
-    from .runtime.fastpath import FastPath
 
     name = module.FAMILY["name"]
     try:
         library = compile_family(casadi_module, module.FAMILY, cache_dir(), _announce)
-        functions = CompiledFunctions(casadi_module, module.FAMILY["derived"],
-                                      load_compiled(casadi_module, library), library,
-                                      module)
-        return functions, FastPath.load(library, module)
+        return CompiledFunctions(casadi_module, module.FAMILY["derived"],
+                                 load_compiled(casadi_module, library), library, module)
     except CompileError as exc:
         instead = "the NumPy backend (the same estimates, slower)" if by_default else \
             "the uncompiled CasADi backend"

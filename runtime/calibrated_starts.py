@@ -23,7 +23,8 @@ alike, and the motion ``X2 = R X1 + t`` (``‖t‖ = 1``) satisfies ``r2ᵀ [t]�
 
 Importing this module registers them; the registry imports it the first time one of their
 names is looked up (:data:`~kanagen.runtime.initializers.PROVIDERS`). They have no compiled
-twins: on the compiled backend they run as Python.
+:class:`~kanagen.runtime.initializers.Kernel`: a search's samples with them go solve by
+solve from Python (the minimal solves and errors in the engine).
 """
 
 from __future__ import annotations

@@ -71,17 +71,12 @@ class ModelFamily:
     family's metadata, its functions and their row forms, which the engine compiles);
     ``functions`` the backend that evaluates the equations (default: the same NumPy module,
     :mod:`kanagen.runtime.backends`). ``eliminate_linear=True`` fits the models that have
-    linear constraints in their free components (:meth:`reduction`). ``fastpath``: the
-    compiled estimator that :func:`kanagen.fit` uses where it applies
-    (:mod:`kanagen.runtime.fastpath`).
+    linear constraints in their free components (:meth:`reduction`).
     """
 
-    def __init__(self, module: ModuleType, functions=None, eliminate_linear: bool = False,
-                 fastpath=None):
+    def __init__(self, module: ModuleType, functions=None, eliminate_linear: bool = False):
         announce()  # a family's first kernels: the first compile on a machine takes minutes
         self.module = module
-        #: the compiled estimator (backend "compiled", docs/fastpath.md), or None
-        self.fastpath = fastpath
         self.functions = functions if functions is not None else NumpyFunctions(module)
         self.eliminate_linear = eliminate_linear
         meta = module.FAMILY

@@ -42,7 +42,6 @@ def make_problem(fam: ModelFamily, model: str, data: Mapping | None = None,
         eps=eps,
         relations=(lambda q: fam.relations_hold(model, q, k)) if fam.slack_names else None,
         strict_slacks=fam.strict_slacks(model),
-        compiled=None if fam.fastpath is None else (fam.fastpath, model),
         names=fam.parameter_names,
         rows=model_rows(fam, model),
     )

@@ -68,6 +68,21 @@ PROVIDED_KINDS: dict[str, str] = {"calibrated_in_front": "admission"}
 
 
 @dataclass(frozen=True)
+class Kernel:
+    """A closed form compiled for the robust search's samples
+    (:func:`kanagen.runtime.engine.sample.sample`): the address of a C-callable
+    ``int64 (int64 s, double *X, double *k, double *out)`` — ``s`` sample rows ``X`` of the
+    sampled channel, the family's ``constants`` in this order, candidates written one a
+    row of :data:`~kanagen.runtime.engine.sample.WIDTH` values into ``out``, their count
+    returned (−1: the sample is left to the Python) — made on first use, and which
+    parameter each value of a candidate's row is (``names``: ``(column, parameter)``)."""
+
+    address: Callable[[], int]
+    names: tuple[tuple[int, str], ...]
+    constants: tuple[str, ...]
+
+
+@dataclass(frozen=True)
 class Initializer:
     """A registered closed form and what it needs of the family."""
 
@@ -82,6 +97,8 @@ class Initializer:
     equivalent: bool = False
     #: "initializer" (a model's ``initializer:``) or "admission" (its ``admissible:``)
     kind: str = "initializer"
+    #: the same closed form compiled for the samples of a search (None: the Python's)
+    kernel: Kernel | None = None
 
     def missing(self, parameter, constants, channels: Mapping[str, tuple[str, ...]]) -> str:
         """What the family lacks for this initializer ('' when nothing)."""
@@ -216,22 +233,20 @@ def label_candidates(labels: Mapping[str, tuple[float, ...]]) -> InitializerFn:
 
 def model_initializers(fam, overrides: Mapping | None = None) -> dict[str, InitializerFn]:
     """Each model's initializer: the spec's choice, overridden by ``overrides``; a model
-    with qualitative variables and no closed form starts on each of its labels. On the
-    compiled backend a registered initializer named by the spec or an override runs as its
-    compiled twin (:meth:`~kanagen.runtime.fastpath.FastPath.initializer`: the same
-    candidates); a callable override runs as given."""
+    with qualitative variables and no closed form starts on each of its labels. A
+    registered closed form with a compiled :class:`Kernel` carries it (``fn.kernel``: the
+    robust search's samples call it); a callable override runs as given."""
     out = {}
     overrides = dict(overrides or {})
     for name in overrides:
         fam.model(name)  # a clear error for an unknown model
-    fast = getattr(fam, "fastpath", None)
     for name, info in fam.models.items():
         choice = overrides[name] if name in overrides else info.initializer
         fn = resolve(choice)
-        if fast is not None and isinstance(choice, str):
-            fn = fast.initializer(choice) or fn
         if isinstance(choice, str) and INITIALIZERS[choice].equivalent:
             fn.equivalent = True  # read by equivalent()
+        if isinstance(choice, str) and INITIALIZERS[choice].kernel is not None:
+            fn.kernel = INITIALIZERS[choice].kernel  # read by the search's sampler
         if fn is None and info.labels and overrides.get(name, "") is not None:
             fn = label_candidates(info.labels)
         if fn is not None:

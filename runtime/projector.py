@@ -49,8 +49,6 @@ class Problem:
     relations: Callable | None = None  # q -> whether the model's inequalities hold (app. F)
     # slacks of the model's strict relations: (component, p) with c = 1/s^p (c > 0: 2, c != 0: 1)
     strict_slacks: tuple[tuple[int, int], ...] = ()
-    # (FastPath, model) when the family is compiled: coherence errors in C (fastpath.py)
-    compiled: tuple | None = None
     names: tuple[str, ...] = ()  # the parameter's components, for messages
     rows: object = None  # the model's compiled row kernels (engine.data.RowKernels)
 

@@ -41,6 +41,5 @@ def reduced_problem(fam: ModelFamily, model: str, problem: Problem,
         # a strict relation's slack, where it is free: its index in r
         strict_slacks=tuple((free.index(i), power) for i, power in problem.strict_slacks
                             if i in free),
-        compiled=None,  # the compiled library evaluates the full model
         rows=model_rows(fam, model, red),
     )

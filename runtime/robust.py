@@ -17,14 +17,16 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .engine.data import arrays
+from .engine.sample import minimal_solve as solve_sample
 from .family import ModelFamily
-from .fastsample import draws_as_numpy, sampler_for
+from .fastsample import MINIMAL, draws_as_numpy, sampler_for
 from .fit import check_correct_bias, fit_problem, make_problem
 from .hyper import corrected
 from .initializers import InitializerFn, admission, equivalent, model_initializers, start_from
 from .inputs import check_search_options
 from .iterate import CONVERGED, UNVERIFIED
-from .minimal import coherence_errors, manifold_ranks, minimal_solve_problem
+from .minimal import coherence_errors, manifold_ranks
 from .projector import Problem
 from .refine import Refinement
 from .results import FitResult, ResultProtocol
@@ -215,8 +217,8 @@ class ModelSearch:
             self.base.astype(np.int64)
         self._bursts = self._sampler is not None and self.score_fn is relevance and \
             not (self.local > 0.0 and self.base_size == 0) and \
-            draws_as_numpy(self._sampler.fast, ((self.pool.size, self.sample_size),
-                                                (self._base64.size, self.base_size)))
+            draws_as_numpy(((self.pool.size, self.sample_size),
+                            (self._base64.size, self.base_size)))
         self._neighbours: np.ndarray | None = None
         self.samples = 0
         self.degenerate = 0
@@ -427,28 +429,33 @@ class ModelSearch:
         starts = self._starts(rows)
         if not starts:
             return out
+        if not self.overdetermined:  # the engine's minimal solve, on the sample's rows
+            A = arrays(self.problem)
+            at = np.ascontiguousarray(A.start[self.channel] + rows, dtype=np.int64)
+            for start in starts:
+                q, solved, rank, _, _ = solve_sample(A, at, np.asarray(start, dtype=float),
+                                                     *MINIMAL)
+                if solved and rank >= self.full_rank:
+                    out.append(q)
+                    if self.equivalent:
+                        break  # the other candidates are the same estimate
+            return out
         sample = self.problem.subset(tuple(
             rows if i == self.channel else np.zeros(0, dtype=int)
             for i in range(len(self.problem.channels))))
         for start in starts:
-            if self.overdetermined and self.initializer is not None:
+            if self.initializer is not None:
                 # a closed form on an over-determined sample is its least-squares hypothesis
                 # already (LO and the final rounds refine the best): kept on the constraints
                 c0 = self.problem.c0(start, self.problem.k)[0]
                 if np.all(np.isfinite(start)) and np.max(np.abs(c0), initial=0.0) <= 1e-8:
                     out.append(start)
                 continue
-            if self.overdetermined:  # a hypothesis, scored next: its end is not verified
-                fit = fit_problem(self.fam, self.model, sample, q_start=start, max_iter=20,
-                                  verify=False, brief=True)
-                if fit.status in (CONVERGED, UNVERIFIED) and np.all(np.isfinite(fit.q)):
-                    out.append(fit.q)
-                continue
-            sol = minimal_solve_problem(sample, start)
-            if sol.success and sol.rank >= self.full_rank:
-                out.append(sol.q)
-                if self.equivalent:
-                    break  # the other candidates are the same estimate
+            # a hypothesis, scored next: its end is not verified
+            fit = fit_problem(self.fam, self.model, sample, q_start=start, max_iter=20,
+                              verify=False, brief=True)
+            if fit.status in (CONVERGED, UNVERIFIED) and np.all(np.isfinite(fit.q)):
+                out.append(fit.q)
         return out
 
     def split(self, errors: tuple[np.ndarray, ...], window: float = 0.35):

@@ -3,14 +3,16 @@
 
 ``two_view_fundamental`` (seven- or eight-point ``F``, focal lengths, pose),
 ``two_view_homography`` (DLT ``H``, its two poses), ``two_view_rotation``,
-``two_view_translation`` and ``two_view_zoom``, on the epipolar geometry of
-:mod:`~kanagen.runtime.geometry`.
-Importing this module registers them (:func:`~kanagen.runtime.initializers.register`); the
-registry imports it the first time one of their names is looked up
-(:data:`~kanagen.runtime.initializers.PROVIDERS`), so a family whose models name none of them
-(conic, line, ...) loads neither this module nor the geometry. The family's compiled library
-holds their C twins (codegen/c/kanagen_geometry.c, docs/fastpath.md) only when one of its
-models names one of them.
+``two_view_translation`` and ``two_view_zoom``. The first four are compiled kernels
+(:mod:`~kanagen.runtime.two_view_twins`, on the closed forms of
+:mod:`~kanagen.runtime.two_view_kernels`): the functions here wrap them, and a compiled
+the robust search's samples call the same kernels by address (their registry entries'
+:class:`~kanagen.runtime.initializers.Kernel`:
+:func:`~kanagen.runtime.two_view_twins.twin_address`). Importing this module registers
+them (:func:`~kanagen.runtime.initializers.register`); the registry imports it the first
+time one of their names is looked up (:data:`~kanagen.runtime.initializers.PROVIDERS`), so a
+family whose models name none of them (conic, line, ...) neither loads nor compiles this
+module or the geometry.
 """
 
 from __future__ import annotations
@@ -19,27 +21,34 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from . import geometry as g
-from .initializers import Candidates, Initializer, register
+from . import two_view_twins as twins
+from .initializers import Candidates, Initializer, Kernel, register
 
-_TWO_VIEW_Q = ("f1", "f2", "qw", "qx", "qy", "qz", "tx", "ty", "tz", "wx", "wy", "wz")
-_FOCAL_RANGE = (0.1, 10.0)  # focal lengths (× f0) read off F outside this range are noise
-_DEGENERATE = 1e-6  # a singular value below this fraction of the largest is taken as zero
-
-
-def _rays(X: np.ndarray, k: Mapping[str, float], f1: float = 1.0, f2: float = 1.0):
-    """Pixel matches → rays (x, y, f) in the normalised coordinates of the family."""
-    cx, cy, f0 = k["cx"], k["cy"], k["f0"]
-    y1, y2 = np.empty((len(X), 3)), np.empty((len(X), 3))
-    y1[:, 0], y1[:, 1], y1[:, 2] = (X[:, 0] - cx) / f0, (X[:, 1] - cy) / f0, f1
-    y2[:, 0], y2[:, 1], y2[:, 2] = (X[:, 2] - cx) / f0, (X[:, 3] - cy) / f0, f2
-    return y1, y2
+_TWO_VIEW_Q = twins.PARAMETERS
+_FOCAL_RANGE = twins.FOCAL_RANGE
 
 
-def _pose_params(R: np.ndarray, t: np.ndarray) -> dict[str, float]:
-    q = g.quaternion_from_rotation(R)
-    return {"qw": q[0], "qx": q[1], "qy": q[2], "qz": q[3],
-            "tx": t[0], "ty": t[1], "tz": t[2]}
+def _rows(X) -> np.ndarray:
+    """The matches as the kernels read them: an (n, 4) C-ordered float array."""
+    X = np.asarray(X, dtype=float)
+    return np.ascontiguousarray(X[:, :4]) if X.ndim == 2 else np.empty((0, 4))
+
+
+def _constants(k: Mapping[str, float]) -> np.ndarray:
+    return np.array([k["cx"], k["cy"], k["f0"]], dtype=float)
+
+
+def _rays(X: np.ndarray, k: Mapping[str, float]):
+    """Pixel matches → rays (x, y, 1) in the normalised coordinates of the family."""
+    return twins.rays(_rows(X), _constants(k), 1.0, 1.0)
+
+
+def _candidates(name: str, X: np.ndarray, k: Mapping[str, float]) -> Candidates:
+    """The candidates of the compiled initialiser ``name`` on the sample ``X``, by name."""
+    out = np.empty((twins.CANDIDATES, twins.WIDTH))
+    count = twins.KERNELS[name](_rows(X), _constants(k), out)
+    names = twins.NAMES[name]
+    return [{n: row[i] for i, n in names} for row in out[:count].tolist()]
 
 
 def two_view_fundamental(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
@@ -47,70 +56,14 @@ def two_view_fundamental(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
     focal lengths read off it (Bougnoux), then ``R, t`` from the essential matrix, chosen
     by cheirality. An ``F`` whose focal lengths are imaginary or out of range has no
     physical parameter through the sample: it gives no candidate."""
-    X = np.asarray(X, dtype=float)
-    if len(X) < 7 or not np.all(np.isfinite(X)):
-        return []
-    x1, x2 = X[:, :2], X[:, 2:4]
-    f0 = k["f0"]
-    try:
-        Fs = g.fundamental_7point(x1, x2) if len(X) == 7 else [g.fundamental_8point(x1, x2)]
-        out = []
-        for F in Fs:
-            sq1, sq2 = g.focal_lengths(F, (k["cx"], k["cy"]), (k["cx"], k["cy"]))
-            f1, f2 = np.sqrt(max(sq1, 0.0)) / f0, np.sqrt(max(sq2, 0.0)) / f0
-            if not all(_FOCAL_RANGE[0] < f < _FOCAL_RANGE[1] for f in (f1, f2)):
-                continue
-            # F ∝ Tᵀ diag(1, 1, f2) E diag(1, 1, f1) T with T the pixel -> normalised map
-            T = np.array([[1 / f0, 0, -k["cx"] / f0], [0, 1 / f0, -k["cy"] / f0], [0, 0, 1]])
-            Tinv = np.linalg.inv(T)
-            E = np.diag([1.0, 1.0, 1 / f2]) @ Tinv.T @ F @ Tinv @ np.diag([1.0, 1.0, 1 / f1])
-            y1, y2 = _rays(X, k, f1, f2)
-            R, t = g.best_pose(g.essential_poses(g.nearest_essential(E)), y1, y2)
-            out.append({"f1": f1, "f2": f2, **_pose_params(R, t)})
-        return out
-    except (np.linalg.LinAlgError, ValueError, ZeroDivisionError):
-        return []
+    return _candidates("two_view_fundamental", X, k)
 
 
 def two_view_homography(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
     """``H`` by the normalised DLT (4 matches or more), then ``(R, t, w)`` with
     ``H ∝ R + t wᵀ`` at the nominal focal length (the planar model's), in front of
     camera 1; each of the (two) decompositions is a candidate."""
-    X = np.asarray(X, dtype=float)
-    if len(X) < 4 or not np.all(np.isfinite(X)):
-        return []
-    try:
-        H = g.homography_dlt(X[:, :2], X[:, 2:4])
-        f0 = k["f0"]
-        T = np.array([[1 / f0, 0, -k["cx"] / f0], [0, 1 / f0, -k["cy"] / f0], [0, 0, 1]])
-        Hn = T @ H @ np.linalg.inv(T)
-        y1, y2 = _rays(X, k)
-        return [{"f1": 1.0, "f2": 1.0, **_pose_params(R, t), "wx": w[0], "wy": w[1],
-                 "wz": w[2]} for R, t, w in g.homography_poses(Hn, y1, y2)]
-    except (np.linalg.LinAlgError, ValueError, ZeroDivisionError):
-        return []
-
-
-def _kabsch(y1: np.ndarray, y2: np.ndarray) -> np.ndarray | None:
-    """The rotation that best maps the unit rays ``ŷ1`` onto ``ŷ2`` (least squares, Kabsch:
-    ``Σ ŷ2 ŷ1ᵀ = U S Vᵀ``, ``R = u1 v1ᵀ + u2 v2ᵀ + (u1 × u2)(v1 × v2)ᵀ``, det +1); None when
-    the rays do not fix it (``σ2`` negligible)."""
-    a = y1 / np.sqrt(np.sum(y1 * y1, 1))[:, None]
-    b = y2 / np.sqrt(np.sum(y2 * y2, 1))[:, None]
-    U, S, Vt = np.linalg.svd(b.T @ a)
-    if not S[1] > _DEGENERATE * S[0]:
-        return None
-    u1, u2, v1, v2 = U[:, 0], U[:, 1], Vt[0], Vt[1]
-    return np.outer(u1, v1) + np.outer(u2, v2) + np.outer(g.cross(u1, u2), g.cross(v1, v2))
-
-
-def _in_focal_range(F: float) -> bool:
-    return F > 0 and _FOCAL_RANGE[0] < np.sqrt(F) < _FOCAL_RANGE[1]
-
-
-def _rotation_candidate(f: float, R: np.ndarray) -> dict[str, float]:
-    q = g.quaternion_from_rotation(R)
-    return {"f1": f, "f2": f, "qw": q[0], "qx": q[1], "qy": q[2], "qz": q[3]}
+    return _candidates("two_view_homography", X, k)
 
 
 def two_view_rotation(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
@@ -132,55 +85,7 @@ def two_view_rotation(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
     on the unit rays at that ``f``. One candidate, near the optimum on good data; the
     refinement polishes it. Three matches: no closed form here (``[]``).
     """
-    X = np.asarray(X, dtype=float)
-    if len(X) < 2 or len(X) == 3 or not np.all(np.isfinite(X)):
-        return []
-    try:
-        if len(X) > 3:
-            H = g.homography_dlt(X[:, :2], X[:, 2:4])
-            f0 = k["f0"]
-            T = np.array([[1 / f0, 0, -k["cx"] / f0], [0, 1 / f0, -k["cy"] / f0], [0, 0, 1]])
-            Hn = T @ H @ np.linalg.inv(T)
-            det = np.linalg.det(Hn)
-            if not det != 0:
-                return []
-            Hn = Hn / np.cbrt(det)
-            h1, h2, h3 = Hn[:, 0], Hn[:, 1], Hn[:, 2]
-            A = np.outer(h1, h1) + np.outer(h2, h2) - np.diag([1.0, 1.0, 0.0])
-            B = np.diag([0.0, 0.0, 1.0]) - np.outer(h3, h3)
-            den = np.sum(A * A)
-            F = float(np.sum(A * B) / den) if den > 0 else -1.0
-            if not _in_focal_range(F):
-                return []
-            f = float(np.sqrt(F))
-            y1, y2 = _rays(X, k, f, f)
-            R = _kabsch(y1, y2)
-            return [] if R is None else [_rotation_candidate(f, R)]
-        y1, y2 = _rays(X, k, 0.0, 0.0)  # the image vectors (x, y, 0)
-        p, q = y1[0] @ y1[1], y2[0] @ y2[1]
-        s1, s2, t1, t2 = y1[0] @ y1[0], y1[1] @ y1[1], y2[0] @ y2[0], y2[1] @ y2[1]
-        # (p + F)² (t1 + F)(t2 + F) − (q + F)² (s1 + F)(s2 + F), highest power first
-        cubic = [t1 + t2 + 2 * p - s1 - s2 - 2 * q,
-                 t1 * t2 + 2 * p * (t1 + t2) + p * p - s1 * s2 - 2 * q * (s1 + s2) - q * q,
-                 2 * p * t1 * t2 + p * p * (t1 + t2) - 2 * q * s1 * s2 - q * q * (s1 + s2),
-                 p * p * t1 * t2 - q * q * s1 * s2]
-        if not any(cubic):
-            return []
-        out = []
-        for root in np.roots(cubic):
-            if abs(root.imag) > 1e-8 * (1 + abs(root.real)):
-                continue
-            F = float(root.real)
-            if not _in_focal_range(F) or (p + F > 0) != (q + F > 0):
-                continue
-            f = float(np.sqrt(F))
-            y1[:, 2], y2[:, 2] = f, f
-            R = g.rotation_from_pairs(y1[0], y1[1], y2[0], y2[1])
-            if R is not None:
-                out.append(_rotation_candidate(f, R))
-        return out
-    except (np.linalg.LinAlgError, ValueError, ZeroDivisionError):
-        return []
+    return _candidates("two_view_rotation", X, k)
 
 
 def two_view_translation(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
@@ -191,29 +96,7 @@ def two_view_translation(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
     the second least is negligible: the null space is larger). Its sign is first made
     canonical (largest component positive), then chosen by cheirality (the more points in
     front of both cameras; ``t`` itself on a tie). One candidate."""
-    X = np.asarray(X, dtype=float)
-    if len(X) < 2 or not np.all(np.isfinite(X)):
-        return []
-    y1, y2 = _rays(X, k)
-    n = np.cross(y1, y2)
-    if len(X) == 2:
-        t = g.cross(n[0], n[1])
-    else:
-        try:
-            _, S, Vt = np.linalg.svd(n)
-        except np.linalg.LinAlgError:
-            return []
-        if not S[1] > _DEGENERATE * S[0]:
-            return []
-        t = Vt[2]
-    norm = np.sqrt(t @ t)
-    if not (norm > 0 and np.isfinite(norm)):
-        return []
-    t = t / norm
-    if t[int(np.argmax(np.abs(t)))] < 0:
-        t = -t
-    t = g.best_pose([(np.eye(3), t), (np.eye(3), -t)], y1, y2)[1]
-    return [{"tx": t[0], "ty": t[1], "tz": t[2]}]
+    return _candidates("two_view_translation", X, k)
 
 
 def two_view_zoom(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
@@ -260,6 +143,14 @@ def two_view_retinal_displacement(X: np.ndarray, k: Mapping[str, float]) -> Cand
     return calibrated_retinal_displacement(X, _as_calibrated(k))
 
 
+_CONSTANTS = ("cx", "cy", "f0")  # what the kernels read, in their order
+
+
+def _kernel(name: str) -> Kernel:
+    """The compiled kernel of the registered closed form ``name``, for a search's samples."""
+    return Kernel(lambda: twins.twin_address(name), twins.NAMES[name], _CONSTANTS)
+
+
 for _entry in (
         Initializer("two_view_retinal_translation", two_view_retinal_translation,
                     _TWO_VIEW_Q, ("cx", "cy", "f0"), 4,
@@ -268,14 +159,17 @@ for _entry in (
                     _TWO_VIEW_Q, ("cx", "cy", "f0"), 4,
                     two_view_retinal_displacement.__doc__.splitlines()[0]),
         Initializer("two_view_fundamental", two_view_fundamental, _TWO_VIEW_Q,
-                    ("cx", "cy", "f0"), 4, two_view_fundamental.__doc__.splitlines()[0]),
+                    _CONSTANTS, 4, two_view_fundamental.__doc__.splitlines()[0],
+                    kernel=_kernel("two_view_fundamental")),
         Initializer("two_view_homography", two_view_homography, _TWO_VIEW_Q,
-                    ("cx", "cy", "f0"), 4, two_view_homography.__doc__.splitlines()[0],
-                    equivalent=True),
+                    _CONSTANTS, 4, two_view_homography.__doc__.splitlines()[0],
+                    equivalent=True, kernel=_kernel("two_view_homography")),
         Initializer("two_view_rotation", two_view_rotation, _TWO_VIEW_Q,
-                    ("cx", "cy", "f0"), 4, two_view_rotation.__doc__.splitlines()[0]),
+                    _CONSTANTS, 4, two_view_rotation.__doc__.splitlines()[0],
+                    kernel=_kernel("two_view_rotation")),
         Initializer("two_view_translation", two_view_translation, _TWO_VIEW_Q,
-                    ("cx", "cy", "f0"), 4, two_view_translation.__doc__.splitlines()[0]),
+                    _CONSTANTS, 4, two_view_translation.__doc__.splitlines()[0],
+                    kernel=_kernel("two_view_translation")),
         Initializer("two_view_zoom", two_view_zoom, _TWO_VIEW_Q, ("cx", "cy", "f0"), 4,
                     two_view_zoom.__doc__.splitlines()[0])):
     register(_entry)

@@ -15,7 +15,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 # The product's default backend is "compiled" (kanagen.load): one C compile per spec, a few
 # seconds each. The suite's many small specs run on the NumPy backend unless the variable is
 # set already (KANAGEN_BACKEND=compiled pytest ...); tests/test_default_backend.py checks the
-# default itself, tests/test_fastpath.py the compiled kernels against the NumPy ones.
+# default itself (the estimator's kernels are numba's on every backend).
 os.environ.setdefault("KANAGEN_BACKEND", "numpy")
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -139,7 +139,8 @@ def test_semidefinite_prior_and_partial_observation(line):
 @pytest.mark.parametrize("module", ["kanagen", "kanagen.loader", "kanagen.runtime.coherence",
                                     "kanagen.runtime.sqrt", "kanagen.modelspec.expressions",
                                     "kanagen.modelspec.parse", "kanagen.scenes",
-                                    "kanagen.runtime.geometry"])
+                                    "kanagen.runtime.geometry",
+                                    "kanagen.runtime.two_view_twins"])
 def test_docstring_examples_run(module):
     failures, _ = doctest.testmod(importlib.import_module(module),
                                   optionflags=doctest.ELLIPSIS)

@@ -257,6 +257,19 @@ def violation(c, D, G, p, d, eps, work):
 
 
 @jit
+def whitened(c, D, G, p, d, eps, E, L, inv, kept, w):
+    """``S = D Q⁺ Dᵀ`` factored (:func:`factor`) and ``c`` whitened into ``w``: the
+    violation ``‖c‖²_{S⁻}`` and the number of equations kept."""
+    factor(D, G, p, d, eps, E, L, inv, kept)
+    whiten_column(L, inv, c, p, w)
+    viol, rank = 0.0, 0
+    for a in range(p):
+        viol += w[a] ** 2
+        rank += 1 if kept[a] else 0
+    return viol, rank
+
+
+@jit
 def worst_abs(c, p):
     worst = 0.0
     for a in range(p):
@@ -288,14 +301,8 @@ def project_measure(A, i, q, m, iterations, tol, c, C, D, E, L, inv, kept, y, rb
     active = True
     for it in range(iterations):
         residual_into(D, m, m_obs, c, p, d, y)
-        factor(D, G, p, d, A.eps, E, L, inv, kept)
+        viol, rank = whitened(c, D, G, p, d, A.eps, E, L, inv, kept, cbar)
         whiten_column(L, inv, y, p, rbar)
-        whiten_column(L, inv, c, p, cbar)
-        viol = 0.0
-        rank = 0
-        for a in range(p):
-            viol += cbar[a] ** 2
-            rank += 1 if kept[a] else 0
         if it == iterations - 1 or not active:
             break
         correct(E, L, inv, G, rbar, p, d, y, dm)
