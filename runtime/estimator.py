@@ -51,7 +51,7 @@ _BRIEF = 10  # iterations of the final refinement of a model that cannot win (_h
 #: general motion's focal lengths) and stops at the cap is no success and cannot replace its
 #: parent, however much more it explains (the CMP wall pair: 80 matches against 44 at 100)
 _FINAL_ITER = 300
-#: samples per step of run() at most (a batch in one compiled call: ModelSearch.step), when
+#: samples per step of run() at most (a batch in one engine call: ModelSearch.step), when
 #: no stopping rule reads the history sample by sample
 _BATCH = 128
 

@@ -209,8 +209,8 @@ class ModelSearch:
         self.refinement = Refinement(fam, model, problem, self.scale, self.score_fn,
                                      self.ranks, self.sample_size + self.base_size,
                                      max_threshold, admission(fam, model))
-        self._sampler = sampler_for(self)  # the compiled sample, or None
-        # several samples per compiled call (kg_search): eq. 29's relevance scored in C,
+        self._sampler = sampler_for(self)  # the engine's sample, or None
+        # several samples per engine call (Sampler.burst): eq. 29's relevance scored there,
         # uniform samples only, drawn as numpy draws them (fastsample.draws_as_numpy)
         self._pool64 = self.pool.astype(np.int64)
         self._base64 = np.zeros(0, np.int64) if self.base is None else \
@@ -311,8 +311,9 @@ class ModelSearch:
         """Draw and score one sample, or up to ``limit`` samples stopping after one that gives
         a better estimate; True when the last one did. Never raises.
 
-        On the compiled backend with the relevance scorer the samples run in C a batch at a
-        time (kg_search), with the same draws, solutions and scores as one by one."""
+        With the engine's sampler and the relevance scorer the samples run a batch at a
+        time (:meth:`~kanagen.runtime.fastsample.Sampler.burst`), with the same draws,
+        solutions and scores as one by one."""
         if self.exhausted:
             return False
         while limit > 0:
@@ -322,16 +323,16 @@ class ModelSearch:
                 limit -= done
                 if outcome != 2:  # the limit, or a better estimate
                     return outcome == 1
-                # the C left the drawn sample `rows` to the Python (a degenerate one)
+                # the closed form left the drawn sample `rows` to the Python
             if self._one(rows):
                 return True
             limit -= 1
         return False
 
     def _burst(self, limit: int) -> tuple[int, int, np.ndarray | None]:
-        """Up to ``limit`` samples in one compiled call: (samples scored, outcome, rows),
+        """Up to ``limit`` samples in one engine call: (samples scored, outcome, rows),
         the outcome 0 at the limit, 1 when the last beat the best (taken, and locally
-        optimised), 2 when the C left the sample ``rows`` (drawn, not counted) to the
+        optimised), 2 when the closed form left the sample ``rows`` (drawn, not counted) to the
         Python."""
         out = self._sampler.burst(limit, self.best_score, self._pool64, self.sample_size,
                                   self._base64, self.base_size, self.rng)
@@ -356,7 +357,7 @@ class ModelSearch:
     def _one(self, rows: np.ndarray | None = None) -> bool:
         """Draw (unless ``rows`` are drawn already) and score one sample."""
         self.samples += 1
-        compiled = rows is None  # a sample the C left to the Python goes solve by solve
+        compiled = rows is None  # a sample left to the Python goes solve by solve
         if rows is None:
             rows = self._draw()
             if self.base_size > 0:
@@ -369,7 +370,7 @@ class ModelSearch:
                 for q, errors in self._scored(rows, compiled):
                     solutions += 1
                     if errors is None:
-                        continue  # its relevance is bounded below the best (kg_sample)
+                        continue  # its relevance is bounded below the best (errors_at)
                     score = self.score_fn(np.concatenate(errors), self.scale)
                     if score > self.best_score:
                         self.best_q, self.best_score, self.best_errors = q, score, errors
@@ -383,9 +384,9 @@ class ModelSearch:
         return improved
 
     def _scored(self, rows: np.ndarray, compiled: bool = True):
-        """The sample's solutions, each with every measure's error (eq. 24): in one compiled
-        call (:mod:`~kanagen.runtime.fastsample`) when the search has one, else solve by
-        solve."""
+        """The sample's solutions, each with every measure's error (eq. 24): in one engine
+        call (:mod:`~kanagen.runtime.fastsample`) when the search has a sampler, else solve
+        by solve."""
         if self._sampler is not None and compiled:
             out = self._sampler(rows, self.best_score)
             if out is not None:

@@ -62,8 +62,9 @@ def relevance(errors: np.ndarray, scale: float) -> float:
     if e.size == 0:
         return 0.0
     terms = 1.0 - 2.0 * e[e < scale] / scale
-    # summed in order (an accumulation, not np.sum's pairwise sum): the compiled search
-    # (kg_search) adds them in the same order, and its scores are these to the last bit
+    # summed in order (an accumulation, not np.sum's pairwise sum): the engine's samples
+    # (runtime/engine/sample.py: errors_at) add them in the same order, and their scores
+    # are these to the last bit
     total = float(np.add.accumulate(terms)[-1]) if terms.size else 0.0
     return total / e.size
 

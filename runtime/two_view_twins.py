@@ -145,7 +145,7 @@ def _fundamental(X, k3, out) -> int:
         Fs, found = np.empty((1, 3, 3)), 1
         put_matrix(Fs, 0, fundamental_8point(X))
     f0, principal = k3[2], np.array([k3[0], k3[1], 1.0])
-    T = _pixels_to_rays(k3)
+    Tinv = inverse(_pixels_to_rays(k3))  # the same for every root
     count = 0
     for c in range(found):
         F = Fs[c]
@@ -154,7 +154,6 @@ def _fundamental(X, k3, out) -> int:
         if not (_LOW < f1 < _HIGH and _LOW < f2 < _HIGH):
             continue
         # F ∝ Tᵀ diag(1, 1, f2) E diag(1, 1, f1) T with T the pixel -> normalised map
-        Tinv = inverse(T)
         D1, D2 = np.eye(3), np.eye(3)
         D1[2, 2], D2[2, 2] = 1 / f1, 1 / f2
         E = (((D2 @ Tinv.T) @ F) @ Tinv) @ D1
