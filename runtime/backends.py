@@ -160,6 +160,14 @@ class CompiledFunctions(CasadiFunctions):
         self.derived = numpy_module.DERIVED
         self.slack_measures = numpy_module.SLACK_MEASURES
         lib = ctypes.CDLL(str(library))
+        sizes = (ctypes.c_longlong * 6)()  # the library's layout is the family's
+        lib.kg_sizes(sizes)
+        expected = [len(family["parameter"]), len(family["constants"]),
+                    len(family["channels"]), len(family["models"]), len(family["derived"]),
+                    len(family.get("slack", ()))]
+        if list(sizes) != expected:
+            raise RuntimeError(f"compiled library {library} does not match family "
+                               f"{family['name']!r}: sizes {list(sizes)} vs {expected}")
         self._eval = lib.kg_eval
         self._eval.argtypes = [ctypes.c_void_p] * 2
         self._eval.restype = ctypes.c_int

@@ -19,7 +19,7 @@ import inspect
 import numpy as np
 
 from .engine.data import arrays, per_channel
-from .engine.sample import CANDIDATES, WIDTH, bounded, choice, sample, search
+from .engine.sample import CANDIDATES, WIDTH, choice, sample, search
 from .minimal import minimal_solve_problem
 from .scoring import relevance
 
@@ -63,9 +63,8 @@ class Sampler:
         self._generator = (None, 0, 0)  # the search's bit generator and its addresses
 
     def _args(self):
-        return (self.start, self.form, self.consts, self.names, self.equivalent, self.full_rank,
-                *MINIMAL, self.caps,
-                self.scale)
+        return (self.start, self.form, self.consts, self.names, self.equivalent,
+                self.full_rank, *MINIMAL, self.caps, self.scale)
 
     def __call__(self, rows: np.ndarray, best: float = -np.inf):
         """The solutions of the sample ``rows``, as ``(q, errors)``; with the scorer
@@ -149,18 +148,6 @@ def _check_choice() -> bool:
         if not np.array_equal(idx[:k], theirs.choice(size, k, replace=False)):
             return False
     return ours.bit_generator.state == theirs.bit_generator.state
-
-
-def draw(rng: np.random.Generator, size: int, k: int) -> np.ndarray:
-    """``k`` of ``range(size)`` drawn by the engine from ``rng`` (for the tests)."""
-    idx = np.empty(max(k, 1), dtype=np.int64)
-    choice(*generator_addresses(rng.bit_generator), size, k, idx)
-    return idx[:k]
-
-
-def bounded_draw(rng: np.random.Generator, top: int) -> int:
-    """A uniform integer of ``[0, top]`` drawn by the engine from ``rng`` (for the tests)."""
-    return int(bounded(*generator_addresses(rng.bit_generator), top))
 
 
 def sampler_for(search) -> Sampler | None:

@@ -17,7 +17,7 @@ from scenarios import close
 import kanagen
 from kanagen.runtime.engine import sample as kernels
 from kanagen.runtime.engine.data import arrays
-from kanagen.runtime.fastsample import bounded_draw, draw
+from kanagen.runtime.fastsample import generator_addresses
 from kanagen.runtime.fit import make_problem
 from kanagen.runtime.minimal import coherence_errors, minimal_solve_problem
 from kanagen.runtime.scoring import relevance
@@ -183,6 +183,18 @@ def test_a_non_finite_sample_is_no_solution(twochan):
     problem = make_problem(twochan, "free", data).subset((np.arange(2), np.arange(1)))
     got = minimal_solve_problem(problem, np.array([0.7, 0.3, 1.0]))
     assert not got.success
+
+
+def draw(rng: np.random.Generator, size: int, k: int) -> np.ndarray:
+    """``k`` of ``range(size)`` drawn by the engine from ``rng``."""
+    idx = np.empty(max(k, 1), dtype=np.int64)
+    kernels.choice(*generator_addresses(rng.bit_generator), size, k, idx)
+    return idx[:k]
+
+
+def bounded_draw(rng: np.random.Generator, top: int) -> int:
+    """A uniform integer of ``[0, top]`` drawn by the engine from ``rng``."""
+    return int(kernels.bounded(*generator_addresses(rng.bit_generator), top))
 
 
 @given(size=st.integers(1, 20_000), data=st.data())

@@ -28,6 +28,12 @@ def test_the_closed_forms_carry_their_kernels(family):
     with_kernel = {m for m, fn in chosen.items() if getattr(fn, "kernel", None)}
     assert {"general", "planar", "rotation", "translation"} <= with_kernel
     assert "retinal_translation" not in with_kernel  # the calibrated starts: Python
+    from kanagen.runtime import two_view_twins
+    from kanagen.runtime.engine import sample
+
+    # the candidates' layout the engine allocates is the one the kernels write
+    assert (two_view_twins.CANDIDATES, two_view_twins.WIDTH) == (sample.CANDIDATES,
+                                                                  sample.WIDTH)
     entry = INITIALIZERS["two_view_fundamental"]
     scene = two_view_scene("general", n=20, outliers=0.0, sigma=0.5, seed=1)
     X = np.ascontiguousarray(scene.data[:8])

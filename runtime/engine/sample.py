@@ -28,8 +28,7 @@ import numpy as np
 from kanagen.common.jit import NUMBA, jit
 
 from .jacobi import row_svd
-from .measures import eval_measure, row_buffer, scratch, whitened
-from .rows import call3
+from .measures import c0_eval, eval_measure, row_buffer, scratch, whitened
 
 #: Values per candidate of a closed-form initialiser, and candidates at most.
 WIDTH, CANDIDATES = 12, 4
@@ -144,12 +143,11 @@ def _equations(A, rows, q, w, c, J, x, cm, Cm, Dm):
     each row scaled by ``w``: ``c``, ``J``, and ``max |c|``."""
     n, r = q.size, A.r
     if r:
-        out = np.empty(r + r * n)
-        call3(A.c0_addr, q, A.k, out)
+        c0, C0 = c0_eval(A, q)
         for a in range(r):
-            c[a] = out[a]
+            c[a] = c0[a]
             for j in range(n):
-                J[a, j] = out[r + a * n + j]
+                J[a, j] = C0[a, j]
     at = r
     for s in range(rows.size):
         i = rows[s]
@@ -187,12 +185,11 @@ def minimal_solve(A, rows, target, max_iter, xtol, eps):
     may raise the violation a few times: far from the solution a curved equation needs it)
     and a line search after it. Returns ``(q, solved, rank, iterations, violation)``."""
     n = target.size
-    rows_eq = A.r
+    rows_eq, pmax = A.r, 1
     for s in range(rows.size):
-        rows_eq += A.P[A.chan[rows[s]]]
-    pmax = 1
-    for s in range(rows.size):
-        pmax = max(pmax, A.P[A.chan[rows[s]]])
+        p = A.P[A.chan[rows[s]]]
+        rows_eq += p
+        pmax = max(pmax, p)
     x = row_buffer(A, n)
     cm, Cm, Dm = np.zeros(pmax), np.zeros((pmax, n)), np.zeros((pmax, A.m.shape[1]))
     q = target.copy()
