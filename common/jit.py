@@ -22,8 +22,8 @@ from pathlib import Path
 
 _RUNTIME = Path(__file__).resolve().parent.parent / "runtime"
 #: The sources that define ``@jit`` kernels or shape their code (globs under the package).
-KERNEL_SOURCES = ("runtime/sqrt.py", "runtime/engine/*.py", "common/link.py",
-                  "runtime/numpy_rules.py", "runtime/two_view_kernels.py",
+KERNEL_SOURCES = ("runtime/sqrt.py", "runtime/engine/*.py", "common/jit.py", "common/link.py",
+                  "common/borrow.py", "runtime/numpy_rules.py", "runtime/two_view_kernels.py",
                   "runtime/two_view_twins.py")
 
 
@@ -102,12 +102,21 @@ def _locate_by_package(numba) -> None:
 NUMBA = _import_numba()
 
 
-def jit(function):
+def jit(function=None, *, inline: bool = False):
     """Compile ``function`` with numba (nopython, cached; NumPy's rules for floating-point
     errors: a division by zero gives inf or NaN, as in the interpreted run), or return it
-    as it is."""
+    as it is.
+
+    ``@jit(inline=True)``: the function is merged into each caller's code (numba's IR
+    inlining) — for the small per-measure helpers called in the innermost loops, where a
+    call's fixed cost (every array argument's reference count taken and given back, the
+    status check) is several times the helper's work."""
+    if function is None:
+        return lambda f: jit(f, inline=inline)
     if NUMBA is None:
         return function
+    if inline:
+        return NUMBA.njit(cache=True, error_model="numpy", inline="always")(function)
     return NUMBA.njit(cache=True, error_model="numpy")(function)
 
 

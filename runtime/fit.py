@@ -11,7 +11,7 @@ from .engine.data import model_rows
 from .family import ModelFamily
 from .hyper import corrected
 from .inputs import channel_data, data_hint, describe, parameter_vector, prior_information
-from .iterate import CONVERGED, iterate
+from .iterate import CONVERGED, Projected, iterate
 from .minimal import minimal_solve_problem
 from .projector import Problem, evaluate, project
 from .reduce import reduced_problem
@@ -155,27 +155,24 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
     start = _inside(problem, start)
     red = fam.reduction(model)
     if red is None:
-        out = iterate(problem, start, max_iter=max_iter, xtol=xtol, verify=verify)
-        x, lin, proj = out.point, out.lin, out.proj
+        out = iterate(problem, start, max_iter=max_iter, xtol=xtol, verify=verify,
+                      report=not brief)
+        x, projected = out.point, out.projected
     else:  # iterate in the free components (report §6); outputs from the full model
         out = iterate(reduced_problem(fam, model, problem, red), start[red.free],
                       max_iter=max_iter, xtol=xtol, verify=verify)
         with np.errstate(all="ignore"):
             x = evaluate(problem, red.full(out.point.q), out.point.mt)
-        lin = proj = None
+        projected = None
     if brief:  # a hypothesis: no outputs at the returned point
-        lin, derive = None, False
-    elif lin is None or lin.x is not x:  # the outputs are taken at the returned point
-        try:
-            with np.errstate(all="ignore"):
-                lin, proj = project(problem, x)
-        except (np.linalg.LinAlgError, ValueError):
-            lin = None
+        projected, derive = None, False
+    elif projected is None:  # the outputs are taken at the returned point
+        projected = _projected(problem, x)
     n = fam.n
-    if lin is not None:
-        info_q = lin.info
-        rank0, ranks, residual = proj.rank0, lin.ranks, proj.residual
-        covariance = constrained_covariance(info_q, proj.C0)
+    if projected is not None:
+        info_q, rank0, ranks, residual = (projected.info, projected.rank0, projected.ranks,
+                                          projected.residual)
+        covariance = constrained_covariance(info_q, projected.C0)
     else:
         info_q, rank0, residual = np.full((n, n), np.nan), 0, np.nan
         ranks = tuple(np.zeros(ch.size, dtype=int) for ch in problem.channels)
@@ -206,6 +203,16 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
         units=fam.units,
         pinned=fam.pinned(model),
     )
+
+
+def _projected(problem: Problem, x) -> Projected | None:
+    """:class:`~.iterate.Projected` at ``x`` from the projector (None where it fails)."""
+    try:
+        with np.errstate(all="ignore"):
+            lin, proj = project(problem, x)
+    except (np.linalg.LinAlgError, ValueError):
+        return None
+    return Projected(lin.info, lin.ranks, proj.C0, proj.rank0, proj.residual)
 
 
 def _inside(problem: Problem, start: np.ndarray) -> np.ndarray:

@@ -71,7 +71,7 @@ from kanagen.common.jit import interrupted
 
 from .engine import iterate as engine
 from .engine import points as engine_points
-from .engine.data import arrays, pack_measures, unpack_evals, unpack_measures
+from .engine.data import arrays, pack_measures, per_channel, unpack_evals, unpack_measures
 from .engine.measures import RESTORE_STEPS
 from .projector import Linearisation, Point, Problem, Projection
 from .verify import Verdict, plateau_text
@@ -93,6 +93,19 @@ MESSAGES = {
 
 
 @dataclass(frozen=True)
+class Projected:
+    """What a fit reports from the projector at its returned point: the information
+    ``Q̃``, each measure's equations kept (per channel), the rows of ``C0`` kept and their
+    rank, the residual E² (:func:`~kanagen.runtime.engine.iterate.projected_at`)."""
+
+    info: np.ndarray
+    ranks: tuple
+    C0: np.ndarray
+    rank0: int
+    residual: float
+
+
+@dataclass(frozen=True)
 class Outcome:
     point: Point
     lin: Linearisation | None
@@ -102,21 +115,24 @@ class Outcome:
     message: str
     start_violation: float = 0.0
     verdict: Verdict | None = None
+    projected: Projected | None = None
 
 
 def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
-            xtol: float = 1e-10, verify: bool = True) -> Outcome:
+            xtol: float = 1e-10, verify: bool = True, report: bool = False) -> Outcome:
     """Run the iteration from ``(q_start, m)``; never raises on numerical trouble.
 
     ``verify=False``: a stationary end is not checked (no curvature, no escapes; status
     :data:`UNVERIFIED`), nor one where ``max_iter`` stops the iteration — for an
-    intermediate refinement whose estimate alone is used."""
+    intermediate refinement whose estimate alone is used. ``report``: the outcome carries
+    what the projector gives at the returned point (:class:`Projected`)."""
     A = arrays(problem)
     q_start = np.ascontiguousarray(q_start, dtype=float).copy()
     try:
         (status, iterations, kind, delta0, *x, stationary, decrement, cost, curvature,
-         direction, plateau, vector) = engine.run_flat(A, q_start, int(max_iter),
-                                                       float(xtol), bool(verify))
+         direction, plateau, vector, ok, info, ranks, kept0, rank0,
+         residual) = engine.run_flat(A, q_start, int(max_iter), float(xtol), bool(verify),
+                                     bool(report))
     except SystemError as exc:
         if interrupted(exc):  # Ctrl-C, raised inside the kernel's boxing of its results
             raise KeyboardInterrupt from exc
@@ -136,8 +152,11 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
     message = MESSAGES[status] + (detail if detail.startswith(" ") else
                                   f": {detail}" if detail else "")
     checked = status in (CONVERGED, STALLED, SADDLE) or kind == engine.PLATEAU_DETAIL
-    return Outcome(_point(problem, A, x), None, None, int(iterations), int(status), message,
-                   float(delta0), verdict if checked else None)
+    point = _point(problem, A, x)
+    projected = Projected(info, per_channel(A, ranks), point.C0[kept0], int(rank0),
+                          float(residual)) if report and ok else None
+    return Outcome(point, None, None, int(iterations), int(status), message,
+                   float(delta0), verdict if checked else None, projected)
 
 
 def _point(problem: Problem, A, fields) -> Point:

@@ -79,6 +79,8 @@ def constrained_covariance(info: np.ndarray, C0: np.ndarray) -> np.ndarray:
 
 def propagate(J: np.ndarray, covariance: np.ndarray) -> np.ndarray:
     """``J Σ Jᵀ``, with infinite variance wherever J touches an unobservable component."""
+    if np.isfinite(covariance).all():
+        return J @ covariance @ J.T
     free = ~np.isfinite(np.diag(covariance))
     finite = np.where(np.isfinite(covariance), covariance, 0.0)
     out = J @ finite @ J.T

@@ -17,6 +17,44 @@ SPECS = sorted((ROOT / "examples").glob("*.yaml"))
 RTOL = 1e-10
 
 
+#: Two channels (one with an exact component), a constraint on a sphere: the engine's
+#: per-measure paths on more than one channel.
+TWOCHAN = """\
+name: twochan
+constants: {s: 2.0}
+parameter: {a: 1.0, b: 0.5, c: 0.1}
+channels:
+  pts:
+    components: [x, y]
+    equations: [y - a*x**2 - b*x - c]
+  obs:
+    components: [t, u, v]
+    exact: [t]
+    equations: [u - a*t - b, v - s*c*t - exp(-b*t)]
+models:
+  free:
+    constraints: []
+    alternatives: [tied, sphere]
+  tied:
+    constraints: [a - 2*b]
+  sphere:
+    constraints: [a**2 + b**2 + c**2 - 1.61]
+"""
+
+
+def twochan_data(seed: int, M1: int, M2: int, noise: float = 0.05):
+    """Measures of :data:`TWOCHAN` at ``a, b, c = 0.8, 0.4, 0.9``: ``M1`` points, ``M2``
+    observations, Gaussian noise."""
+    rng = np.random.default_rng(seed)
+    a, b, c = 0.8, 0.4, 0.9
+    x = rng.uniform(-2, 2, M1)
+    t = rng.uniform(0, 3, M2)
+    pts = np.c_[x, a * x**2 + b * x + c] + rng.normal(0, noise, (M1, 2))
+    obs = np.c_[t, a * t + b, 2.0 * c * t + np.exp(-b * t)]
+    obs[:, 1:] += rng.normal(0, noise, (M2, 2))
+    return {"pts": pts, "obs": obs}
+
+
 def close(a, b, rtol=RTOL, scale=0.0):
     """``a`` equals the reference ``b`` to ``rtol`` relative to ``b``'s magnitude (or to
     ``scale`` if larger); infinite and NaN entries must sit at the same places."""

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from reference_minimal import errors_at_observed, minimal_solve
-from scenarios import close
+from scenarios import TWOCHAN, close, twochan_data
 
 import kanagen
 from kanagen.runtime.engine import sample as kernels
@@ -23,32 +23,10 @@ from kanagen.runtime.minimal import coherence_errors, minimal_solve_problem
 from kanagen.runtime.scoring import relevance
 from kanagen.scenes import two_view_scene
 
-SPEC = """\
-name: twochan
-constants: {s: 2.0}
-parameter: {a: 1.0, b: 0.5, c: 0.1}
-channels:
-  pts:
-    components: [x, y]
-    equations: [y - a*x**2 - b*x - c]
-  obs:
-    components: [t, u, v]
-    exact: [t]
-    equations: [u - a*t - b, v - s*c*t - exp(-b*t)]
-models:
-  free:
-    constraints: []
-    alternatives: [tied, sphere]
-  tied:
-    constraints: [a - 2*b]
-  sphere:
-    constraints: [a**2 + b**2 + c**2 - 1.61]
-"""
-
 
 @pytest.fixture(scope="module")
 def twochan():
-    return kanagen.load_text(SPEC, "twochan.yaml")
+    return kanagen.load_text(TWOCHAN, "twochan.yaml")
 
 
 @pytest.fixture(scope="module")
@@ -56,21 +34,10 @@ def two_view():
     return kanagen.load("two_view")
 
 
-def _data(seed: int, M1: int, M2: int, noise: float = 0.05):
-    rng = np.random.default_rng(seed)
-    a, b, c = 0.8, 0.4, 0.9
-    x = rng.uniform(-2, 2, M1)
-    t = rng.uniform(0, 3, M2)
-    pts = np.c_[x, a * x**2 + b * x + c] + rng.normal(0, noise, (M1, 2))
-    obs = np.c_[t, a * t + b, 2.0 * c * t + np.exp(-b * t)]
-    obs[:, 1:] += rng.normal(0, noise, (M2, 2))
-    return {"pts": pts, "obs": obs}
-
-
 def _cases(twochan, two_view):
     """(problem, q, caps) on both families: several channels with an exact component,
     per-measure information and far outliers; two-view scenes with 30 % outliers."""
-    data = _data(8, 25, 12)
+    data = twochan_data(8, 25, 12)
     data["pts"][::5] += 40.0
     info = {"pts": np.random.default_rng(9).uniform(0.5, 3.0, 25), "obs": 2.0}
     out = [(make_problem(twochan, model, data, info), q, (1, 2))
@@ -163,7 +130,7 @@ def test_minimal_solves_as_the_reference(two_view):
 def test_minimal_solves_of_several_channels(twochan):
     """A sample of two channels (one with an exact component), a constraint: the same
     solve as the reference's."""
-    data = _data(3, 12, 6)
+    data = twochan_data(3, 12, 6)
     for model in ("free", "tied", "sphere"):
         for rows in ((np.arange(2), np.arange(1)), (np.arange(1), np.arange(1)),
                      (np.arange(3), np.arange(0))):
@@ -178,7 +145,7 @@ def test_minimal_solves_of_several_channels(twochan):
 
 def test_a_non_finite_sample_is_no_solution(twochan):
     """Equations that overflow (NaN Jacobian) end the solve unsolved, never raise."""
-    data = _data(3, 4, 2)
+    data = twochan_data(3, 4, 2)
     data["pts"][0, 0] = 1e300
     problem = make_problem(twochan, "free", data).subset((np.arange(2), np.arange(1)))
     got = minimal_solve_problem(problem, np.array([0.7, 0.3, 1.0]))
@@ -224,7 +191,7 @@ def test_threads_share_a_family(twochan):
     """Concurrent scorings and minimal solves give the sequential answers."""
     from concurrent.futures import ThreadPoolExecutor
 
-    cases = [(make_problem(twochan, model, _data(seed, 10 + seed, 6 + seed)), seed)
+    cases = [(make_problem(twochan, model, twochan_data(seed, 10 + seed, 6 + seed)), seed)
              for seed in range(6) for model in ("free", "sphere")]
 
     def work(case):

@@ -34,15 +34,19 @@ _SCHEMA = (
     ("strict_idx", "i1"), ("strict_pow", "i1"),
 )
 _FIELDS = [name for name, _ in _SCHEMA]
-#: Per field: its dtype and rank (0: a number).
-_LAYOUT = tuple(layout(kind) for _, kind in _SCHEMA)
+_INDEX = {name: at for at, name in enumerate(_FIELDS)}
+#: Per field: its dtype (a NumPy scalar type, and as a dtype: comparing an array's dtype to
+#: a scalar type costs a microsecond) and rank (0: a number).
+_LAYOUT = tuple((dtype, np.dtype(dtype), rank) for dtype, rank in
+                (layout(kind) for _, kind in _SCHEMA))
 
 
-def _of_kind(value, dtype, rank: int):
-    """``value`` as its field's kind: a number, or a C-ordered array of its dtype and rank."""
+def _of_kind(value, dtype, described, rank: int):
+    """``value`` as its field's kind: a number, or a C-ordered array of its dtype
+    (``described``) and rank."""
     if rank == 0:
         return dtype(value).item()
-    if type(value) is np.ndarray and value.dtype == dtype and value.ndim == rank and \
+    if type(value) is np.ndarray and value.dtype is described and value.ndim == rank and \
             value.flags.c_contiguous:
         return value
     out = np.ascontiguousarray(value, dtype=dtype)
@@ -66,8 +70,8 @@ if NUMBA is not None and not jit.disabled:
 
         def __getattr__(self, name):
             try:
-                return self.__dict__["_record"][_FIELDS.index(name)]
-            except (KeyError, ValueError):
+                return self.__dict__["_record"][_INDEX[name]]
+            except KeyError:
                 raise AttributeError(name) from None
 
     structref.define_proxy(_Proxy, ArraysType, _FIELDS)
@@ -75,8 +79,8 @@ if NUMBA is not None and not jit.disabled:
 
     def Arrays(*values):  # noqa: N802 - the record's constructor
         """The arrays of one problem (one model, its measures, its prior) for the kernels."""
-        values = tuple(_of_kind(v, dtype, rank)
-                       for v, (dtype, rank) in zip(values, _LAYOUT, strict=True))
+        values = tuple(_of_kind(v, dtype, described, rank)
+                       for v, (dtype, described, rank) in zip(values, _LAYOUT, strict=True))
         link()
         proxy = _Proxy(*values)
         proxy.__dict__["_record"] = values

@@ -15,6 +15,7 @@ import numpy as np
 from kanagen.common.jit import jit
 from kanagen.common.link import linked
 
+from .linear import linearise, parameter_block
 from .measures import RESTORE_STEPS, ROUNDING
 from .points import (
     c0_eval,
@@ -435,12 +436,33 @@ def run(A, q_start, max_iter, xtol, verify_end):
 
 
 @jit
-def run_flat(A, q_start, max_iter, xtol, verify_end):
+def projected_at(A, x):
+    """What a fit reports from the projector at its returned point ``x``: ``(ok, info,
+    ranks, kept0, rank0, residual)`` — the information, each measure's equations kept, the
+    constraints kept and their rank, the residual E² (``ok`` False where the projector
+    fails)."""
+    info, H, rhs, gradient, Cbar, rbar, E, L, inv, kept, ranks, residual = linearise(
+        A, x.q, x.mt, x.c, x.C, x.D, x.c0, x.C0)
+    dq, kept0, rank0, residual0, ok = parameter_block(H, info, rhs, x.C0, x.c0, x.q,
+                                                      residual, 0.0, np.zeros(0), A.eps)
+    return ok, info, ranks, kept0, rank0, residual0
+
+
+@jit
+def run_flat(A, q_start, max_iter, xtol, verify_end, report):
     """:func:`run` with its outcome as a plain tuple: boxing a named tuple calls its Python
-    class, where a pending Ctrl-C would raise inside numba's boxing (and crash)."""
+    class, where a pending Ctrl-C would raise inside numba's boxing (and crash).
+    ``report``: with :func:`projected_at` the returned point (else ``ok`` False and empty
+    arrays)."""
     out, delta0 = run(A, q_start, max_iter, xtol, verify_end)
     x, v = out.x, out.verdict
+    if report:
+        ok, info, ranks, kept0, rank0, residual = projected_at(A, x)
+    else:
+        ok, info, ranks, kept0 = False, np.zeros((0, 0)), np.zeros(0, np.int64), \
+            np.zeros(0, np.bool_)
+        rank0, residual = 0, np.nan
     return (out.status, out.iterations, out.detail, delta0,
             x.q, x.mt, x.c0, x.C0, x.c, x.C, x.D, x.delta, x.cost,
             v.stationary, v.decrement, v.cost, v.curvature, v.direction, v.plateau,
-            v.plateau_vector)
+            v.plateau_vector, ok, info, ranks, kept0, rank0, residual)

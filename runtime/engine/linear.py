@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from kanagen.common.borrow import alive, borrow
 from kanagen.common.jit import jit
 from kanagen.common.link import linked
 
@@ -46,30 +47,36 @@ def linearise(A, q, mt, c, C, D, c0, C0):
     info = A.Q0.copy()
     g = np.zeros(n)
     residual = 0.0
-    cbar, col, wcol = np.zeros(pmax), np.zeros(pmax), np.zeros(pmax)
+    cbar, col, wcol, r = np.zeros(pmax), np.zeros(pmax), np.zeros(pmax), np.zeros(pmax)
+    # the loop's arrays borrowed (kanagen.common.borrow): no reference counts per measure
+    bc, bC, bD, bmt, bG, bm = borrow(c), borrow(C), borrow(D), borrow(mt), borrow(A.G), \
+        borrow(A.m)
+    bCbar, brbar, bE, bL, binv, bkept = borrow(Cbar), borrow(rbar), borrow(E), borrow(L), \
+        borrow(inv), borrow(kept)
+    bcbar, bcol, bwcol, br = borrow(cbar), borrow(col), borrow(wcol), borrow(r)
     for i in range(M):
         ch = A.chan[i]
         p, d = A.P[ch], A.Dn[ch]
-        Li, invi, keptc = L[i], inv[i], kept[i]
-        factor(D[i], A.G[i], p, d, A.eps, E[i], Li, invi, keptc)
-        r = np.zeros(p)
+        Li, invi, keptc = bL[i], binv[i], bkept[i]
+        factor(bD[i], bG[i], p, d, A.eps, bE[i], Li, invi, keptc)
         for a in range(p):
             ranks[i] += 1 if keptc[a] else 0
-        residual_into(D[i], mt[i], A.m[i], c[i], p, d, r)
-        whiten_column(Li, invi, r, p, rbar[i])
-        whiten_column(Li, invi, c[i], p, cbar)
+        residual_into(bD[i], bmt[i], bm[i], bc[i], p, d, br)
+        whiten_column(Li, invi, br, p, brbar[i])
+        whiten_column(Li, invi, bc[i], p, bcbar)
         for j in range(n):
             for a in range(p):
-                col[a] = C[i, a, j]
-            whiten_column(Li, invi, col, p, wcol)
+                bcol[a] = bC[i, a, j]
+            whiten_column(Li, invi, bcol, p, bwcol)
             for a in range(p):
-                Cbar[i, a, j] = wcol[a]
+                bCbar[i, a, j] = bwcol[a]
         for a in range(p):
-            residual += cbar[a] * cbar[a]
+            residual += bcbar[a] * bcbar[a]
             for j in range(n):
-                g[j] += Cbar[i, a, j] * rbar[i, a]
+                g[j] += bCbar[i, a, j] * brbar[i, a]
                 for u in range(j + 1):
-                    info[j, u] += Cbar[i, a, j] * Cbar[i, a, u]
+                    info[j, u] += bCbar[i, a, j] * bCbar[i, a, u]
+    alive((c, C, D, mt, A, cbar, col, wcol, r))
     for j in range(n):
         for u in range(j):
             info[u, j] = info[j, u]

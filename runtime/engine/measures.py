@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from kanagen.common.borrow import alive, borrow
 from kanagen.common.jit import jit
 from kanagen.common.link import linked, record_kind
 
@@ -43,7 +44,7 @@ def c0_eval(A, q):
     return out[:r].copy(), out[r:].copy().reshape(r, n)
 
 
-@jit
+@jit(inline=True)
 def eval_measure(A, i, q, mt_i, c, C, D, x):
     """Write measure ``i``'s ``c (p)``, ``C (p, n)``, ``D (p, d)`` at ``(q, mt_i)`` (``x``:
     a buffer of :func:`row_buffer`'s size)."""
@@ -83,7 +84,7 @@ def empty_evals(A, n):
             np.zeros((A.chan.size, pmax, A.m.shape[1])))
 
 
-@jit
+@jit(inline=True)
 def copy_into(dst, src):
     """``dst[...] = src`` for C-ordered arrays of one size, without the broadcasting
     check whose error message (built at run time) is most of a small kernel's code."""
@@ -92,7 +93,7 @@ def copy_into(dst, src):
         flat[a] = values[a]
 
 
-@jit
+@jit(inline=True)
 def residual_into(D, m, m_obs, c, p, d, out):
     """``out = D (m̃ − m) − c``: the right-hand side ``r − C q•`` of a measure's linearised
     equations (SPEC §2, in increments; with ``q`` fixed, eq. 22's)."""
@@ -109,12 +110,14 @@ def eval_all(A, q, mt):
     q = np.ascontiguousarray(q)
     c, C, D = empty_evals(A, q.size)
     x = row_buffer(A, q.size)
+    bq, bmt, bc, bC, bD, bx = borrow(q), borrow(mt), borrow(c), borrow(C), borrow(D), borrow(x)
     for i in range(A.chan.size):
-        eval_measure(A, i, q, mt[i], c[i], C[i], D[i], x)
+        eval_measure(A, i, bq, bmt[i], bc[i], bC[i], bD[i], bx)
+    alive((q, x))
     return c, C, D
 
 
-@jit
+@jit(inline=True)
 def quad(v, Q, d):
     """``vᵀ Q v`` over the first ``d`` components."""
     total = 0.0
@@ -149,13 +152,26 @@ def point_values(A, q, mt, c, c0):
         for a in range(A.P[ch]):
             v = abs(c[i, a])
             delta = np.inf if v != v or delta == np.inf else max(delta, v)
-        cost += 0.5 * quad(mt[i] - A.m[i], A.Q[i], d)
+        cost += 0.5 * _distance(mt[i], A.m[i], A.Q[i], d)
     return delta, cost
+
+
+@jit(inline=True)
+def _distance(m, m_obs, Q, d):
+    """``(m − m_obs)ᵀ Q (m − m_obs)`` over the first ``d`` components (:func:`quad` of the
+    difference, without forming it)."""
+    total = 0.0
+    for a in range(d):
+        acc = 0.0
+        for b in range(d):
+            acc += Q[a, b] * (m[b] - m_obs[b])
+        total += (m[a] - m_obs[a]) * acc
+    return total
 
 
 # -- the per-measure algebra: whiten and correct ----------------------------------------
 
-@jit
+@jit(inline=True)
 def factor(D, G, p, d, eps, E, L, inv, kept):
     """``E = D Gᵀ`` and the reduced square root of ``S = E Eᵀ = D Q⁺ Dᵀ`` (``Q⁺ = GᵀG``, G
     lower triangular), written into ``E, L, inv, kept``: ``inv`` the inverse pivots, 0 for
@@ -196,7 +212,7 @@ def factor(D, G, p, d, eps, E, L, inv, kept):
             L[i, a] = acc * inv[a]
 
 
-@jit
+@jit(inline=True)
 def whiten_column(L, inv, b, p, out):
     """``out = L⁻¹ b`` on the kept equations (dropped ones give 0)."""
     for a in range(p):
@@ -206,7 +222,7 @@ def whiten_column(L, inv, b, p, out):
         out[a] = acc * inv[a]
 
 
-@jit
+@jit(inline=True)
 def correct(E, L, inv, G, z, p, d, y, dm):
     """``dm = Gᵀ Eᵀ S⁻ z``: the measure correction from the whitened ``z`` (``y`` scratch,
     ``p`` long; ``dm`` is ``d`` long)."""
@@ -241,7 +257,7 @@ def scratch(A, n):
             np.zeros(d), row_buffer(A, n))
 
 
-@jit
+@jit(inline=True)
 def violation(c, D, G, p, d, eps, work):
     """A measure's whitened violation ``‖c‖²_{(D Q⁺ Dᵀ)⁻}`` in metric ``G``, and whether
     the whitened values are finite (``work``: :func:`scratch`)."""
@@ -256,7 +272,7 @@ def violation(c, D, G, p, d, eps, work):
     return total, finite
 
 
-@jit
+@jit(inline=True)
 def whitened(c, D, G, p, d, eps, E, L, inv, kept, w):
     """``S = D Q⁺ Dᵀ`` factored (:func:`factor`) and ``c`` whitened into ``w``: the
     violation ``‖c‖²_{S⁻}`` and the number of equations kept."""
@@ -269,7 +285,7 @@ def whitened(c, D, G, p, d, eps, E, L, inv, kept, w):
     return viol, rank
 
 
-@jit
+@jit(inline=True)
 def worst_abs(c, p):
     worst = 0.0
     for a in range(p):
@@ -287,7 +303,7 @@ def all_finite(v):
 
 # -- eq. 22: the measures projected for a fixed q ---------------------------------------
 
-@linked("A i f1 f1 i f f1 f2 f2 f2 f2 f1 b1 f1 f1 f1 f1 f1 f1 f1 f1")
+@jit(inline=True)
 def project_measure(A, i, q, m, iterations, tol, c, C, D, E, L, inv, kept, y, rbar, cbar, dm,
                     step, cand, moved, x):
     """Project measure ``i`` onto ``c_i(q, ·) = 0`` from ``m`` (updated in place) in its
@@ -321,7 +337,7 @@ def project_measure(A, i, q, m, iterations, tol, c, C, D, E, L, inv, kept, y, rb
     return viol, rank
 
 
-@jit
+@jit(inline=True)
 def halving(A, i, q, m, c, C, D, step, p, d, cand, moved, x):
     """Eq. 18 for one measure: ``m + α step`` with α halved while the violation grows (four
     times at most), else no move; updates ``m, c, C, D`` in place, writes the move into
@@ -353,10 +369,15 @@ def project_all(A, q, mt, iterations, tol):
     viol = np.zeros(M)
     rank = np.zeros(M, dtype=np.int64)
     E, L, inv, kept, y, rbar, cbar, dm, step, cand, moved, x = scratch(A, q.size)
+    bq, bE, bL, binv, bkept, by, brbar, bcbar, bdm, bstep, bcand, bmoved, bx = (
+        borrow(q), borrow(E), borrow(L), borrow(inv), borrow(kept), borrow(y), borrow(rbar),
+        borrow(cbar), borrow(dm), borrow(step), borrow(cand), borrow(moved), borrow(x))
+    bout, bc, bC, bD = borrow(out), borrow(c), borrow(C), borrow(D)
     for i in range(M):
-        viol[i], rank[i] = project_measure(A, i, q, out[i], iterations, tol, c[i], C[i], D[i],
-                                           E, L, inv, kept, y, rbar, cbar, dm, step, cand,
-                                           moved, x)
+        viol[i], rank[i] = project_measure(A, i, bq, bout[i], iterations, tol, bc[i], bC[i],
+                                           bD[i], bE, bL, binv, bkept, by, brbar, bcbar, bdm,
+                                           bstep, bcand, bmoved, bx)
+    alive((q, E, L, inv, kept, y, rbar, cbar, dm, step, cand, moved, x))
     return out, viol, rank, c, C, D
 
 

@@ -25,6 +25,7 @@ import ctypes
 
 import numpy as np
 
+from kanagen.common.borrow import alive, borrow
 from kanagen.common.jit import NUMBA, jit
 
 from .jacobi import row_svd
@@ -271,12 +272,11 @@ def minimal_solve(A, rows, target, max_iter, xtol, eps):
 
 # -- eq. 24: every measure's error at a solution -----------------------------------------
 
-@jit
+@jit(inline=True)
 def observed_error(A, i, q, c, C, D, E, L, inv, kept, w, x):
     """Measure ``i`` at ``q`` where it was observed: its whitened violation
     ``‖c‖²_{(D Q⁺ Dᵀ)⁻}`` and the equations kept (the rest: buffers of
-    :func:`~.measures.scratch`, passed one by one: a tuple's arrays are reference-counted
-    at every call)."""
+    :func:`~.measures.scratch`, borrowed by the caller's loop: kanagen.common.borrow)."""
     ch = A.chan[i]
     p = A.P[ch]
     eval_measure(A, i, q, A.m[i], c, C, D, x)
@@ -292,15 +292,25 @@ def _buffers(A, n):
             kept, w, x)
 
 
+@jit(inline=True)
+def _borrowed(buffers):
+    """:func:`_buffers` borrowed for a loop (the caller keeps ``buffers`` alive)."""
+    c, C, D, E, L, inv, kept, w, x = buffers
+    return (borrow(c), borrow(C), borrow(D), borrow(E), borrow(L), borrow(inv),
+            borrow(kept), borrow(w), borrow(x))
+
+
 @jit
 def observed_all(A, q):
     """:func:`observed_error` of every measure: ``(violations, ranks)`` — the errors of eq.
     24 at one projection step (:func:`kanagen.runtime.minimal.coherence_errors`)."""
     q = np.ascontiguousarray(q)
-    c, C, D, E, L, inv, kept, w, x = _buffers(A, q.size)
+    buffers = _buffers(A, q.size)
+    c, C, D, E, L, inv, kept, w, x = _borrowed(buffers)
     viol, rank = np.empty(A.chan.size), np.empty(A.chan.size, dtype=np.int64)
     for i in range(A.chan.size):
         viol[i], rank[i] = observed_error(A, i, q, c, C, D, E, L, inv, kept, w, x)
+    alive(buffers)
     return viol, rank
 
 
@@ -313,7 +323,8 @@ def errors_at(A, q, caps, scale, best, errors):
     measures left, each adding at most 1/M, cannot lift it there — checked every
     :data:`CHUNK` measures of a channel, an exact bound with a margin far above the
     rounding of the sum. Returns ``(complete, relevance)``."""
-    c, C, D, E, L, inv, kept, w, x = _buffers(A, q.size)
+    buffers = _buffers(A, q.size)
+    c, C, D, E, L, inv, kept, w, x = _borrowed(buffers)
     total = A.chan.size
     score = 0.0
     seen = 0
@@ -330,7 +341,9 @@ def errors_at(A, q, caps, scale, best, errors):
             if (i - start + 1) % CHUNK == 0 or i == start + size - 1:
                 if seen < total and (score + (total - seen)) / total \
                         < best - 1e-9 * abs(best):
+                    alive(buffers)
                     return False, 0.0
+    alive(buffers)
     return True, score / total if total else 0.0
 
 

@@ -1,0 +1,85 @@
+"""Arrays borrowed for the engine's innermost loops (kanagen.common.borrow), and what the
+iteration reports at its returned point (kanagen.runtime.engine.iterate.projected_at): the
+same as the projector's there, to the last bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scenarios import TWOCHAN, twochan_data
+
+import kanagen
+from kanagen.common.borrow import alive, borrow
+from kanagen.common.jit import NUMBA, jit
+from kanagen.runtime.fit import fit_problem, make_problem
+from kanagen.runtime.iterate import CONVERGED, iterate
+from kanagen.runtime.projector import project
+from kanagen.runtime.results import constrained_covariance
+
+
+@jit
+def _rows_doubled(a):
+    """Every row of a borrowed copy of ``a`` doubled in place, through views."""
+    out = a.copy()
+    view = borrow(out)
+    for i in range(view.shape[0]):
+        row = view[i]
+        for j in range(row.size):
+            row[j] *= 2.0
+    alive(out)
+    return out
+
+
+@jit
+def _same_memory(a):
+    b = borrow(a)
+    return b.ctypes.data == a.ctypes.data and b.shape == a.shape and \
+        b.strides == a.strides
+
+
+def test_a_borrowed_array_is_its_owner_without_a_reference():
+    a = np.arange(12.0).reshape(4, 3)
+    assert _same_memory(a)
+    np.testing.assert_array_equal(_rows_doubled(a), 2.0 * a)
+    np.testing.assert_array_equal(a, np.arange(12.0).reshape(4, 3))  # the input untouched
+
+
+@pytest.mark.skipif(NUMBA is not None and not jit.disabled, reason="interpreted only")
+def test_interpreted_borrow_is_the_array():
+    a = np.ones(3)
+    assert borrow(a) is a and alive((a,)) is None
+
+
+def _problems():
+    twochan = kanagen.load_text(TWOCHAN, "twochan.yaml")
+    data = twochan_data(4, 25, 12)
+    out = [(twochan, model, make_problem(twochan, model, data, {"pts": 4.0, "obs": 2.0},
+                                         np.array([0.7, 0.5, 0.8])))
+           for model in ("free", "sphere")]
+    conic = kanagen.load("conic")
+    angle = np.linspace(0.2, 3.0, 30)
+    xy = np.c_[300 + 200 * np.cos(angle), 250 + 120 * np.sin(angle)]
+    xy += np.random.default_rng(5).normal(0, 1.0, xy.shape)
+    out.append((conic, "conic", make_problem(conic, "conic", {"point": xy}, {"point": 1.0})))
+    return out
+
+
+@pytest.mark.parametrize("case", range(3))
+def test_a_fit_reports_the_projector_at_its_point(case):
+    """The information, ranks, constraints kept and residual a fit reports come from the
+    kernel that ran the iteration; the projector called at the returned point gives the
+    same, bit for bit, and so the same covariance."""
+    fam, model, problem = _problems()[case]
+    out = iterate(problem, problem.q0, report=True)
+    assert out.status == CONVERGED
+    lin, proj = project(problem, out.point)
+    got = out.projected
+    np.testing.assert_array_equal(got.info, lin.info)
+    np.testing.assert_array_equal(got.C0, proj.C0)
+    assert (got.rank0, got.residual) == (proj.rank0, proj.residual)
+    for mine, theirs in zip(got.ranks, lin.ranks, strict=True):
+        np.testing.assert_array_equal(mine, theirs)
+    res = fit_problem(fam, model, problem)
+    np.testing.assert_array_equal(res.info, lin.info)
+    np.testing.assert_array_equal(res.covariance, constrained_covariance(lin.info, proj.C0))
+    assert iterate(problem, problem.q0).projected is None  # not asked for
