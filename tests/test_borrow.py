@@ -31,6 +31,23 @@ def _rows_doubled(a):
 
 
 @jit
+def _kept_alive(n):
+    """A local owner borrowed, then arrays of its size made and dropped in the loop: were the
+    owner released at its last use (no :func:`alive`), they would take its memory and the
+    borrowed view would read theirs (checked: without ``alive`` this returns 1.0)."""
+    owner = np.zeros(n)
+    view = borrow(owner)
+    for i in range(n):
+        other = np.full(n, -1.0)
+        view[i] = i + 1.0 + other[0] + 1.0
+    total = 0.0
+    for i in range(n):
+        total += view[i]
+    alive(owner)
+    return total
+
+
+@jit
 def _same_memory(a):
     b = borrow(a)
     return b.ctypes.data == a.ctypes.data and b.shape == a.shape and \
@@ -42,6 +59,10 @@ def test_a_borrowed_array_is_its_owner_without_a_reference():
     assert _same_memory(a)
     np.testing.assert_array_equal(_rows_doubled(a), 2.0 * a)
     np.testing.assert_array_equal(a, np.arange(12.0).reshape(4, 3))  # the input untouched
+
+
+def test_alive_keeps_a_borrowed_arrays_owner():
+    assert _kept_alive(64) == 64 * 65 / 2
 
 
 @pytest.mark.skipif(NUMBA is not None and not jit.disabled, reason="interpreted only")
