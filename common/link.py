@@ -9,8 +9,12 @@ holds a call through a pointer, not a copy of the callee. Exceptions propagate a
 ordinary call (numba's native calling convention, status and exception record).
 
 The signature is a string of *kinds* (:data:`KINDS`; modules add their own with
-:func:`kind`): a caller's arguments must convert to them (a literal to its type, an array
-to a less specific layout); anything else is a typing error when the caller compiles.
+:func:`kind`), the arguments' then the result's: ``"A Pt f f1 -> b Lin Proj"`` (several
+result kinds: a tuple). A caller's arguments must convert to the declared kinds (a literal
+to its type, an array to a less specific layout); anything else is a typing error when the
+caller compiles. The declared result types a caller without compiling the callee: every
+linked kernel compiles on its own, so a cold cache is filled by several processes at once
+(:func:`link`); a kernel whose compiled result differs from its declaration is an error.
 
 Each cell is a process symbol (``kanagen_link_<module>_<name>``) registered when the kernel
 is defined, so a caller loaded from numba's cache resolves it at once; the cell is filled
@@ -22,6 +26,7 @@ raises instead of jumping to address zero. Interpreted (numba missing, or
 
 from __future__ import annotations
 
+import os
 import re
 import sys
 import threading
@@ -32,6 +37,9 @@ from kanagen.common.jit import NUMBA, jit
 
 _lock = threading.RLock()  # numba's compiler lock where numba is (see below)
 _LINKED: list = []  # every linked kernel, in definition order
+_KIND_MODULES: dict = {}  # the modules that named kinds, in order (a set that keeps it)
+_sharing = threading.local()  # active: kernels compile without their callees (link())
+_sharing.active = False
 #: kind name -> a function making its numba type (made when first needed)
 KINDS: dict = {}
 #: The letters of the basic kinds: ``f`` a float, ``i`` an integer, ``b`` a boolean; with
@@ -44,9 +52,10 @@ def layout(name: str) -> tuple:
     return DTYPES[name[0]], int(name[1:] or 0)
 
 
-def kind(name: str, make) -> None:
+def kind(name: str, make, _depth: int = 1) -> None:
     """Name a numba type for signatures: ``make()`` returns it."""
     KINDS[name] = make
+    _KIND_MODULES.setdefault(sys._getframe(_depth).f_globals.get("__name__", ""))
 
 
 def record_kind(name: str, record, kinds: str) -> None:
@@ -55,7 +64,7 @@ def record_kind(name: str, record, kinds: str) -> None:
     def make():
         from numba import types
         return types.BaseTuple.from_types([KINDS[k]() for k in kinds.split()], record)
-    kind(name, make)
+    kind(name, make, 2)
 
 
 if NUMBA is not None and not jit.disabled:
@@ -84,7 +93,12 @@ if NUMBA is not None and not jit.disabled:
 
         def __init__(self, function, kinds: str, python: bool):
             self.name = function.__name__
-            self.kinds = kinds.split()
+            arguments, arrow, results = kinds.partition("->")
+            if not arrow or not results.split():
+                raise ValueError(f"@linked {function.__name__}: declare the result's kinds "
+                                 f"after '->' (got {kinds!r})")
+            self.kinds = arguments.split()
+            self.results = results.split()
             self.function = function
             # the callers need its native code only: no wrappers (their boxing of named
             # tuples of arrays is most of the code of a small kernel)
@@ -97,22 +111,41 @@ if NUMBA is not None and not jit.disabled:
             self.cell = np.zeros(1, dtype=np.int64)
             ll.add_symbol(self.symbol, self.cell.ctypes.data)
             self.signature = None
+            self._declared = None
+
+        def declared(self):
+            """The declared signature (made when first needed)."""
+            if self._declared is None:
+                results = [KINDS[k]() for k in self.results]
+                result = results[0] if len(results) == 1 else \
+                    types.BaseTuple.from_types(results)
+                self._declared = signature(result, *(KINDS[k]() for k in self.kinds))
+            return self._declared
 
         def resolve(self):
             """Compile (or load) the kernel for its signature and fill its cell."""
             with _lock:
                 if self.signature is None:
-                    argtypes = tuple(KINDS[k]() for k in self.kinds)
-                    self.kernel.compile(argtypes)
-                    result = self.kernel.overloads[argtypes]
+                    sig = self.declared()
+                    self.kernel.compile(sig.args)
+                    result = self.kernel.overloads[sig.args]
+                    if result.signature.return_type != sig.return_type:
+                        raise TypeError(f"@linked {self.name}: returns "
+                                        f"{result.signature.return_type}, declared "
+                                        f"{sig.return_type} ({' '.join(self.results)})")
                     self.cell[0] = result.library.get_pointer_to_function(
                         result.fndesc.llvm_func_name)
                     self.signature = result.signature
             return self.signature
 
         def typer(self, context, args):
-            """The return type for a call with arguments of types ``args``."""
-            sig = self.resolve()
+            """The return type for a call with arguments of types ``args``: the declared
+            one. While :func:`link` compiles the kernels (each on its own, shares of them in
+            other processes) the callee is not compiled for it; a caller compiled at another
+            time compiles (or loads) the callee and fills its cell, to be callable at once."""
+            sig = self.declared()
+            if not _sharing.active:
+                self.resolve()
             if len(args) != len(sig.args):
                 raise TypingError(f"{self.name} takes {len(sig.args)} arguments "
                                   f"({' '.join(self.kinds)}), got {len(args)}")
@@ -124,7 +157,7 @@ if NUMBA is not None and not jit.disabled:
 
         def lower(self, context, builder, signature, llargs):
             """A call through the cell, the arguments converted to the declared kinds."""
-            sig = self.signature
+            sig = self.declared()
             values = [context.cast(builder, value, given, declared)
                       for value, given, declared in zip(llargs, signature.args, sig.args,
                                                           strict=True)]
@@ -196,23 +229,119 @@ _filled = 0  # how many of _LINKED (a prefix) have their cells filled
 def link() -> None:
     """Fill every linked kernel's cell (compiled, or loaded from numba's cache); while
     the kernels are first compiled (:func:`kanagen.common.jit.announce`), a progress bar
-    on a terminal's stderr."""
+    on a terminal's stderr, and helper processes compile shares of them at the same time
+    (:func:`processes`): this process then loads theirs from the cache they wrote."""
     global _filled
     if _filled == len(_LINKED):
         return
     with _lock:
         entries = _LINKED[_filled:]
-        if jit.compiling and _on_terminal():
-            import click
+        helpers = _start_helpers(entries) if jit.compiling else []
+        mine = [e for e in entries if not any(e in share for share, _ in helpers)]
+        _sharing.active = True
+        try:
+            if jit.compiling and _on_terminal():
+                import click
 
-            with click.progressbar(entries, label="kanagen: compiling the kernels",
-                                   file=sys.stderr, item_show_func=_current) as bar:
-                for entry in bar:
+                label = "kanagen: compiling the kernels" + (
+                    f" ({len(helpers) + 1} processes)" if helpers else "")
+                with click.progressbar(mine, label=label, file=sys.stderr,
+                                       item_show_func=_current) as bar:
+                    for entry in bar:
+                        entry.resolve()
+            else:
+                for entry in mine:
                     entry.resolve()
-        else:
-            for entry in entries:
+            for _, process in helpers:
+                _finish(process)
+            for entry in entries:  # the helpers': from the cache (or compiled here)
                 entry.resolve()
+        finally:
+            _sharing.active = False
+            for _, process in helpers:  # an interrupted link leaves no helper behind
+                if process.poll() is None:
+                    process.kill()
         _filled = len(_LINKED)
+
+
+#: At most this many processes compile a cold cache together.
+MAX_PROCESSES = 8
+#: Each process compiles at least this many kernels (fewer: not worth a process).
+_LEAST_SHARE = 4
+
+
+def processes(count: int) -> int:
+    """How many processes compile ``count`` kernels: one a core available, at most
+    :data:`MAX_PROCESSES`, each with a few kernels; ``KANAGEN_COMPILE_PROCESSES`` sets it
+    (1: this process alone)."""
+    given = os.environ.get("KANAGEN_COMPILE_PROCESSES", "").strip()
+    if given:
+        try:
+            wanted = int(given)
+        except ValueError:
+            raise ValueError(f"KANAGEN_COMPILE_PROCESSES must be a whole number of processes, "
+                             f"got {given!r}") from None
+    else:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else \
+            (os.cpu_count() or 1)
+        wanted = min(cores, MAX_PROCESSES)
+    return max(1, min(wanted, count // _LEAST_SHARE))
+
+
+def _start_helpers(entries) -> list:
+    """Processes compiling shares of ``entries`` into numba's cache (every kernel compiles
+    on its own: the callees' declared results type the calls): ``[(share, process)]``;
+    none where only this process should (one core, or no interpreter to start)."""
+    import json
+    import subprocess
+
+    portable = [e for e in entries if e.function.__module__.startswith("kanagen.")]
+    count = processes(len(portable))
+    if count < 2 or not sys.executable:
+        return []
+    modules = list(_KIND_MODULES) + [e.function.__module__ for e in portable]
+    modules = [m for m in dict.fromkeys(modules) if m.startswith("kanagen.")]
+    helpers = []
+    for k in range(1, count):
+        share = portable[k::count]
+        names = [f"{e.function.__module__}:{e.name}" for e in share]
+        try:
+            process = subprocess.Popen(
+                [sys.executable, "-c", "import sys, json; from kanagen.common.link import "
+                 "compile_share; compile_share(*json.loads(sys.argv[1]))",
+                 json.dumps([modules, names])],
+                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL)
+        except OSError:
+            break
+        helpers.append((share, process))
+    return helpers
+
+
+def _finish(process, timeout: float = 900.0) -> None:
+    """Wait for a helper (stopped after ``timeout`` seconds: this process compiles what it
+    left)."""
+    import subprocess
+
+    try:
+        process.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()
+
+
+def compile_share(modules: list, names: list) -> None:
+    """A helper process of :func:`link`: import ``modules`` and compile the linked
+    kernels ``names`` (``module:name``) into numba's cache."""
+    import importlib
+
+    for module in modules:
+        importlib.import_module(module)
+    wanted = set(names)
+    _sharing.active = True
+    for entry in list(_LINKED):
+        if f"{entry.function.__module__}:{entry.name}" in wanted:
+            entry.resolve()
 
 
 def _on_terminal() -> bool:

@@ -92,7 +92,7 @@ def epipolar_rows(X):
     return A, T1, T2
 
 
-@linked("f2", python=True)
+@linked("f2 -> f2", python=True)
 def fundamental_8point(X):
     """The normalised eight-point ``F`` of the matches ``X`` (n ≥ 8), rank 2, unit norm."""
     A, T1, T2 = epipolar_rows(X)
@@ -131,7 +131,7 @@ def polynomial_roots(p):
     return re, im
 
 
-@linked("f2", python=True)
+@linked("f2 -> f3 i", python=True)
 def fundamental_7point(X):
     """The seven-point ``F`` of the 7 matches ``X``: the real roots ``α`` of
     ``det(α F1 + (1 − α) F2) = 0`` on the two-dimensional null space, unit norm each; as
@@ -162,7 +162,7 @@ def _pencil(a: float, F1, F2):
     return F
 
 
-@linked("f2", python=True)
+@linked("f2 -> f2", python=True)
 def homography_dlt(X):
     """The normalised DLT homography of the matches ``X`` (n ≥ 4), ``p2 ∝ H p1``, unit
     norm."""
@@ -199,7 +199,7 @@ def epipoles(F):
     return Vt[-1].copy(), np.ascontiguousarray(U[:, -1])
 
 
-@linked("f2 f1 f1", python=True)
+@linked("f2 f1 f1 -> f f", python=True)
 def focal_lengths(F, pp1, pp2):
     """Squared focal lengths ``(f1², f2²)`` from ``F`` and the principal points ``pp1``,
     ``pp2`` (homogeneous 3-vectors), Bougnoux 1998."""
@@ -209,7 +209,7 @@ def focal_lengths(F, pp1, pp2):
 
 # -- poses -----------------------------------------------------------------------------------
 
-@linked("f2", python=True)
+@linked("f2 -> f3 f2", python=True)
 def essential_poses(E):
     """The four ``(R, t)`` with ``E ∝ [t]× R``, ``t`` unit: ``(Rs (4, 3, 3), ts (4, 3))`` in
     the order ``(Ra, t), (Ra, −t), (Rb, t), (Rb, −t)``."""
@@ -230,7 +230,7 @@ def essential_poses(E):
     return Rs, ts
 
 
-@linked("f2", python=True)
+@linked("f2 -> f2", python=True)
 def nearest_essential(E):
     """The closest matrix to ``E`` with singular values (1, 1, 0)."""
     U, _, Vt = svd(E)
@@ -239,7 +239,7 @@ def nearest_essential(E):
     return (U @ D) @ Vt
 
 
-@linked("f2 f1 f2 f2", python=True)
+@linked("f2 f1 f2 f2 -> f1 f1", python=True)
 def depths(R, t, y1, y2):
     """Depths ``(λ1, λ2)`` of the points along the rays ``y1``, ``y2`` for ``X2 = R X1 + t``,
     by least squares on ``λ2 y2 ≈ λ1 R y1 + t`` (the 2 × 2 normal equations, per point)."""
@@ -272,7 +272,7 @@ def _opposite(t, u) -> bool:
     return True
 
 
-@linked("f3 f2 f2 f2", python=True)
+@linked("f3 f2 f2 f2 -> i", python=True)
 def best_pose(Rs, ts, y1, y2) -> int:
     """The index of the pose ``(Rs[i], ts[i])`` that puts most points in front of both
     cameras (cheirality); a tie goes to the smaller rotation (the larger trace), then to
@@ -316,7 +316,7 @@ def _greater(a, b) -> bool:
     return a[2] > b[2]
 
 
-@linked("f2 f2 f2 b b", python=True)
+@linked("f2 f2 f2 b b -> f3 f2 f2 i", python=True)
 def homography_poses(H0, y1, y2, depths_sign: bool, in_front: bool):
     """``(R, t, w)`` with ``H0 ∝ R + t wᵀ`` (``t`` unit) for a calibrated homography:
     ``(Rs (4, 3, 3), ts (4, 3), ws (4, 3), count)``.
@@ -394,7 +394,7 @@ def homography_poses(H0, y1, y2, depths_sign: bool, in_front: bool):
     return Rs, ts, ws, count
 
 
-@linked("f1 f1 f1 f1", python=True)
+@linked("f1 f1 f1 f1 -> f2 b", python=True)
 def rotation_from_pairs(a1, a2, b1, b2):
     """The rotation with ``R â1 = b̂1`` and ``R (a1 × a2) ∝ b1 × b2`` (the triad method:
     ``R = B Aᵀ``), and whether it exists (no pair parallel)."""
@@ -414,7 +414,7 @@ def _triad(u, v):
     return columns(e1, e2, cross(e1, e2)), True
 
 
-@linked("f2", python=True)
+@linked("f2 -> f1", python=True)
 def quaternion_from_rotation(R):
     """Unit quaternion ``(w, x, y, z)``, ``w >= 0``, of the rotation ``R`` (Shepperd)."""
     tr = R[0, 0] + R[1, 1] + R[2, 2]

@@ -121,7 +121,7 @@ def _in_focal_range(F: float) -> bool:
 
 # -- two_view_fundamental ------------------------------------------------------------------
 
-@linked("f2 f1 f2", python=True)
+@linked("f2 f1 f2 -> i", python=True)
 def fundamental_twin(X, k3, out) -> int:
     """``F`` by the seven-point (7 matches) or normalised eight-point algorithm (more), the
     focal lengths read off it (Bougnoux), then ``R, t`` from the essential matrix, chosen by
@@ -136,7 +136,7 @@ def fundamental_twin(X, k3, out) -> int:
         return 0  # a matrix not finite (an overflow), no convergence, a singular solve
 
 
-@linked("f2 f1 f2")
+@linked("f2 f1 f2 -> i")
 def _fundamental(X, k3, out) -> int:
     """:func:`fundamental_twin` on a usable sample (LAPACK's failures raise)."""
     if X.shape[0] == 7:
@@ -175,7 +175,7 @@ def calibrated_dlt(X, k3):
     return (T @ homography_dlt(X)) @ inverse(T)
 
 
-@linked("f2 f1 f2", python=True)
+@linked("f2 f1 f2 -> i", python=True)
 def homography_twin(X, k3, out) -> int:
     """``H`` by the normalised DLT (4 matches or more), then ``(R, t, w)`` with
     ``H ∝ R + t wᵀ`` at the nominal focal length, in front of camera 1: each
@@ -189,7 +189,7 @@ def homography_twin(X, k3, out) -> int:
         return 0
 
 
-@linked("f2 f1 f2")
+@linked("f2 f1 f2 -> i")
 def _homography(X, k3, out) -> int:
     """:func:`homography_twin` on a usable sample (LAPACK's failures raise)."""
     y1, y2 = rays(X, k3, 1.0, 1.0)
@@ -203,7 +203,7 @@ def _homography(X, k3, out) -> int:
 
 # -- two_view_rotation ---------------------------------------------------------------------
 
-@linked("f2 f1 f2", python=True)
+@linked("f2 f1 f2 -> i", python=True)
 def rotation_twin(X, k3, out) -> int:
     """A rotation about the optical centre with an unknown common focal length
     (``r2 ∝ R r1``, ``r = (x, y, f)``). Two matches: the real roots ``F = f²`` of the cubic
@@ -220,7 +220,7 @@ def rotation_twin(X, k3, out) -> int:
         return 0
 
 
-@linked("f2 f1 f2")
+@linked("f2 f1 f2 -> i")
 def _rotation_pair(X, k3, out) -> int:
     """:func:`rotation_twin` on a usable sample of two matches: the cubic in ``F = f²``."""
     y1, y2 = rays(X, k3, 0.0, 0.0)  # the image vectors (x, y, 0)
@@ -252,7 +252,7 @@ def _rotation_pair(X, k3, out) -> int:
     return count
 
 
-@linked("f2 f1 f2")
+@linked("f2 f1 f2 -> i")
 def _rotation_many(X, k3, out) -> int:
     """:func:`rotation_twin` on a usable sample of four matches or more: ``F`` from the DLT
     homography, ``R`` by Kabsch."""
@@ -282,7 +282,7 @@ def _rotation_many(X, k3, out) -> int:
     return 1
 
 
-@linked("f2 f2")
+@linked("f2 f2 -> f2 b")
 def kabsch(y1, y2):
     """The rotation that best maps the unit rays ``ŷ1`` onto ``ŷ2`` (least squares:
     ``Σ ŷ2 ŷ1ᵀ = U S Vᵀ``, ``R = u1 v1ᵀ + u2 v2ᵀ + (u1 × u2)(v1 × v2)ᵀ``, det +1), and
@@ -307,7 +307,7 @@ def kabsch(y1, y2):
 
 # -- two_view_translation ------------------------------------------------------------------
 
-@linked("f2 f1 f2", python=True)
+@linked("f2 f1 f2 -> i", python=True)
 def translation_twin(X, k3, out) -> int:
     """A translation at the nominal focal length (``R = I``, ``‖t‖ = 1``): each match gives
     ``t · (r1 × r2) = 0``; two matches fix ``t = unit(n1 × n2)``, more the least-squares
@@ -322,7 +322,7 @@ def translation_twin(X, k3, out) -> int:
         return 0
 
 
-@linked("f2 f1 f2")
+@linked("f2 f1 f2 -> i")
 def _translation(X, k3, out) -> int:
     """:func:`translation_twin` on a usable sample (LAPACK's failures raise)."""
     y1, y2 = rays(X, k3, 1.0, 1.0)

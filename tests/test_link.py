@@ -11,7 +11,7 @@ from kanagen.common.link import _LINKED, link, linked
 pytestmark = pytest.mark.skipif(NUMBA is None or jit.disabled, reason="numba kernels only")
 
 
-@linked("f1 f")
+@linked("f1 f -> f1 f")
 def _scaled(v, s):
     if s < 0:
         raise ValueError("a negative scale")
@@ -151,7 +151,7 @@ def test_a_first_compile_shows_its_progress_on_a_terminal(monkeypatch):
     import io
     import sys
 
-    kernel = linked("f")(_progress_kernel)  # a kernel not linked yet
+    kernel = linked("f -> f")(_progress_kernel)  # a kernel not linked yet
     monkeypatch.setattr(jit, "compiling", True)
 
     class Terminal(io.StringIO):
@@ -163,3 +163,61 @@ def test_a_first_compile_shows_its_progress_on_a_terminal(monkeypatch):
     link()
     assert "kanagen: compiling the kernels" in err.getvalue()
     assert kernel(1.0) == 2.0
+
+
+def _negated(v):
+    return -v
+
+
+_NEGATED = None  # the linked _negated, made by the test below
+
+
+def _calls(v):
+    return 2.0 * _NEGATED(v)
+
+
+def _declared_wrong(v):
+    return v.sum()
+
+
+def test_a_kernel_declares_its_result():
+    with pytest.raises(ValueError, match="declare the result's kinds after '->'"):
+        linked("f1")(_declared_wrong)
+    kernel = linked("f1 -> f1")(_declared_wrong)  # returns a number
+    try:
+        with pytest.raises(TypeError, match=r"_declared_wrong: returns float64, declared "
+                                            r"array"):
+            kernel(np.ones(2))
+    finally:  # link() resolves every kernel: this one must not stay among them
+        _LINKED[:] = [e for e in _LINKED if e.name != "_declared_wrong"]
+
+
+def test_while_linking_a_caller_compiles_without_its_callees(monkeypatch):
+    """What lets several processes share a cold cache: inside link() a caller is typed from
+    its callee's declared result, not by compiling the callee; link() then fills every cell."""
+    global _NEGATED
+    from kanagen.common import link as module
+
+    _NEGATED = linked("f -> f")(_negated)
+    caller = linked("f -> f")(_calls)
+    entry = {e.name: e for e in _LINKED}
+    monkeypatch.setattr(module._sharing, "active", True)
+    entry["_calls"].resolve()
+    assert entry["_negated"].signature is None  # not compiled for its caller
+    monkeypatch.setattr(module._sharing, "active", False)
+    link()
+    assert entry["_negated"].signature is not None and caller(3.0) == pytest.approx(-6.0)
+
+
+def test_how_many_processes_compile(monkeypatch):
+    from kanagen.common.link import MAX_PROCESSES, processes
+
+    monkeypatch.setenv("KANAGEN_COMPILE_PROCESSES", "1")
+    assert processes(100) == 1
+    monkeypatch.setenv("KANAGEN_COMPILE_PROCESSES", "3")
+    assert processes(100) == 3 and processes(8) == 2 and processes(3) == 1
+    monkeypatch.setenv("KANAGEN_COMPILE_PROCESSES", "many")
+    with pytest.raises(ValueError, match="KANAGEN_COMPILE_PROCESSES must be a whole number"):
+        processes(100)
+    monkeypatch.delenv("KANAGEN_COMPILE_PROCESSES")
+    assert 1 <= processes(1000) <= MAX_PROCESSES

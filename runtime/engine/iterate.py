@@ -13,7 +13,7 @@ from collections import namedtuple
 import numpy as np
 
 from kanagen.common.jit import jit
-from kanagen.common.link import linked
+from kanagen.common.link import linked, record_kind
 
 from .linear import linearise, parameter_block
 from .measures import RESTORE_STEPS, ROUNDING
@@ -64,6 +64,7 @@ _JOINT_STEPS = 4
 
 #: An outcome: status, iterations, the point, which detail its message carries, a verdict.
 Out = namedtuple("Out", ["status", "iterations", "x", "detail", "verdict"])
+record_kind("Out", Out, "i i Pt i Verdict")
 
 
 @jit
@@ -71,7 +72,7 @@ def _none_verdict(cost):
     return Verdict(False, 0.0, cost, np.nan, np.zeros(0), 0, np.zeros(0))
 
 
-@linked("Pt i i i Verdict")
+@linked("Pt i i i Verdict -> Out")
 def outcome(x, it, status, detail, v):
     return Out(status, it, x, detail, v)
 
@@ -107,7 +108,7 @@ def damping_for(A, x, lin, radius, w):
     return 10.0 ** hi
 
 
-@linked("A Pt Lin f f1")
+@linked("A Pt Lin f f1 -> Proj")
 def damped(A, x, lin, radius, w):
     """The projector's point with the parameter's step damped to ``radius``."""
     return solve(A, x, lin, damping_for(A, x, lin, radius, w), w)[1]
@@ -148,7 +149,7 @@ def lowers_violation(trial, trial_violation, x, violation):
         trial_violation <= violation + noise and trial.cost <= x.cost)
 
 
-@linked("A Pt f2")
+@linked("A Pt f2 -> b Pt f")
 def nearer(A, x, root):
     """``x`` with measures at nearer points of their equations, restored, when that lowers
     the cost (``found`` False otherwise)."""
@@ -162,7 +163,7 @@ def nearer(A, x, root):
     return False, x, 0.0
 
 
-@linked("A Pt f f1 f2 f2 b")
+@linked("A Pt f f1 f2 f2 b -> b Pt f")
 def towards_constraints(A, x, violation, target_q, target_mt, root, guard):
     """Eq. 18 while ``x`` is off its equations: a trial that lowers the violation, moved
     onto the constraints once close to them."""
@@ -177,7 +178,7 @@ def towards_constraints(A, x, violation, target_q, target_mt, root, guard):
     return True, trial, tv
 
 
-@linked("A f1 f1 Pt f Lin Proj")
+@linked("A f1 f1 Pt f Lin Proj -> b Pt f")
 def step(A, st, scale, x, violation, lin, proj):
     """An acceptable restored point: the projector's step, shortened, else damped within
     the trust radius (runtime/iterate.py: ``_Run.step``)."""
@@ -235,7 +236,7 @@ def step(A, st, scale, x, violation, lin, proj):
     return False, x, 0.0
 
 
-@linked("A f1 f1 Pt b Lin Proj i b")
+@linked("A f1 f1 Pt b Lin Proj i b -> b Out Pt f")
 def end(A, st, info0, x, have_lin, lin, proj, it, verify_end):
     """Verify ``x``: ``(done, outcome, next point, its violation)`` — not done after an
     escape (the iteration goes on from the next point)."""
@@ -274,7 +275,7 @@ def end(A, st, info0, x, have_lin, lin, proj, it, verify_end):
     return True, outcome(x, it, SADDLE, DESCRIBED, v), x, 0.0
 
 
-@linked("A f1 f1 f1 f1 Pt f i f b")
+@linked("A f1 f1 f1 f1 Pt f i f b -> Out")
 def descend(A, st, info0, scale, q_start, x, violation, max_iter, xtol, verify_end):
     """The iteration from the point ``x`` (runtime/iterate.py: ``_Run.descend``)."""
     since_progress = since_lost = next_look = crawl = 0
@@ -345,7 +346,7 @@ def descend(A, st, info0, scale, q_start, x, violation, max_iter, xtol, verify_e
     return outcome(x, max_iter, MAX_ITER, NO_DETAIL, _none_verdict(x.cost))
 
 
-@linked("A f1 f1 Pt f Proj f2")
+@linked("A f1 f1 Pt f Proj f2 -> Pt f b")
 def joint_start(A, st, scale, x, violation, proj0, root):
     """The restored start, or the points of the joint problem's steps from the raw start
     while they improve (runtime/iterate.py: ``_Run.joint_start``); ``moved`` whether it

@@ -24,7 +24,7 @@ from ..sqrt import (
 from .measures import ROUNDING, correct, factor, residual_into, whiten_column
 
 
-@linked("A f1 f2 f2 f3 f3 f1 f2", python=True)
+@linked("A f1 f2 f2 f3 f3 f1 f2 -> f2 f2 f1 f1 f3 f2 f3 f3 f2 b2 i1 f", python=True)
 def linearise(A, q, mt, c, C, D, c0, C0):
     """The whitened linearisation at ``(q, m̃)`` (equations ``c, C, D`` there): returns
     ``(info, H, rhs, gradient, Cbar, rbar, E, L, inv, kept, ranks, residual)``.
@@ -145,7 +145,7 @@ def equilibrium_weights(H):
     return diag
 
 
-@linked("f2 f2 f1 f2 f1 f1 f f f1 f", python=True)
+@linked("f2 f2 f1 f2 f1 f1 f f f1 f -> f1 b1 i f b", python=True)
 def parameter_block(H, info, rhs, C0, c0, q, residual, mu, weights, eps):
     """``Δq`` of eq. 43 (damped by ``μ diag(w)``; ``w`` empty: the equilibrium weights of
     ``H``), the rows of ``C0`` kept, their rank and the residual E² (``ok`` False on a zero
@@ -221,7 +221,7 @@ def constraint_root(Abar, C0, eps):
     return C0bar_t, L0, kept0
 
 
-@linked("f2 f1 f2 f1 f")
+@linked("f2 f1 f2 f1 f -> f1 b1 f")
 def parameter_solve(H, rhs, C0, c0, eps):
     """``Δq`` of eq. 43 (``H = Ā Āᵀ`` its closest root, the constraints' rows reduced to
     their first independent ones), the rows of ``C0`` kept and ``‖L0⁻¹ c0‖²`` (the

@@ -359,7 +359,7 @@ def halving(A, i, q, m, c, C, D, step, p, d, cand, moved, x):
         m[j] = cand[j]
 
 
-@linked("A f1 f2 i f", python=True)
+@linked("A f1 f2 i f -> f2 f1 i1 f2 f3 f3", python=True)
 def project_all(A, q, mt, iterations, tol):
     """:func:`project_measure` for every measure: ``(m̃, violations, ranks, c, C, D)``."""
     q = np.ascontiguousarray(q)
@@ -413,7 +413,7 @@ def reaching(A, i, top):
     return R
 
 
-@linked("A i f1 f1 f1 f2 f2 f2 Work f1 f2 f2")
+@linked("A i f1 f1 f1 f2 f2 f2 Work f1 f2 f2 -> b")
 def newton(A, i, q, values, c, C, D, G, work, c_new, C_new, D_new):
     """Newton steps of measure ``i`` onto its equations along ``Q⁺Dᵀ`` in the metric ``G``,
     halved where ``|c|`` grows; updates ``values, c, C, D``; True when it is on them."""
@@ -463,7 +463,7 @@ def normal(A, i, q, values, c, C, D, reach, work, spare):
         newton(A, i, q, values, c, C, D, reach, work, *spare)
 
 
-@linked("A i f1 f1 f2 f1 f2 f2 Work")
+@linked("A i f1 f1 f2 f1 f2 f2 Work -> f1 f")
 def descend(A, i, q, start, top, c, C, D, work):
     """Measure ``i`` moved onto ``c(q, ·) = 0`` and down the distance along it from
     ``start``; writes ``c, C, D``; returns ``(m̃, violation)``."""
@@ -515,7 +515,7 @@ def descend(A, i, q, start, top, c, C, D, work):
     return values, violation(c, D, G, p, d, A.eps, work)[0]
 
 
-@linked("A f1 f2 i", python=True)
+@linked("A f1 f2 i -> f2 f1 f2 f3 f3", python=True)
 def restore_all(A, q, mt, iterations):
     """The measures projected onto their equations for ``q`` from ``mt`` (eq. 22), those
     left off finished by the descent on the manifold from where they were left and from

@@ -65,7 +65,7 @@ def finite(x):
     return np.isfinite(x.delta) and np.isfinite(x.cost)
 
 
-@linked("A Pt f f1")
+@linked("A Pt f f1 -> b Lin Proj")
 def project_point(A, x, mu, weights):
     """The linearisation at ``x`` and the projector's point (damped by ``μ diag(w)``);
     ``ok`` False where the projector fails (a zero pivot)."""
@@ -76,7 +76,7 @@ def project_point(A, x, mu, weights):
     return ok, lin, proj
 
 
-@linked("A Pt Lin f f1")
+@linked("A Pt Lin f f1 -> b Proj")
 def solve(A, x, lin, mu, weights):
     """The projector's point from a linearisation (eq. 43–44)."""
     dq, kept0, rank0, residual, ok = parameter_block(lin.H, lin.info, lin.rhs, x.C0, x.c0,
@@ -108,7 +108,7 @@ def c0_rounding(q):
     return 1e-13 * (1.0 + max_abs(q)) ** 2
 
 
-@linked("A f1 f2 i")
+@linked("A f1 f2 i -> f1")
 def restore_parameter(A, q, root, iterations):
     """``q`` moved back onto ``c0(q) = 0`` by Gauss–Newton steps in the metric ``root``
     (empty: Euclidean), each taken when it lowers ``‖c0‖∞`` (runtime/projector.py)."""
@@ -130,7 +130,7 @@ def restore_parameter(A, q, root, iterations):
     return q.copy()
 
 
-@linked("Pt f2")
+@linked("Pt f2 -> f")
 def c0_violation(x, root):
     """``‖c0‖²`` whitened by ``C0 Q̃⁻¹ C0ᵀ``, or 0 below rounding."""
     if x.c0.size == 0 or max_abs(x.c0) <= c0_rounding(x.q):
@@ -143,7 +143,7 @@ def c0_violation(x, root):
     return whitened_violation(root, x.C0, x.c0, EPS)
 
 
-@linked("A f1 f2 i")
+@linked("A f1 f2 i -> Pt f")
 def restore(A, q, mt, iterations):
     """The point ``(q, m̃)`` with the measures restored (eq. 22) and their violation."""
     q = np.ascontiguousarray(q).copy()
@@ -151,7 +151,7 @@ def restore(A, q, mt, iterations):
     return make_point(A, q, out, c, C, D), viol.sum()
 
 
-@linked("A f1 f2 f2 i b")
+@linked("A f1 f2 f2 i b -> Pt f")
 def restored(A, q, mt, root, iterations, retract):
     """``q`` retracted onto ``c0 = 0`` (in ``root``'s metric, else Euclidean) and its
     measures restored; returns the point and its violation ``E²`` in cost units."""
@@ -248,7 +248,7 @@ def has_relations(A):
     return A.slack_addr != 0
 
 
-@linked("Pt f1")
+@linked("Pt f1 -> f1")
 def multipliers(x, gradient):
     """``λ0``: least-squares multipliers of the parameter constraints, ``C0ᵀ λ0 = −∇F``."""
     r, n = x.C0.shape
@@ -281,7 +281,7 @@ def constraint_curvature(A, q, lam0):
     return 0.5 * (K + K.T)
 
 
-@linked("A Pt Lin Proj")
+@linked("A Pt Lin Proj -> Lin Proj")
 def lagrangian(A, x, lin, proj):
     """The linearisation with the constraints' curvature ``Σ λ0k ∇²c0k`` (its positive
     part) added to the information, and its projector's point (runtime/iterate.py)."""
@@ -319,7 +319,7 @@ def info_root(A, info):
     return closest_root(info, max(A.eps, REDUNDANT))
 
 
-@linked("A Pt")
+@linked("A Pt -> b Pt")
 def nearer_points(A, x):
     """``x`` with each measure at the nearer of its nearest point and the one restored
     from its observed value; ``changed`` False when no measure has a nearer one."""

@@ -70,7 +70,7 @@ def stationary(A, x, lin, proj):
     return decrement(x, lin, proj) <= STATIONARY * x.cost + cost_rounding(A)
 
 
-@linked("f2 b1")
+@linked("f2 b1 -> f2")
 def tangent_space(C0, seen):
     """Columns spanning the null space of ``C0`` on the components ``seen``."""
     n = seen.size
@@ -88,7 +88,7 @@ def tangent_space(C0, seen):
     return E @ np.ascontiguousarray(Vt[rank:].T)
 
 
-@linked("Pt f2")
+@linked("Pt f2 -> f2")
 def tangent_basis(x, info):
     """The tangent space of ``c0 = 0`` on the seen components, orthonormal in the
     information (directions without information left out)."""
@@ -106,7 +106,7 @@ def tangent_basis(x, info):
     return out
 
 
-@linked("Pt f2 f1")
+@linked("Pt f2 f1 -> b1 b")
 def plateau_mask(x, info, info_start):
     """The components whose information fell by twelve orders of magnitude since the start
     (not those the constraints pin); empty when none."""
@@ -127,7 +127,7 @@ def plateau_mask(x, info, info_start):
     return gone, gone.any()
 
 
-@linked("f2 Pt")
+@linked("f2 Pt -> b f f1")
 def weakest(info, x):
     """The least eigenvalue of ``info`` on the tangent space, scaled to a unit diagonal,
     relative to the largest, and its direction (``ok`` False without one)."""
@@ -156,7 +156,7 @@ def weakest(info, x):
     return True, w[0] / w[-1], Z @ (U[:, 0] / d)
 
 
-@linked("A Pt Lin")
+@linked("A Pt Lin -> b f1")
 def lost_direction(A, x, lin):
     """A direction the equations no longer see along which the cost still falls, scaled to
     a largest component of one, its sign the falling one (``found`` False without one)."""
@@ -179,7 +179,7 @@ def lost_direction(A, x, lin):
     return True, -np.sign(slope) * u / np.max(au)
 
 
-@linked("A Pt f1")
+@linked("A Pt f1 -> b f1")
 def profile_gradient(A, x, q):
     """The exact gradient of the profile at ``q`` (measures restored from ``x``'s)."""
     y, _ = restore(A, q, x.mt, RESTORE_STEPS)
@@ -188,7 +188,7 @@ def profile_gradient(A, x, q):
     return True, linearise(A, y.q, y.mt, y.c, y.C, y.D, y.c0, y.C0)[3]
 
 
-@linked("A Pt f1 f1 b f1")
+@linked("A Pt f1 f1 b f1 -> b f1")
 def lagrangian_gradient(A, x, q, lam0, exact_at_x, gradient_x):
     """The gradient of ``F + λ0ᵀ c0`` at ``q`` (``exact_at_x``: ``q`` is ``x.q`` and the
     projector's gradient there is ``gradient_x``)."""
@@ -203,7 +203,7 @@ def lagrangian_gradient(A, x, q, lam0, exact_at_x, gradient_x):
     return True, g
 
 
-@linked("f2 f2")
+@linked("f2 f2 -> b f f1")
 def least_eigen(K, W):
     """The least eigenvalue of the symmetrised ``K`` and its direction ``W u`` (``ok``
     False when not finite)."""
@@ -214,7 +214,7 @@ def least_eigen(K, W):
     return True, w[0], W @ np.ascontiguousarray(U[:, 0])
 
 
-@linked("A Pt f2 f1 f f1")
+@linked("A Pt f2 f1 f f1 -> b f2")
 def sided_gradients(A, x, W, lam0, step, gradient_x):
     """The Lagrangian's gradient at ``x.q + step W[:, j]`` for every column (``ok`` False
     when one cannot be evaluated)."""
@@ -228,7 +228,7 @@ def sided_gradients(A, x, W, lam0, step, gradient_x):
     return True, out
 
 
-@linked("A Pt f2 f1 f f2 b f1")
+@linked("A Pt f2 f1 f f2 b f1 -> b f f1")
 def least_curvature(A, x, W, lam0, step, plus, have_plus, gradient_x):
     """The least eigenvalue of ``Wᵀ ∇²(F + λ0ᵀ c0) W`` by central differences."""
     if not have_plus:
@@ -242,7 +242,7 @@ def least_curvature(A, x, W, lam0, step, plus, have_plus, gradient_x):
     return least_eigen(np.ascontiguousarray(K.T), W)
 
 
-@linked("A Pt Lin Proj f1 b Lin Proj")
+@linked("A Pt Lin Proj f1 b Lin Proj -> Verdict")
 def verify(A, x, lin, proj, info_start, at_rounding, model_lin, model_proj):
     """The checks at ``x`` (runtime/verify.py: ``verify``)."""
     dec = decrement(x, model_lin, model_proj)
@@ -280,7 +280,7 @@ def verify(A, x, lin, proj, info_start, at_rounding, model_lin, model_proj):
     return verdict(True, dec, x.cost, least, direction)
 
 
-@linked("A Pt Lin f1")
+@linked("A Pt Lin f1 -> b Pt f")
 def escape(A, x, lin, direction):
     """A restored point lower than ``x`` along the negative-curvature direction (both
     senses, a few lengths), or ``found`` False."""
