@@ -113,6 +113,14 @@ if NUMBA is not None and not jit.disabled:
             self.signature = None
             self._declared = None
 
+        def cached(self) -> bool:
+            """Is the kernel in numba's cache already (its index written: loading it is
+            cheap)? Unknown counts as cached: it is then compiled here, not shared."""
+            try:
+                return os.path.exists(self.kernel._cache._cache_file._index_path)
+            except AttributeError:  # numba's cache laid out otherwise
+                return True
+
         def declared(self):
             """The declared signature (made when first needed)."""
             if self._declared is None:
@@ -227,20 +235,28 @@ _filled = 0  # how many of _LINKED (a prefix) have their cells filled
 
 
 def link() -> None:
-    """Fill every linked kernel's cell (compiled, or loaded from numba's cache); while
-    the kernels are first compiled (:func:`kanagen.common.jit.announce`), a progress bar
-    on a terminal's stderr, and helper processes compile shares of them at the same time
-    (:func:`processes`): this process then loads theirs from the cache they wrote."""
+    """Fill every linked kernel's cell (compiled, or loaded from numba's cache). The
+    kernels not in the cache yet are compiled by this process and helper processes at the
+    same time, shares of them each (:func:`processes`): this process then loads theirs
+    from the cache they wrote. While the engine is first compiled
+    (:func:`kanagen.common.jit.announce`), or when many kernels are (a family's own, the
+    first time it is used), a line on stderr and a progress bar on a terminal."""
     global _filled
     if _filled == len(_LINKED):
         return
     with _lock:
         entries = _LINKED[_filled:]
-        helpers = _start_helpers(entries) if jit.compiling else []
-        mine = [e for e in entries if not any(e in share for share, _ in helpers)]
+        cold = [e for e in entries if not e.cached()]
+        helpers = _start_helpers(cold)
+        mine = [e for e in cold if not any(e in share for share, _ in helpers)]
+        if len(cold) >= _ANNOUNCE and not jit.compiling:  # a later family's own kernels
+            shared = f" in {len(helpers) + 1} processes" if helpers else ""
+            sys.stderr.write(f"kanagen: compiling {len(cold)} kernels for this machine "
+                             f"(once{shared})...\n")
+            sys.stderr.flush()
         _sharing.active = True
         try:
-            if jit.compiling and _on_terminal():
+            if cold and (jit.compiling or len(cold) >= _ANNOUNCE) and _on_terminal():
                 import click
 
                 label = "kanagen: compiling the kernels" + (
@@ -266,6 +282,8 @@ def link() -> None:
 
 #: At most this many processes compile a cold cache together.
 MAX_PROCESSES = 8
+#: A link that compiles this many kernels or more says so (and shows its progress).
+_ANNOUNCE = 8
 #: Each process compiles at least this many kernels (fewer: not worth a process).
 _LEAST_SHARE = 4
 

@@ -41,6 +41,8 @@ def _entry():
 
 
 def test_called_from_a_kernel_as_written():
+    link()  # as the engine does before its first kernel runs (a caller loaded from the
+    # cache was never typed: nothing compiled its callee for it)
     v = np.arange(4.0)
     b, total = _twice(v)
     np.testing.assert_array_equal(b, v * 3.0)
@@ -52,6 +54,7 @@ def test_called_from_a_kernel_as_written():
 
 
 def test_exceptions_cross_the_call():
+    link()
     with pytest.raises(ValueError, match="negative scale"):
         _negative(np.ones(3))
 
@@ -153,6 +156,8 @@ def test_a_first_compile_shows_its_progress_on_a_terminal(monkeypatch):
 
     kernel = linked("f -> f")(_progress_kernel)  # a kernel not linked yet
     monkeypatch.setattr(jit, "compiling", True)
+    entry = next(e for e in _LINKED if e.name == "_progress_kernel")
+    monkeypatch.setattr(entry, "cached", lambda: False)  # as on a fresh machine
 
     class Terminal(io.StringIO):
         def isatty(self):
