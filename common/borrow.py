@@ -6,7 +6,8 @@ the counts that a call's error path keeps alive are not pruned. In a loop over t
 calling small helpers with a dozen buffers this costs more than the helpers' arithmetic.
 
 ``borrow(a)`` is ``a`` without its reference (numba's view of external memory): taking views
-of it and passing them on counts nothing. It does not keep ``a``'s memory alive: the owner
+of it and passing them on counts nothing; ``borrow((a, b, ...))`` borrows each array of a
+tuple. It does not keep ``a``'s memory alive: the owner
 must outlive every use of the borrowed array — :func:`alive` after the loop keeps a local
 owner alive to that point (numba releases a variable after its last use) — and a borrowed
 array must never be returned or stored. Interpreted, both are no-ops.
@@ -20,17 +21,26 @@ if NUMBA is not None and not jit.disabled:
     from numba.core import cgutils, types
     from numba.extending import intrinsic
 
+    def _borrowed(context, builder, typ, value):
+        array = context.make_array(typ)(context, builder, value)
+        array.meminfo = cgutils.get_null_value(array.meminfo.type)
+        array.parent = cgutils.get_null_value(array.parent.type)
+        return array._getvalue()
+
     @intrinsic
     def borrow(typingctx, a):
-        if not isinstance(a, types.Array):
-            return None
-
-        def codegen(context, builder, signature, args):
-            array = context.make_array(signature.args[0])(context, builder, args[0])
-            array.meminfo = cgutils.get_null_value(array.meminfo.type)
-            array.parent = cgutils.get_null_value(array.parent.type)
-            return array._getvalue()
-        return a(a), codegen
+        if isinstance(a, types.Array):
+            def codegen(context, builder, signature, args):
+                return _borrowed(context, builder, signature.args[0], args[0])
+            return a(a), codegen
+        if isinstance(a, types.BaseTuple) and not isinstance(a, types.NamedTuple) and \
+                all(isinstance(t, types.Array) for t in a.types):
+            def codegen(context, builder, signature, args):
+                values = [_borrowed(context, builder, t, builder.extract_value(args[0], k))
+                          for k, t in enumerate(signature.args[0].types)]
+                return context.make_tuple(builder, signature.return_type, values)
+            return a(a), codegen
+        return None
 
     @intrinsic
     def alive(typingctx, values):
@@ -39,7 +49,7 @@ if NUMBA is not None and not jit.disabled:
         return types.void(values), codegen
 else:
     def borrow(a):
-        """``a`` (interpreted: no reference counts to spare)."""
+        """``a``, an array or a tuple of them (interpreted: no reference counts to spare)."""
         return a
 
     def alive(values):

@@ -50,8 +50,10 @@ def _kept_alive(n):
 @jit
 def _same_memory(a):
     b = borrow(a)
+    c, d = borrow((a, a[1:]))  # a tuple: each array borrowed
     return b.ctypes.data == a.ctypes.data and b.shape == a.shape and \
-        b.strides == a.strides
+        b.strides == a.strides and c.ctypes.data == a.ctypes.data and \
+        d.ctypes.data == a[1:].ctypes.data and d.shape == a[1:].shape
 
 
 def test_a_borrowed_array_is_its_owner_without_a_reference():

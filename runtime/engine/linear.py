@@ -49,11 +49,9 @@ def linearise(A, q, mt, c, C, D, c0, C0):
     residual = 0.0
     cbar, col, wcol, r = np.zeros(pmax), np.zeros(pmax), np.zeros(pmax), np.zeros(pmax)
     # the loop's arrays borrowed (kanagen.common.borrow): no reference counts per measure
-    bc, bC, bD, bmt, bG, bm = borrow(c), borrow(C), borrow(D), borrow(mt), borrow(A.G), \
-        borrow(A.m)
-    bCbar, brbar, bE, bL, binv, bkept = borrow(Cbar), borrow(rbar), borrow(E), borrow(L), \
-        borrow(inv), borrow(kept)
-    bcbar, bcol, bwcol, br = borrow(cbar), borrow(col), borrow(wcol), borrow(r)
+    bc, bC, bD, bmt, bG, bm = borrow((c, C, D, mt, A.G, A.m))
+    bCbar, brbar, bE, bL, binv, bkept = borrow((Cbar, rbar, E, L, inv, kept))
+    bcbar, bcol, bwcol, br = borrow((cbar, col, wcol, r))
     for i in range(M):
         ch = A.chan[i]
         p, d = A.P[ch], A.Dn[ch]

@@ -110,7 +110,7 @@ def eval_all(A, q, mt):
     q = np.ascontiguousarray(q)
     c, C, D = empty_evals(A, q.size)
     x = row_buffer(A, q.size)
-    bq, bmt, bc, bC, bD, bx = borrow(q), borrow(mt), borrow(c), borrow(C), borrow(D), borrow(x)
+    bq, bmt, bc, bC, bD, bx = borrow((q, mt, c, C, D, x))
     for i in range(A.chan.size):
         eval_measure(A, i, bq, bmt[i], bc[i], bC[i], bD[i], bx)
     alive((q, x))
@@ -152,12 +152,12 @@ def point_values(A, q, mt, c, c0):
         for a in range(A.P[ch]):
             v = abs(c[i, a])
             delta = np.inf if v != v or delta == np.inf else max(delta, v)
-        cost += 0.5 * _distance(mt[i], A.m[i], A.Q[i], d)
+        cost += 0.5 * quad_between(mt[i], A.m[i], A.Q[i], d)
     return delta, cost
 
 
 @jit(inline=True)
-def _distance(m, m_obs, Q, d):
+def quad_between(m, m_obs, Q, d):
     """``(m − m_obs)ᵀ Q (m − m_obs)`` over the first ``d`` components (:func:`quad` of the
     difference, without forming it)."""
     total = 0.0
@@ -368,16 +368,14 @@ def project_all(A, q, mt, iterations, tol):
     out = mt.copy()
     viol = np.zeros(M)
     rank = np.zeros(M, dtype=np.int64)
-    E, L, inv, kept, y, rbar, cbar, dm, step, cand, moved, x = scratch(A, q.size)
-    bq, bE, bL, binv, bkept, by, brbar, bcbar, bdm, bstep, bcand, bmoved, bx = (
-        borrow(q), borrow(E), borrow(L), borrow(inv), borrow(kept), borrow(y), borrow(rbar),
-        borrow(cbar), borrow(dm), borrow(step), borrow(cand), borrow(moved), borrow(x))
-    bout, bc, bC, bD = borrow(out), borrow(c), borrow(C), borrow(D)
+    work = scratch(A, q.size)
+    E, L, inv, kept, y, rbar, cbar, dm, step, cand, moved, x = borrow(work)
+    bq, bout, bc, bC, bD = borrow((q, out, c, C, D))
     for i in range(M):
         viol[i], rank[i] = project_measure(A, i, bq, bout[i], iterations, tol, bc[i], bC[i],
-                                           bD[i], bE, bL, binv, bkept, by, brbar, bcbar, bdm,
-                                           bstep, bcand, bmoved, bx)
-    alive((q, E, L, inv, kept, y, rbar, cbar, dm, step, cand, moved, x))
+                                           bD[i], E, L, inv, kept, y, rbar, cbar, dm, step,
+                                           cand, moved, x)
+    alive((q, work))
     return out, viol, rank, c, C, D
 
 
@@ -476,7 +474,7 @@ def descend(A, i, q, start, top, c, C, D, work):
     values = start.copy()
     eval_measure(A, i, q, values, c, C, D, x)
     normal(A, i, q, values, c, C, D, reach, work, spare)
-    distance = quad(values - m_obs, Q, d)
+    distance = quad_between(values, m_obs, Q, d)
     active = violation(c, D, G, p, d, A.eps, work)[0] <= UNREACHED
     c2, C2, D2 = c.copy(), C.copy(), D.copy()
     r = np.zeros(p)
@@ -499,10 +497,10 @@ def descend(A, i, q, start, top, c, C, D, work):
                 trial = values + alpha * along
                 eval_measure(A, i, q, trial, c2, C2, D2, x)
                 normal(A, i, q, trial, c2, C2, D2, reach, work, spare)
-                d_trial = quad(trial - m_obs, Q, d)
+                d_trial = quad_between(trial, m_obs, Q, d)
                 worst = worst_abs(c, p)
                 if d_trial < distance and worst_abs(c2, p) <= worst + 1e-12 * (1 + worst):
-                    shift = quad(trial - values, Q, d)
+                    shift = quad_between(trial, values, Q, d)
                     copy_into(values, trial)
                     copy_into(c, c2)
                     copy_into(C, C2)
@@ -537,8 +535,8 @@ def restore_all(A, q, mt, iterations):
             c2, C2, D2 = c[i].copy(), C[i].copy(), D[i].copy()
             m_new, v_new = descend(A, i, q, starts[s], top, c2, C2, D2, work)
             old = viol[i]
-            d_old = quad(out[i, :d] - m_obs, Q, d)
-            d_new = quad(m_new - m_obs, Q, d)
+            d_old = quad_between(out[i, :d], m_obs, Q, d)
+            d_new = quad_between(m_new, m_obs, Q, d)
             reached = v_new <= UNREACHED
             if reached:
                 better = not (old <= UNREACHED) or d_new < d_old

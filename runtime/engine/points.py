@@ -23,7 +23,7 @@ from .measures import (
     copy_into,
     eval_all,
     point_values,
-    quad,
+    quad_between,
     restore_all,
     violations_all,
 )
@@ -209,7 +209,7 @@ def negligible(A, q_old, q_new, mt_old, mt_new, xtol):
         top = 0.0
         d = A.Dn[j]
         for i in range(A.start[j], A.start[j] + A.size[j]):
-            moved = quad(mt_new[i] - mt_old[i], A.Q[i], d)
+            moved = quad_between(mt_new[i], mt_old[i], A.Q[i], d)
             if moved != moved:
                 top = np.nan
                 break
@@ -331,8 +331,8 @@ def nearer_points(A, x):
     changed = False
     for i in range(A.chan.size):
         d = A.Dn[A.chan[i]]
-        d_x = quad(x.mt[i] - A.m[i], A.Q[i], d)
-        d_o = quad(other.mt[i] - A.m[i], A.Q[i], d)
+        d_x = quad_between(x.mt[i], A.m[i], A.Q[i], d)
+        d_o = quad_between(other.mt[i], A.m[i], A.Q[i], d)
         if on[i] and d_o < d_x - 1e-9 * (1.0 + d_x):
             changed = True
             copy_into(mt[i], other.mt[i])

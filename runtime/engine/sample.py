@@ -292,21 +292,13 @@ def _buffers(A, n):
             kept, w, x)
 
 
-@jit(inline=True)
-def _borrowed(buffers):
-    """:func:`_buffers` borrowed for a loop (the caller keeps ``buffers`` alive)."""
-    c, C, D, E, L, inv, kept, w, x = buffers
-    return (borrow(c), borrow(C), borrow(D), borrow(E), borrow(L), borrow(inv),
-            borrow(kept), borrow(w), borrow(x))
-
-
 @jit
 def observed_all(A, q):
     """:func:`observed_error` of every measure: ``(violations, ranks)`` — the errors of eq.
     24 at one projection step (:func:`kanagen.runtime.minimal.coherence_errors`)."""
     q = np.ascontiguousarray(q)
     buffers = _buffers(A, q.size)
-    c, C, D, E, L, inv, kept, w, x = _borrowed(buffers)
+    c, C, D, E, L, inv, kept, w, x = borrow(buffers)
     viol, rank = np.empty(A.chan.size), np.empty(A.chan.size, dtype=np.int64)
     for i in range(A.chan.size):
         viol[i], rank[i] = observed_error(A, i, q, c, C, D, E, L, inv, kept, w, x)
@@ -324,7 +316,7 @@ def errors_at(A, q, caps, scale, best, errors):
     :data:`CHUNK` measures of a channel, an exact bound with a margin far above the
     rounding of the sum. Returns ``(complete, relevance)``."""
     buffers = _buffers(A, q.size)
-    c, C, D, E, L, inv, kept, w, x = _borrowed(buffers)
+    c, C, D, E, L, inv, kept, w, x = borrow(buffers)
     total = A.chan.size
     score = 0.0
     seen = 0
