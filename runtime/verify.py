@@ -8,12 +8,16 @@ profile ``F(q)`` and the projector's right-hand side its exact gradient. The che
   against the cost (``1e-10`` of it, or the cost's rounding level). Units do not enter: the
   decrement is invariant to a change of the parameter's units.
 * **No negative curvature** (report footnote 5: a maximum or a saddle "would be detected"):
-  the Hessian of the Lagrangian ``F + λ0ᵀ c0`` on the tangent space of ``c0 = 0``, from
-  differences of the exact gradient along a basis orthonormal in the information (so its
-  eigenvalues compare with one, the Gauss–Newton curvature), has no eigenvalue below
-  ``−1e-5``. Forward differences screen first (one gradient per direction): a least
-  eigenvalue above ``0.05`` — far beyond their ``O(step)`` error — settles it; otherwise
-  central differences (the screen's gradients reused) decide.
+  the Hessian of the Lagrangian ``F + λ0ᵀ c0`` on the tangent space of ``c0 = 0``, in a
+  basis orthonormal in the information (so its eigenvalues compare with one, the
+  Gauss–Newton curvature), has no eigenvalue below ``−1e-5``. The profile's Hessian is
+  exact: each measure's corrections follow the parameter by the implicit function theorem
+  on its KKT system, the equations' second derivatives from their analytic Jacobians
+  (runtime/engine/curvature.py) — one pass over the measures. A negative eigenvalue (or a
+  measure whose system is singular: the profile is not smooth there) is confirmed by
+  differences of the exact gradient along the basis, each a restoration of the measures:
+  forward differences screen (a least eigenvalue above ``0.05``, far beyond their
+  ``O(step)`` error, settles it), central differences decide, at a second step to agree.
 * **Every parameter still seen**: a component whose information has fallen by twelve orders
   of magnitude since the start no longer enters the equations (an exponential vanished on
   every measure): the iteration stands on a plateau, not at a minimum.

@@ -223,14 +223,21 @@ def whiten_column(L, inv, b, p, out):
 
 
 @jit(inline=True)
-def correct(E, L, inv, G, z, p, d, y, dm):
-    """``dm = Gᵀ Eᵀ S⁻ z``: the measure correction from the whitened ``z`` (``y`` scratch,
-    ``p`` long; ``dm`` is ``d`` long)."""
+def unwhiten_column(L, inv, z, p, y):
+    """``y = L⁻ᵀ z`` on the kept equations (``Lᵀ``'s diagonal is ``1 / inv``; dropped ones
+    give 0)."""
     for a in range(p - 1, -1, -1):
         acc = z[a]
         for i in range(a + 1, p):
             acc -= L[i, a] * y[i]
         y[a] = acc * inv[a]
+
+
+@jit(inline=True)
+def correct(E, L, inv, G, z, p, d, y, dm):
+    """``dm = Gᵀ Eᵀ S⁻ z``: the measure correction from the whitened ``z`` (``y`` scratch,
+    ``p`` long; ``dm`` is ``d`` long)."""
+    unwhiten_column(L, inv, z, p, y)
     for u in range(d):
         acc = 0.0
         for j in range(u, d):

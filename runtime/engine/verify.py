@@ -18,10 +18,12 @@ from kanagen.common.jit import jit
 from kanagen.common.link import linked, record_kind
 
 from ..sqrt import put_column
+from .curvature import profile_hessian
 from .linear import linearise, seen_components
 from .measures import RESTORE_STEPS
 from .points import (
     c0_eval,
+    constraint_curvature,
     cost_rounding,
     feasible,
     finite,
@@ -214,6 +216,18 @@ def least_eigen(K, W):
     return True, w[0], W @ np.ascontiguousarray(U[:, 0])
 
 
+@linked("A Pt Lin f2 f1 -> b f f1")
+def exact_curvature(A, x, lin, W, lam0):
+    """The least eigenvalue of ``Wᵀ ∇²(F + λ0ᵀ c0) W`` from the profile's exact Hessian
+    (:func:`.curvature.profile_hessian`; ``ok`` False where it cannot be had)."""
+    ok, K = profile_hessian(A, x, lin, W)
+    if not ok:
+        return False, 0.0, np.zeros(0)
+    if lam0.size:
+        K += W.T @ constraint_curvature(A, x.q, lam0) @ W
+    return least_eigen(K, W)
+
+
 @linked("A Pt f2 f1 f f1 -> b f2")
 def sided_gradients(A, x, W, lam0, step, gradient_x):
     """The Lagrangian's gradient at ``x.q + step W[:, j]`` for every column (``ok`` False
@@ -260,6 +274,10 @@ def verify(A, x, lin, proj, info_start, at_rounding, model_lin, model_proj):
     if W.shape[1] == 0:
         return verdict(True, dec, x.cost, 0.0, np.zeros(0))
     lam0 = multipliers(x, lin.gradient)
+    ok, least, direction = exact_curvature(A, x, lin, W, lam0)
+    if ok and least >= -NEGATIVE:
+        return verdict(True, dec, x.cost, least, direction)
+    # a negative curvature (or none computed) is confirmed by differences of the gradient
     ok_here, here = lagrangian_gradient(A, x, x.q, lam0, True, lin.gradient)
     ok, plus = sided_gradients(A, x, W, lam0, STEP, lin.gradient)
     if not ok:

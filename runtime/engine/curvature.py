@@ -1,0 +1,243 @@
+"""The exact Hessian of the profile ``F(q) = min L²`` over the corrected measures (SPEC §2:
+the end's curvature check, runtime/iterate.py "The end").
+
+At a restored point each measure's corrections solve ``min ½‖m̃ − m‖²_Q`` subject to
+``c(q, m̃) = 0``, and ``∇F = Q0 (q − q0) + Σ Cᵀ λ`` with ``λ = −S⁻ D (m̃ − m)`` (eq. 44's
+multipliers; ``S = D Q⁺ Dᵀ``). As ``q`` moves, ``m̃`` and ``λ`` follow by the implicit
+function theorem on each measure's KKT system; in the whitened corrections ``z``
+(``m̃ = m + Gᵀ z``, ``Q⁺ = GᵀG``, ``E = D Gᵀ``):
+
+    [ I + G Φmm Gᵀ   Eᵀ ] [ ż ]     [ G Φmq ]
+    [ E              0  ] [ λ̇ ] = − [ C     ]          ṁ = Gᵀ ż,
+
+    ∇²F = Q0 + Σ ( Φqq + Φqm ṁ + Cᵀ λ̇ ),
+
+with ``Φ = λᵀ c`` the measure's equations weighted by its multipliers, whose second
+derivatives are taken by central differences of the analytic Jacobians ``C, D`` (the row
+kernels; exact up to rounding for equations of degree two in each variable, as the
+constraints' in :func:`.points.constraint_curvature`). Dropped equations (a vanishing pivot
+of the reduced square root) carry no multiplier and no condition.
+
+Only ``Wᵀ ∇²F W`` is formed, for the ``k`` directions the check needs (the columns of
+``W``): per measure ``2 (k + d)`` evaluations of its equations — along each direction
+(``Φqq w``, ``Φmq w``) and each corrected component (``Φqm``, ``Φmm``) — in one pass over
+the measures, against the ``2 k`` restorations of every measure that central differences
+of ``∇F`` cost.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kanagen.common.borrow import alive, borrow
+from kanagen.common.jit import jit
+from kanagen.common.link import linked
+
+from .measures import eval_measure, row_buffer, unwhiten_column
+
+#: Relative step of the central differences of the equations' Jacobians.
+STEP = 1e-5
+_TINY = np.finfo(np.float64).tiny
+
+
+@jit
+def solve_small(K, R, s, k):
+    """``K[:s, :s] X = R[:s, :k]`` in place by Gaussian elimination with partial pivoting
+    (``R`` receives ``X``); False when a pivot vanishes against the matrix's scale."""
+    scale = 0.0
+    for a in range(s):
+        for b in range(s):
+            scale = max(scale, abs(K[a, b]))
+    if not (scale > 0.0 and np.isfinite(scale)):
+        return False
+    for col in range(s):
+        best, at = abs(K[col, col]), col
+        for a in range(col + 1, s):
+            if abs(K[a, col]) > best:
+                best, at = abs(K[a, col]), a
+        if not best > 1e-13 * scale:
+            return False
+        if at != col:
+            for b in range(s):
+                K[col, b], K[at, b] = K[at, b], K[col, b]
+            for b in range(k):
+                R[col, b], R[at, b] = R[at, b], R[col, b]
+        for a in range(col + 1, s):
+            f = K[a, col] / K[col, col]
+            if f != 0.0:
+                for b in range(col, s):
+                    K[a, b] -= f * K[col, b]
+                for b in range(k):
+                    R[a, b] -= f * R[col, b]
+    for a in range(s - 1, -1, -1):
+        for b in range(k):
+            acc = R[a, b]
+            for u in range(a + 1, s):
+                acc -= K[a, u] * R[u, b]
+            R[a, b] = acc / K[a, a]
+    return True
+
+
+@jit(inline=True)
+def weighted_gradient(lam, c, C, D, p, n, d, out, at):
+    """``out[at] = (Cᵀλ, Dᵀλ)``: the gradient of ``λᵀ c`` in ``(q, m̃)``."""
+    for j in range(n):
+        acc = 0.0
+        for a in range(p):
+            acc += lam[a] * C[a, j]
+        out[at, j] = acc
+    for u in range(d):
+        acc = 0.0
+        for a in range(p):
+            acc += lam[a] * D[a, u]
+        out[at, n + u] = acc
+
+
+@jit(inline=True)
+def multipliers_of(L, inv, rbar, p, lam, kept):
+    """``λ = −L⁻ᵀ r̄`` (a dropped equation's 0) and the kept equations' indices; returns
+    their number."""
+    pk = 0
+    unwhiten_column(L, inv, rbar, p, lam)
+    for a in range(p):
+        lam[a] = -lam[a]
+        if inv[a] != 0.0:
+            kept[pk] = a
+            pk += 1
+    return pk
+
+
+@linked("A Pt Lin f2 -> b f2")
+def profile_hessian(A, x, lin, W):
+    """``Wᵀ ∇²F W`` at the restored point ``x`` (its linearisation ``lin``): ``ok`` False
+    where a measure's KKT system is singular (the profile is not smooth there) or a value
+    is not finite."""
+    q = np.ascontiguousarray(x.q)
+    n, k = q.size, W.shape[1]
+    M = A.chan.size
+    pmax, dmax = x.c.shape[1], A.m.shape[1]
+    K = W.T @ A.Q0 @ W
+    s_max = dmax + pmax
+    lam = np.zeros(pmax)
+    kept = np.zeros(pmax, np.int64)
+    grads = np.zeros((2, n + dmax))
+    Pqm = np.zeros((n, dmax))  # Φqm
+    Pmm = np.zeros((dmax, dmax))  # Φmm
+    PqW = np.zeros((n, k))  # Φqq W
+    PmW = np.zeros((dmax, k))  # Φmq W
+    CW = np.zeros((pmax, k))  # C W
+    S = np.zeros((s_max, s_max))
+    R = np.zeros((s_max, k))
+    mdot = np.zeros((dmax, k))
+    c, C, D = np.zeros(pmax), np.zeros((pmax, n)), np.zeros((pmax, dmax))
+    buf = row_buffer(A, n)
+    qh, mh = q.copy(), np.zeros(dmax)
+    scale_q = 0.0
+    for j in range(n):
+        scale_q = max(scale_q, abs(q[j]))
+    steps = np.zeros(k)  # each direction's step: its largest component STEP·|q|
+    for j in range(k):
+        top = 0.0
+        for a in range(n):
+            top = max(top, abs(W[a, j]))
+        steps[j] = STEP * max(scale_q, 1e-8) / top if top > 0.0 else 0.0
+    bq, bqh, bmh, bc, bC, bD, bbuf = borrow((q, qh, mh, c, C, D, buf))
+    for i in range(M):
+        ch = A.chan[i]
+        p, d = A.P[ch], A.Dn[ch]
+        G, E = A.G[i], lin.E[i]
+        pk = multipliers_of(lin.L[i], lin.inv[i], lin.rbar[i], p, lam, kept)
+        if pk == 0:
+            continue
+        scale_m = 0.0
+        for u in range(d):
+            scale_m = max(scale_m, abs(x.mt[i, u]))
+        # central differences of (Cᵀλ, Dᵀλ): along each corrected component, then along
+        # each direction of W
+        for v in range(d + k):
+            if v < d:
+                h = STEP * max(abs(x.mt[i, v]), 1e-3 * scale_m, 1e-8)
+            else:
+                h = steps[v - d]
+                if h == 0.0:
+                    for a in range(n):
+                        PqW[a, v - d] = 0.0
+                    for u in range(d):
+                        PmW[u, v - d] = 0.0
+                    continue
+            for side in range(2):
+                sign = h if side == 0 else -h
+                for j in range(n):
+                    bqh[j] = bq[j] + (sign * W[j, v - d] if v >= d else 0.0)
+                for u in range(d):
+                    bmh[u] = x.mt[i, u] + (sign if u == v else 0.0)
+                eval_measure(A, i, bqh, bmh, bc, bC, bD, bbuf)
+                weighted_gradient(lam, bc, bC, bD, p, n, d, grads, side)
+            if v < d:
+                for a in range(n):
+                    Pqm[a, v] = (grads[0, a] - grads[1, a]) / (2.0 * h)
+                for u in range(d):
+                    Pmm[u, v] = (grads[0, n + u] - grads[1, n + u]) / (2.0 * h)
+            else:
+                for a in range(n):
+                    PqW[a, v - d] = (grads[0, a] - grads[1, a]) / (2.0 * h)
+                for u in range(d):
+                    PmW[u, v - d] = (grads[0, n + u] - grads[1, n + u]) / (2.0 * h)
+        # the KKT system in (ż, λ̇) for the k directions
+        size = d + pk
+        for a in range(size):
+            for b in range(size):
+                S[a, b] = 0.0
+        for a in range(d):  # I + G Φmm Gᵀ (Φmm symmetrised)
+            for b in range(d):
+                acc = 1.0 if a == b else 0.0
+                for u in range(d):
+                    t = 0.0
+                    for w in range(d):
+                        t += 0.5 * (Pmm[u, w] + Pmm[w, u]) * G[b, w]
+                    acc += G[a, u] * t
+                S[a, b] = acc
+        for e in range(pk):  # E on the kept equations
+            for b in range(d):
+                S[d + e, b] = E[kept[e], b]
+                S[b, d + e] = E[kept[e], b]
+        for j in range(k):
+            for e in range(pk):  # C w
+                acc = 0.0
+                for a in range(n):
+                    acc += x.C[i, kept[e], a] * W[a, j]
+                CW[e, j] = acc
+                R[d + e, j] = -acc
+            for a in range(d):  # −G Φmq w
+                acc = 0.0
+                for u in range(d):
+                    acc += G[a, u] * PmW[u, j]
+                R[a, j] = -acc
+        if not solve_small(S, R, size, k):
+            return False, K
+        for u in range(d):  # ṁ = Gᵀ ż
+            for j in range(k):
+                acc = 0.0
+                for a in range(d):
+                    acc += G[a, u] * R[a, j]
+                mdot[u, j] = acc
+        for j in range(k):
+            for b in range(n):  # (Φqq w_j + Φqm ṁ_j)_b
+                acc = PqW[b, j]
+                for u in range(d):
+                    acc += Pqm[b, u] * mdot[u, j]
+                grads[0, b] = acc
+            for a in range(k):
+                acc = 0.0
+                for b in range(n):
+                    acc += W[b, a] * grads[0, b]
+                for e in range(pk):
+                    acc += CW[e, a] * R[d + e, j]
+                K[a, j] += acc
+    alive((q, qh, mh, c, C, D, buf))
+    for a in range(k):
+        for b in range(a):
+            mean = 0.5 * (K[a, b] + K[b, a])
+            K[a, b] = mean
+            K[b, a] = mean
+    return bool(np.all(np.isfinite(K))), K

@@ -1,0 +1,159 @@
+"""The profile's exact Hessian (runtime/engine/curvature.py) against central differences of
+its exact gradient (each side a restoration of the measures), at the fitted point of every
+shipped family's scenarios and of a two-channel spec with an exact component; and the end's
+check that uses it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scenarios import SCENARIOS, TWOCHAN, twochan_data
+
+import kanagen
+from kanagen.common.link import link
+from kanagen.runtime.engine import curvature, points, verify
+from kanagen.runtime.engine.data import arrays, pack_measures
+from kanagen.runtime.fit import fit_problem, make_problem
+
+CASES = [(spec, k) for spec, make in SCENARIOS.items() for k in range(len(make()))]
+
+
+def _at_fit(fam, model, data, info, start, constants, exact=None):
+    """The engine's restored point at the fit's estimate and its linearisation."""
+    problem = make_problem(fam, model, data, info, start, constants=constants, exact=exact)
+    res = fit_problem(fam, model, problem)
+    assert res.status == 0, res.message
+    link()
+    A = arrays(problem)
+    mt = pack_measures(A, tuple(res.measures[ch.name][:, ch.index]
+                                for ch in problem.channels))
+    x, _ = points.restore(A, res.q, mt, 30)
+    ok, lin, _ = points.project_point(A, x, 0.0, np.zeros(0))
+    assert ok
+    return A, x, lin
+
+
+def _differences(A, x, step=1e-4):
+    """``∇²F`` by central differences of the profile's exact gradient, Richardson-extrapolated
+    (steps ``h`` and ``h/2``: an error of order ``h⁴``, the profile being strongly curved
+    where a measure may move along one component only)."""
+    n = x.q.size
+    top = np.abs(x.q).max()
+
+    def central(j, h):
+        up, down = x.q.copy(), x.q.copy()
+        up[j] += h
+        down[j] -= h
+        ok_up, g_up = verify.profile_gradient(A, x, up)
+        ok_down, g_down = verify.profile_gradient(A, x, down)
+        assert ok_up and ok_down
+        return (g_up - g_down) / (2 * h)
+
+    H = np.zeros((n, n))
+    for j in range(n):
+        h = step * max(abs(x.q[j]), 1e-3 * top, 1e-8)
+        H[:, j] = (4 * central(j, h / 2) - central(j, h)) / 3
+    return 0.5 * (H + H.T)
+
+
+def _check(A, x, lin, rtol=1e-5):
+    ok, H = curvature.profile_hessian(A, x, lin, np.eye(x.q.size))
+    assert ok
+    np.testing.assert_array_equal(H, H.T)
+    reference = _differences(A, x)
+    scale = np.abs(reference).max()
+    assert np.abs(H - reference).max() <= rtol * scale, (H, reference)
+    return H
+
+
+@pytest.mark.parametrize("spec,k", CASES)
+def test_exact_hessian_matches_differences(spec, k):
+    fam = kanagen.load(spec.removesuffix(".yaml"))
+    model, data, info, start, constants = SCENARIOS[spec]()[k]
+    _check(*_at_fit(fam, model, data, info, start, constants))
+
+
+def test_exact_hessian_two_channels_exact_component(tmp_path):
+    """Two channels of different widths, one with a component known exactly (its G row is
+    zero: no correction, no sensitivity) and a non-polynomial equation."""
+    path = tmp_path / "twochan.yaml"
+    path.write_text(TWOCHAN)
+    fam = kanagen.load(str(path))
+    data = twochan_data(0, 25, 20)
+    for model in ("free", "sphere"):
+        _check(*_at_fit(fam, model, data, {"pts": 400.0, "obs": 400.0}, None, None))
+
+
+def test_exact_hessian_measures_known_exactly():
+    """Measures with a component fixed by ``exact=``: the sensitivity stays in the free
+    component."""
+    fam = kanagen.load("conic")
+    model, data, info, start, _ = SCENARIOS["conic.yaml"]()[1]
+    xy = data["point"]
+    mask = np.zeros(len(xy), dtype=bool)
+    mask[::3] = True
+    _check(*_at_fit(fam, model, data, info, start, None, {"point": {"x": mask}}))
+
+
+def test_prior_information_adds_to_the_hessian():
+    """``Q0`` enters ``F`` as ½‖q − q0‖²_Q0: its Hessian adds to the measures'."""
+    fam = kanagen.load("line")
+    model, data, info, start, constants = SCENARIOS["line.yaml"]()[1]
+    A, x, lin = _at_fit(fam, model, data, info, start, constants)
+    eye = np.eye(x.q.size)
+    ok, H = curvature.profile_hessian(A, x, lin, eye)
+    Q0 = np.diag([3.0, 5.0])
+    problem = make_problem(fam, model, data, info, start, Q0=Q0)
+    A0 = arrays(problem)
+    ok0, H0 = curvature.profile_hessian(A0, x, lin, eye)
+    assert ok and ok0
+    np.testing.assert_allclose(H0 - H, Q0, rtol=1e-12, atol=1e-12 * np.abs(H).max())
+
+
+def test_singular_system_reports_failure():
+    """A measure whose KKT system is singular (all its whitened Jacobian zero) gives
+    ``ok`` False, not a Hessian."""
+    K = np.zeros((3, 3))
+    R = np.ones((3, 2))
+    assert not curvature.solve_small(K, R, 3, 2)
+    K = np.array([[2.0, 1.0, 0.0], [1.0, 3.0, 1.0], [0.0, 1.0, 0.0]])
+    X = np.arange(6.0).reshape(3, 2)
+    R = K @ X
+    assert curvature.solve_small(K.copy(), R, 3, 2)
+    np.testing.assert_allclose(R, X, rtol=1e-13, atol=1e-13)
+
+
+@pytest.mark.parametrize("spec,k", [("conic.yaml", 1), ("two_view.yaml", 2),
+                                     ("two_view_calibrated.yaml", 3)])
+def test_tangent_directions_give_the_projected_hessian(spec, k):
+    """Along the tangent basis ``W`` of the end's check: ``Wᵀ ∇²F W``, the same as the
+    full Hessian projected."""
+    fam = kanagen.load(spec.removesuffix(".yaml"))
+    model, data, info, start, constants = SCENARIOS[spec]()[k]
+    A, x, lin = _at_fit(fam, model, data, info, start, constants)
+    W = verify.tangent_basis(x, lin.info)
+    assert 0 < W.shape[1] < x.q.size
+    ok, H = curvature.profile_hessian(A, x, lin, np.eye(x.q.size))
+    ok_w, K = curvature.profile_hessian(A, x, lin, W)
+    assert ok and ok_w and K.shape == (W.shape[1],) * 2
+    reference = W.T @ H @ W
+    assert np.abs(K - reference).max() <= 1e-7 * np.abs(reference).max()
+
+
+def test_verified_fit_reports_the_exact_curvature():
+    """A verified conic fit's curvature is the least eigenvalue of the exact Hessian of the
+    Lagrangian on the tangent space, in units of the information (a minimum: positive)."""
+    fam = kanagen.load("conic")
+    model, data, info, start, constants = SCENARIOS["conic.yaml"]()[1]
+    A, x, lin = _at_fit(fam, model, data, info, start, constants)
+    H = _check(A, x, lin)
+    lam0 = points.multipliers(x, lin.gradient)
+    W = verify.tangent_basis(x, lin.info)
+    K = W.T @ (H + points.constraint_curvature(A, x.q, lam0)) @ W
+    ok, least, direction = verify.exact_curvature(A, x, lin, W, lam0)
+    assert ok
+    assert least == pytest.approx(np.linalg.eigvalsh(0.5 * (K + K.T))[0], rel=1e-7)
+    assert least > 0
+    problem = make_problem(fam, model, data, info, start, constants=constants)
+    res = fit_problem(fam, model, problem)
+    assert res.success and "no negative curvature" in res.message
