@@ -15,7 +15,7 @@ from .iterate import CONVERGED, Projected, iterate
 from .minimal import minimal_solve_problem
 from .projector import Problem, evaluate, project
 from .reduce import reduced_problem
-from .results import FitResult, constrained_covariance, derived_values
+from .results import DerivedQuantities, FitResult, constrained_covariance
 from .sqrt import EPS
 
 
@@ -198,7 +198,7 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
         status=out.status,
         message=out.message,
         ranks={ch.name: r for ch, r in zip(problem.channels, ranks, strict=True)},
-        derived=derived_values(fam, x.q, covariance, problem.k, model) if derive else {},
+        derived=DerivedQuantities(fam, x.q, covariance, problem.k, model) if derive else {},
         slacks=fam.slack_dict(x.q),
         units=fam.units,
         pinned=fam.pinned(model),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -109,6 +110,40 @@ def derived_values(fam, q: np.ndarray, covariance: np.ndarray,
         out[name] = DerivedValue(value, block, jac)
         at += J.shape[0]
     return out
+
+
+class DerivedQuantities(Mapping):
+    """A result's derived quantities, computed when first read (:func:`derived_values` at
+    the estimate): a fit whose caller reads only the parameter does not evaluate them. A
+    read-only mapping ``{name: DerivedValue}``; it pickles and copies as a plain dict."""
+
+    __slots__ = ("_inputs", "_values")
+
+    def __init__(self, fam, q: np.ndarray, covariance: np.ndarray, k: np.ndarray,
+                 model: str | None = None):
+        self._inputs = (fam, q.copy(), covariance.copy(), k, model)  # as at the estimate
+        self._values: dict[str, DerivedValue] | None = None
+
+    def _computed(self) -> dict[str, DerivedValue]:
+        if self._values is None:
+            self._values = derived_values(*self._inputs)
+            self._inputs = None
+        return self._values
+
+    def __getitem__(self, name: str) -> DerivedValue:
+        return self._computed()[name]
+
+    def __iter__(self):
+        return iter(self._computed())
+
+    def __len__(self) -> int:
+        return len(self._computed())
+
+    def __repr__(self) -> str:
+        return repr(self._computed())
+
+    def __reduce__(self):
+        return dict, (self._computed(),)
 
 
 class ParameterStd(dict):

@@ -199,3 +199,29 @@ def test_mean_reduced_chi2_is_one_with_the_right_sigma():
     # and L̃²/d is about ½ (d = N + free parameters), as before
     assert float(np.mean([v * (M - 2) / (2 * (M + 2)) for v in values])) == pytest.approx(
         0.5 * (M - 2) / (M + 2), rel=0.06)
+
+
+def test_derived_quantities_are_computed_when_read():
+    """A fit's derived quantities are evaluated on first read, at the estimate as it was
+    returned (changing the result's arrays afterwards does not change them); they pickle
+    and copy as a plain dict equal to :func:`derived_values`'."""
+    import copy
+    import pickle
+
+    from kanagen.runtime.results import DerivedQuantities, derived_values
+
+    fam = kanagen.load("conic")
+    xy, _ = arc("ellipse", 3, n=30, outliers=0.0, sigma=0.5)
+    res = kanagen.fit(fam, "conic", data={"point": xy}, info={"point": 4.0},
+                      q0=np.array([1.0, 0.0, 1.0, -6.6, -5.0, 15.0]) / 18.0)
+    assert isinstance(res.derived, DerivedQuantities) and res.derived._values is None
+    q, covariance = res.q.copy(), res.covariance.copy()
+    reference = derived_values(fam, q, covariance, fam.constant_vector(None), "conic")
+    res.covariance[...] = 0.0  # the user's copy changed: the derived stay the estimate's
+    assert list(res.derived) == list(reference) and len(res.derived) == len(reference)
+    for name, value in reference.items():
+        np.testing.assert_array_equal(res.derived[name].value, value.value)
+        np.testing.assert_array_equal(res.derived[name].covariance, value.covariance)
+    for clone in (pickle.loads(pickle.dumps(res.derived)), copy.deepcopy(res.derived)):
+        assert type(clone) is dict and list(clone) == list(reference)
+    assert "centre" in repr(res.derived)
