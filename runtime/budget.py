@@ -71,9 +71,9 @@ class SampleBudget:
         drawing its extra measures among its parent's outliers: a fifth of its parent's
         inliers among them — a child that explains fewer extra measures wins only on its
         fit of the parent's inliers, which the parent's estimate refined in the child's
-        model tries (the estimator's ``_from_parent``) — and of the base, what ``need``
-        asks for beyond the whole pool: a child that explains little of its parent's
-        inliers cannot replace it, however few its best sample explains."""
+        model tries (:meth:`~kanagen.runtime.schedule.Scheduler._from_parent`) — and of the
+        base, what ``need`` asks for beyond the whole pool: a child that explains little of
+        its parent's inliers cannot replace it, however few its best sample explains."""
         pool = max(search.pool.size, 1)
         share = min(1.0, need / max(search.problem.channels[search.channel].size, 1))
         if search.base is None or not search.pool.size:

@@ -398,13 +398,13 @@ def test_a_probe_s_samples_count_in_the_model_s_search(fam):
     est = kanagen.Estimator(fam, seed=5000, constants=s.constants)
     est.add_measures("match", s.data, info=1.0 / s.sigma**2)
     seen = {}
-    original = est._model_search
+    original = est._schedule._model_search
 
     def spy(model, *args):
         seen[model] = original(model, *args)
         return seen[model]
 
-    est._model_search = spy
+    est._schedule._model_search = spy
     est.run(max_samples=10_000)
     search = seen["general"]
     assert search.base is not None and search.drawn_afresh > 0
