@@ -201,7 +201,7 @@ class Scheduler:
                 self.walk.skip(model, parent)
                 continue
             self._scales[model] = search.scale
-            self._sample_sizes[model] = search.sample_size + search.base_size
+            self._sample_sizes[model] = search.draws.size
             budget = self._budget(search, parent_state)
             cap = self._share(budget, left) if self.fam.free_dof(model, self._constants) > 0 \
                 else budget
@@ -273,7 +273,7 @@ class Scheduler:
         share of its parent's outliers it must explain."""
         if self.fam.free_dof(search.model, self._constants) == 0:
             return 1  # nothing to sample: the model's parameter is fixed
-        across = parent is not None and search.base is not None and \
+        across = parent is not None and search.draws.base is not None and \
             self.walk.across(parent.model, search.ranks[search.channel])
         return self.budget.initial(search, parent.inliers.size if across else None)
 
@@ -348,7 +348,7 @@ class Scheduler:
         start. Along edges of the same equations per measure only: across them the
         parent's inliers are a singular configuration of the child."""
         state = self.walk.searched(parent)
-        if state is None or search.base is None or \
+        if state is None or search.draws.base is None or \
                 self.walk.across(parent, search.ranks[search.channel]):
             return
         floor = state.relevance / lattice.SUPPORT
