@@ -178,7 +178,7 @@ class Estimator:
             best = self._schedule.walk.best()
             if best is None or best.status == "null":
                 self._restart_if_idle()
-            elif self._coherent_with(best, channel, ch):
+            elif _coherent(self.fam, best, channel, ch, self._constants):
                 self._requeue(best.model)
             return ids
 
@@ -319,7 +319,7 @@ class Estimator:
                 with self._lock:
                     self.errors.append(f"callback {getattr(callback, '__name__', '?')} "
                                        f"raised {type(exc).__name__}: {exc}")
-                    self.status = self._status_with_errors(self.status)
+                    self.status = _with_errors(self.status, self.errors)
         return going
 
     # -- outputs --------------------------------------------------------------------------------
@@ -383,12 +383,6 @@ class Estimator:
         """A better model: the callbacks of :meth:`on_model` are due."""
         self._pending.extend((cb, state) for cb in self._on_model)
 
-    def _coherent_with(self, state: ModelState, channel: str, ch: ChannelData) -> bool:
-        problem = make_problem(self.fam, state.model, {channel: ch.X}, {channel: ch.Q},
-                               constants=self._constants)
-        errors = coherence_errors(problem, state.q, iterations=1)[0]
-        return bool(np.any(errors < state.threshold))
-
     def _requeue(self, model: str) -> None:
         if self._schedule.walk.requeue(model):
             self._done = False
@@ -399,14 +393,24 @@ class Estimator:
         self._done = True
         best = self._schedule.walk.best()
         status = "done" if best is not None and not self.errors else self.status
-        self.status = self._status_with_errors(status)
+        self.status = _with_errors(status, self.errors)
         self._pending.extend((cb, best) for cb in self._on_done)
 
-    def _status_with_errors(self, status: str) -> str:
-        """``status`` with the absorbed errors said (once, the first one in full)."""
-        if not self.errors:
-            return status
-        base = status.split(" — ", 1)[0]
-        more = f" (and {len(self.errors) - 1} more)" if len(self.errors) > 1 else ""
-        return f"{base} — stopped by an error: {self.errors[0]}{more}"
+
+def _coherent(fam: ModelFamily, state: ModelState, channel: str, ch: ChannelData,
+              constants: dict) -> bool:
+    """Are some of the measures ``ch`` of ``channel`` inliers of ``state``?"""
+    problem = make_problem(fam, state.model, {channel: ch.X}, {channel: ch.Q},
+                           constants=constants)
+    errors = coherence_errors(problem, state.q, iterations=1)[0]
+    return bool(np.any(errors < state.threshold))
+
+
+def _with_errors(status: str, errors: list[str]) -> str:
+    """``status`` with the absorbed ``errors`` said (once, the first one in full)."""
+    if not errors:
+        return status
+    base = status.split(" — ", 1)[0]
+    more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
+    return f"{base} — stopped by an error: {errors[0]}{more}"
 

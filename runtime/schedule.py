@@ -103,6 +103,10 @@ class SearchPlan(NamedTuple):
     need: float  # the inliers of the sampled channel it must reach to matter (_need)
     probe: bool = False  # a probe (Scheduler._start_probe): no search of the lattice
 
+    def now(self, budget: SampleBudget) -> int:
+        """The samples the search plans in all now (:meth:`SampleBudget.now`)."""
+        return budget.now(self.search, self.budget, self.cap, self.need)
+
 
 class Scheduler:
     """The searches of one walk through the lattice, from the null model (or the one model
@@ -155,16 +159,14 @@ class Scheduler:
     def due(self) -> bool:
         """Has the current search drawn the samples it plans (or run out of measures)?"""
         plan = self.current
-        return plan.search.samples >= self.budget.now(
-            plan.search, plan.budget, plan.cap, plan.need) or plan.search.exhausted
+        return plan.search.samples >= plan.now(self.budget) or plan.search.exhausted
 
     def ahead(self, queued: bool) -> int:
         """The samples planned beyond those drawn: the rest of the current search's budget
         and, with ``queued``, at least ``min_samples`` for each model queued."""
         total = 0
         if (plan := self.current) is not None:
-            now = self.budget.now(plan.search, plan.budget, plan.cap, plan.need)
-            total += max(now - plan.search.samples, 0)
+            total += max(plan.now(self.budget) - plan.search.samples, 0)
         if queued:
             total += sum(1 if self.fam.free_dof(m, self._constants) == 0 else
                          self.budget.min_samples for m in self.probes + self.walk.queued())
