@@ -47,13 +47,13 @@ class SampleBudget:
         """
         if self.samples_per_model is not None:
             return self.samples_per_model
+        draws = search.draws
         if parent_inliers is not None:
-            needed = (lattice.MORE_SUPPORT - 1) * parent_inliers / max(search.pool.size, 1)
+            needed = (lattice.MORE_SUPPORT - 1) * parent_inliers / max(draws.pool.size, 1)
             return samples_for_confidence(self.confidence,
                                           min(1.0, max(needed, self.inlier_ratio)),
-                                          search.sample_size)
-        return samples_for_confidence(self.confidence, self.inlier_ratio,
-                                      search.sample_size + search.base_size)
+                                          draws.sample_size)
+        return samples_for_confidence(self.confidence, self.inlier_ratio, draws.size)
 
     @staticmethod
     def floor(search: ModelSearch, need: float = 0) -> tuple[float, float, float]:
@@ -71,17 +71,18 @@ class SampleBudget:
         drawing its extra measures among its parent's outliers: a fifth of its parent's
         inliers among them — a child that explains fewer extra measures wins only on its
         fit of the parent's inliers, which the parent's estimate refined in the child's
-        model tries (the estimator's ``_from_parent``) — and of the base, what ``need``
-        asks for beyond the whole pool: a child that explains little of its parent's
-        inliers cannot replace it, however few its best sample explains."""
-        pool = max(search.pool.size, 1)
+        model tries (:meth:`~kanagen.runtime.schedule.Scheduler._from_parent`) — and of the
+        base, what ``need`` asks for beyond the whole pool: a child that explains little of
+        its parent's inliers cannot replace it, however few its best sample explains."""
+        draws = search.draws
+        pool = max(draws.pool.size, 1)
         share = min(1.0, need / max(search.problem.channels[search.channel].size, 1))
-        if search.base is None or not search.pool.size:
+        if draws.base is None or not draws.pool.size:
             return min(1.0, max(lattice.RELEVANT, need / pool)), 0.0, share
-        base = max(search.base.size, 1)
-        extra = (lattice.MORE_SUPPORT - 1) * search.base.size / pool
-        return (min(1.0, max(extra, lattice.RELEVANT, (need - search.base.size) / pool)),
-                min(1.0, max(0.0, (need - search.pool.size) / base)), share)
+        base = max(draws.base.size, 1)
+        extra = (lattice.MORE_SUPPORT - 1) * draws.base.size / pool
+        return (min(1.0, max(extra, lattice.RELEVANT, (need - draws.base.size) / pool)),
+                min(1.0, max(0.0, (need - draws.pool.size) / base)), share)
 
     def now(self, search: ModelSearch, budget: int, cap: int | None = None,
             need: float = 0) -> int:

@@ -150,25 +150,24 @@ def _check_choice() -> bool:
     return ours.bit_generator.state == theirs.bit_generator.state
 
 
-def sampler_for(search) -> Sampler | None:
-    """The engine's sampler of a :class:`~kanagen.runtime.robust.ModelSearch`, or None
-    when its samples take the Python path: slacks (a candidate's slacks are set in
-    Python), over-determined samples (fitted), an initializer without a compiled
-    :class:`~kanagen.runtime.initializers.Kernel`."""
-    problem, init = search.problem, search.initializer
-    if search.fam.slack_names or search.overdetermined:
+def sampler_for(draws) -> Sampler | None:
+    """The engine's sampler of a search's samples
+    (:class:`~kanagen.runtime.sampling.MinimalSamples`), or None when they take the Python
+    path: slacks (a candidate's slacks are set in Python), over-determined samples (fitted),
+    an initializer without a compiled :class:`~kanagen.runtime.initializers.Kernel`."""
+    problem, init = draws.problem, draws.initializer
+    if draws.fam.slack_names or draws.overdetermined:
         return None
     address, names, constants = 0, np.full(WIDTH, -1, dtype=np.int64), np.zeros(0)
     if init is not None:
         kernel = getattr(init, "kernel", None)
         if kernel is None:
             return None
-        index = {name: i for i, name in enumerate(search.fam.parameter_names)}
+        index = {name: i for i, name in enumerate(draws.fam.parameter_names)}
         for column, name in kernel.names:
             names[column] = index[name]
-        constants = np.array([search._constants[name] for name in kernel.constants])
+        constants = np.array([draws.constants[name] for name in kernel.constants])
         address = kernel.address()
-    return Sampler(problem, search.channel, search.start, search.ranks, address, names,
-                   constants, search.equivalent, search.full_rank,
-                   search.sample_size + search.base_size, search.scale,
-                   search.score_fn is relevance)
+    return Sampler(problem, draws.channel, draws.start, draws.ranks, address, names,
+                   constants, draws.equivalent, draws.full_rank, draws.size, draws.scale,
+                   draws.score_fn is relevance)

@@ -1,6 +1,7 @@
 """The lattice of models (report §5): its structure, and the decisions between models.
 
-Pure functions the :class:`~kanagen.runtime.estimator.Estimator` calls on its model states:
+Pure functions the estimator's walk and scheduler call on its model states
+(:class:`~kanagen.runtime.walk.LatticeWalk`, :class:`~kanagen.runtime.schedule.Scheduler`):
 which models come before which (:func:`reachable`, :func:`lattice_parents`,
 :func:`anchor`), how many of a child's degrees of freedom its parent's inliers fix
 (:func:`fixed_by`), whether a general model replaces a specific one (:func:`beats`) and
@@ -24,7 +25,7 @@ MORE_SUPPORT = 1.2  # a general model wins outright when it explains this much m
 SUPPORT = 0.95  # ... and must keep this fraction of its parent's relevance
 RELEVANT = 0.1  # a parent explaining fewer measures than this fraction is no base
 HOPELESS = 0.5  # a child whose best sample reaches less than this share of what replacing
-#                its parent needs is refined briefly (Estimator: it cannot win)
+#                its parent needs is refined briefly (Scheduler._hopeless)
 RANK_SAMPLE = 60  # corrected inliers of a parent used to count what they fix of a child
 RANK_TOL = 1e-6  # relative singular value below which a direction is not fixed
 SAME_FIT = 1e-6  # relative cost difference below which two fits are the same fit

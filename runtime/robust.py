@@ -3,37 +3,32 @@
 :class:`ModelSearch` is a small state machine the estimator drives a few samples at a time
 (anytime, suspendable): each :meth:`~ModelSearch.step` draws a minimal sample (eq. 21),
 scores the estimate by the errors of every measure (eq. 22–24, the Sampson first-order error
-here) and keeps the best; :meth:`~ModelSearch.finish` thresholds the error histogram, refines
-on the inliers with the full estimator of §2–3, thresholds once more and refines again (those
-fits: :mod:`.refine`). :func:`robust_fit` runs one search to the end.
+here; those samples: :mod:`.sampling`) and keeps the best; :meth:`~ModelSearch.finish`
+thresholds the error histogram, refines on the inliers with the full estimator of §2–3,
+thresholds once more and refines again (those fits: :mod:`.refine`). :func:`robust_fit` runs
+one search to the end.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .engine.data import arrays
-from .engine.sample import minimal_solve as solve_sample
 from .family import ModelFamily
-from .fastsample import MINIMAL, draws_as_numpy, sampler_for
-from .fit import check_correct_bias, fit_problem, make_problem
+from .fit import check_correct_bias, make_problem
 from .hyper import corrected
-from .initializers import InitializerFn, admission, equivalent, model_initializers, start_from
+from .initializers import InitializerFn, admission, model_initializers
 from .inputs import check_search_options
-from .iterate import CONVERGED, UNVERIFIED
 from .minimal import coherence_errors, manifold_ranks
 from .projector import Problem
 from .refine import Refinement
 from .results import FitResult, ResultProtocol
-from .scoring import default_scale, relevance, samples_for_confidence
+from .sampling import MinimalSamples
+from .scoring import default_scale, samples_for_confidence
 from .scoring import scorer as get_scorer
-
-_NEIGHBOURHOOD = 4  # a local sample is drawn among this many sample sizes of nearest measures
 
 
 @dataclass(frozen=True, repr=False)
@@ -124,7 +119,15 @@ class RobustEstimate(ResultProtocol):
 
 
 class ModelSearch:
-    """Random minimal samples for one model, scored against every measure.
+    """Random minimal samples for one model, scored against every measure; the best estimate
+    they give, refined.
+
+    The samples — which measures, their solves and every measure's error at each estimate —
+    are :attr:`draws` (:class:`~kanagen.runtime.sampling.MinimalSamples`); the full
+    estimator on the measures an estimate explains is :attr:`refinement`
+    (:class:`~kanagen.runtime.refine.Refinement`). The search keeps the best estimate so far
+    and counts the samples (eq. 25: :meth:`samples_needed`); a sample that beats the best is
+    refined at once (LO-RANSAC), and :meth:`finish` refines the best on its inliers.
 
     Parameters
     ----------
@@ -179,47 +182,23 @@ class ModelSearch:
         self.model = model
         self.problem = problem
         self.channel = channel
-        self.start = fam.with_slacks(np.asarray(start, dtype=float), problem.k, model)
-        self.rng = rng
+        start = fam.with_slacks(np.asarray(start, dtype=float), problem.k, model)
         self.score_fn = get_scorer(scorer)
-        self.initializer = initializer
-        self.equivalent = equivalent(initializer)
-        self._constants = dict(zip(fam.constant_names, problem.k.tolist(), strict=True))
         # equations per measure, per channel (the caller's when it has them already)
-        self.ranks = manifold_ranks(problem, self.start) if ranks is None else ranks
+        self.ranks = manifold_ranks(problem, start) if ranks is None else ranks
         #: L*: the one given, else the χ² quantile of the measures' equations
         self.scale = float(scale) if scale is not None else default_scale(self.equations)
         if max_threshold is None and ceiling is not None:
             max_threshold = max(float(ceiling), 1.0) * self.scale
         self.max_threshold = max_threshold
-        size = problem.channels[channel].size
-        self.pool = np.arange(size) if pool is None else np.asarray(pool, dtype=int)
-        self.sample_size = sample_size or self._minimal(parent_free)
-        # a child model: the extra measures come from `pool` (not coherent with the parent),
-        # the rest of a full minimal sample from `base` (the parent's inliers)
-        self.base = None if base is None else np.asarray(base, dtype=int)
-        self.base_size = self._minimal(None) - self.sample_size if base is not None else 0
-        # a sample must fix this many equations (constraints + sampled), else it is degenerate
-        equations = (self.sample_size + self.base_size) * self._equations_per_measure()
-        free = fam.free_dof(model, self.problem.k)
-        self.full_rank = min(fam.n, fam.n - free + equations)
-        self.overdetermined = equations > free
-        self.local = float(local)
+        #: the samples: which measures, their solves, each estimate's errors
+        self.draws = MinimalSamples(fam, model, problem, channel, start, rng, self.scale,
+                                    self.score_fn, self.ranks, pool, sample_size,
+                                    parent_free, base, initializer, local)
         #: the full estimator on the measures an estimate explains (LO, the final rounds)
         self.refinement = Refinement(fam, model, problem, self.scale, self.score_fn,
-                                     self.ranks, self.sample_size + self.base_size,
-                                     max_threshold, admission(fam, model))
-        self._sampler = sampler_for(self)  # the engine's sample, or None
-        # several samples per engine call (Sampler.burst): eq. 29's relevance scored there,
-        # uniform samples only, drawn as numpy draws them (fastsample.draws_as_numpy)
-        self._pool64 = self.pool.astype(np.int64)
-        self._base64 = np.zeros(0, np.int64) if self.base is None else \
-            self.base.astype(np.int64)
-        self._bursts = self._sampler is not None and self.score_fn is relevance and \
-            not (self.local > 0.0 and self.base_size == 0) and \
-            draws_as_numpy(((self.pool.size, self.sample_size),
-                            (self._base64.size, self.base_size)))
-        self._neighbours: np.ndarray | None = None
+                                     self.ranks, self.draws.size, max_threshold,
+                                     admission(fam, model))
         self.samples = 0
         self.degenerate = 0
         self.best_q: np.ndarray | None = None
@@ -239,23 +218,10 @@ class ModelSearch:
                                                   strict=True) if ch.size]
         return min(counts, default=max(int(self.ranks[self.channel]), 1))
 
-    def _equations_per_measure(self) -> int:
-        """Independent equations of one measure (on its equations' zero set)."""
-        return max(self.ranks[self.channel], 1)
-
-    def _minimal(self, parent_free: int | None) -> int:
-        free = self.fam.free_dof(self.model, self.problem.k)
-        extra = free if parent_free is None else max(free - parent_free, 1)
-        return max(1, math.ceil(extra / self._equations_per_measure()))
-
-    def seed_estimate(self, q: np.ndarray) -> None:
-        """Start from a known estimate (a re-queued model): it is the best so far."""
-        with np.errstate(all="ignore"):
-            errors = coherence_errors(self.problem, np.asarray(q, dtype=float), iterations=1,
-                                      ranks=self.ranks)
-        self.best_q = np.asarray(q, dtype=float)
-        self.best_errors = errors
-        self.best_score = self.score_fn(np.concatenate(errors), self.scale)
+    @property
+    def exhausted(self) -> bool:
+        """Too few measures in the pools for one sample (:attr:`draws`)."""
+        return self.draws.exhausted
 
     def samples_needed(self, confidence: float,
                        floor: tuple[float, ...] = (0.0, 0.0, 0.0)) -> int | None:
@@ -268,45 +234,19 @@ class ModelSearch:
         With :attr:`drawn_afresh` samples of the model drawn before from every measure, the
         chance that all of them and the samples planned here miss the structure planned for
         is what the confidence leaves: a child's samples (its extra measures among its
-        parent's outliers) then only make up what those did not settle."""
-        if self.best_errors is None or not self.pool.size:
+        parent's outliers) then only make up what those did not settle
+        (:meth:`~kanagen.runtime.sampling.MinimalSamples.needed`)."""
+        if self.best_errors is None or not self.draws.pool.size:
             return None
         key = (confidence, tuple(floor), self.drawn_afresh)
         if self._needed[0] is self.best_errors and self._needed[1] == key:
             return self._needed[2]  # the best estimate has not changed since
-        needed = self._samples_needed(confidence, floor)
+        needed = self.draws.needed(self.best_errors[self.channel] < self.scale, confidence,
+                                   floor, self.drawn_afresh)
         self._needed = (self.best_errors, key, needed)
         return needed
 
-    def _samples_needed(self, confidence: float, floor: tuple[float, ...]) -> int | None:
-        good = self.best_errors[self.channel] < self.scale
-        pool = max(float(np.mean(good[self.pool])), min(floor[0], 1.0))
-        p, found = pool ** self.sample_size, pool * self.pool.size
-        if self.base_size:
-            base = max(float(np.mean(good[self.base])), min(floor[1], 1.0))
-            p, found = p * base ** self.base_size, found + base * self.base.size
-        if p <= 0.0:
-            return None
-        if p >= 1.0:
-            return 1
-        miss = math.log1p(-confidence)
-        if self.drawn_afresh:  # what full samples from every measure missed already
-            share = min(max(found / max(self.problem.channels[self.channel].size, 1),
-                            floor[2]), 1.0)
-            size = self.sample_size + self.base_size
-            if share >= 1.0:
-                return 0
-            miss -= self.drawn_afresh * math.log1p(-share ** size)
-            if miss >= 0.0:
-                return 0
-        return math.ceil(miss / math.log1p(-p))
-
-    @property
-    def exhausted(self) -> bool:
-        """Too few measures in the pools for one sample."""
-        short_base = self.base is not None and self.base.size < self.base_size
-        return self.pool.size < self.sample_size or short_base
-
+    # -- the samples ----------------------------------------------------------------------------
     def step(self, limit: int = 1) -> bool:
         """Draw and score one sample, or up to ``limit`` samples stopping after one that gives
         a better estimate; True when the last one did. Never raises.
@@ -318,7 +258,7 @@ class ModelSearch:
             return False
         while limit > 0:
             rows = None
-            if self._bursts and limit > 1:
+            if self.draws.bursts and limit > 1:
                 done, outcome, rows = self._burst(limit)
                 limit -= done
                 if outcome != 2:  # the limit, or a better estimate
@@ -334,10 +274,8 @@ class ModelSearch:
         the outcome 0 at the limit, 1 when the last beat the best (taken, and locally
         optimised), 2 when the closed form left the sample ``rows`` (drawn, not counted) to the
         Python."""
-        out = self._sampler.burst(limit, self.best_score, self._pool64, self.sample_size,
-                                  self._base64, self.base_size, self.rng)
+        out = self.draws.burst(limit, self.best_score)
         if out is None:  # refused before drawing: the samples go one by one
-            self._bursts = False
             return 0, 2, None
         done, degenerate, outcome, best, rows = out
         before = self.best_score
@@ -359,15 +297,12 @@ class ModelSearch:
         self.samples += 1
         compiled = rows is None  # a sample left to the Python goes solve by solve
         if rows is None:
-            rows = self._draw()
-            if self.base_size > 0:
-                rows = np.r_[rows, self.rng.choice(self.base, size=self.base_size,
-                                                   replace=False)]
+            rows = self.draws.draw()
         improved = False
         solutions = 0
         try:
             with np.errstate(all="ignore"):
-                for q, errors in self._scored(rows, compiled):
+                for q, errors in self.draws.scored(rows, self.best_score, compiled):
                     solutions += 1
                     if errors is None:
                         continue  # its relevance is bounded below the best (errors_at)
@@ -383,81 +318,15 @@ class ModelSearch:
         self.history.append((self.samples, self.best_score))
         return improved
 
-    def _scored(self, rows: np.ndarray, compiled: bool = True):
-        """The sample's solutions, each with every measure's error (eq. 24): in one engine
-        call (:mod:`~kanagen.runtime.fastsample`) when the search has a sampler, else solve
-        by solve."""
-        if self._sampler is not None and compiled:
-            out = self._sampler(rows, self.best_score)
-            if out is not None:
-                return out
-        return ((q, coherence_errors(self.problem, q, iterations=1, ranks=self.ranks))
-                for q in self._solutions(rows))
-
-    def _draw(self) -> np.ndarray:
-        """The sampled measures: uniform, or local with probability ``local``."""
-        size = self.sample_size
-        if self.local > 0.0 and self.base_size == 0 and self.pool.size > size \
-                and self.rng.random() < self.local:
-            if self._neighbours is None:
-                from scipy.spatial import cKDTree
-
-                X = self.problem.channels[self.channel].X[self.pool]
-                k = min(self.pool.size, _NEIGHBOURHOOD * size)
-                self._neighbours = self.pool[cKDTree(X).query(X, k)[1]]
-            near = self._neighbours[self.rng.integers(self.pool.size)]
-            return np.r_[near[0], self.rng.choice(near[1:], size=size - 1, replace=False)]
-        return self.rng.choice(self.pool, size=size, replace=False)
-
-    def _starts(self, rows: np.ndarray) -> list[np.ndarray]:
-        """Starting values of solves on ``rows``: the initializer's candidates (none: no
-        parameter of the model passes through the sample, which is skipped), else the
-        parent's estimate."""
-        if self.initializer is None:
-            return [self.start]
-        starts = []
-        for cand in self.initializer(self.problem.channels[self.channel].X[rows],
-                                     self._constants):
-            q = start_from(self.fam, cand, self.start)
-            if q is not None:
-                starts.append(self.fam.with_slacks(q, self.problem.k, self.model))
-        return starts
-
-    def _solutions(self, rows: np.ndarray) -> list[np.ndarray]:
-        """The estimates of the sample ``rows`` that pass: minimal solves (eq. 21) of full
-        rank from each start, or the full estimator on an over-determined sample."""
-        out = []
-        starts = self._starts(rows)
-        if not starts:
-            return out
-        if not self.overdetermined:  # the engine's minimal solve, on the sample's rows
-            A = arrays(self.problem)
-            at = np.ascontiguousarray(A.start[self.channel] + rows, dtype=np.int64)
-            for start in starts:
-                q, solved, rank, _, _ = solve_sample(A, at, np.asarray(start, dtype=float),
-                                                     *MINIMAL)
-                if solved and rank >= self.full_rank:
-                    out.append(q)
-                    if self.equivalent:
-                        break  # the other candidates are the same estimate
-            return out
-        sample = self.problem.subset(tuple(
-            rows if i == self.channel else np.zeros(0, dtype=int)
-            for i in range(len(self.problem.channels))))
-        for start in starts:
-            if self.initializer is not None:
-                # a closed form on an over-determined sample is its least-squares hypothesis
-                # already (LO and the final rounds refine the best): kept on the constraints
-                c0 = self.problem.c0(start, self.problem.k)[0]
-                if np.all(np.isfinite(start)) and np.max(np.abs(c0), initial=0.0) <= 1e-8:
-                    out.append(start)
-                continue
-            # a hypothesis, scored next: its end is not verified
-            fit = fit_problem(self.fam, self.model, sample, q_start=start, max_iter=20,
-                              verify=False, brief=True)
-            if fit.status in (CONVERGED, UNVERIFIED) and np.all(np.isfinite(fit.q)):
-                out.append(fit.q)
-        return out
+    # -- the best estimate, refined -------------------------------------------------------------
+    def seed_estimate(self, q: np.ndarray) -> None:
+        """Start from a known estimate (a re-queued model): it is the best so far."""
+        with np.errstate(all="ignore"):
+            errors = coherence_errors(self.problem, np.asarray(q, dtype=float), iterations=1,
+                                      ranks=self.ranks)
+        self.best_q = np.asarray(q, dtype=float)
+        self.best_errors = errors
+        self.best_score = self.score_fn(np.concatenate(errors), self.scale)
 
     def split(self, errors: tuple[np.ndarray, ...], window: float = 0.35):
         """The outlier threshold of ``errors`` and, per channel, the measures below it
@@ -509,8 +378,8 @@ class ModelSearch:
         """
         if self.best_q is None:
             return None
-        first = None if self.initializer is None else \
-            (lambda rows: self._starts(rows[self.channel]))
+        first = None if self.draws.initializer is None else \
+            (lambda rows: self.draws.starts(rows[self.channel]))
         result, rows, errors, threshold = self.refinement.rounds(
             self.best_q, self.best_errors, q0, Q0, first, window, max_iter, short_of)
         names = [ch.name for ch in self.problem.channels]
@@ -591,7 +460,7 @@ def robust_fit(fam: ModelFamily, model: str | None = None, data: Mapping | None 
     fixed = confidence is not None and inlier_ratio is not None
     if fixed:
         budget = min(budget, samples_for_confidence(confidence, inlier_ratio,
-                                                    search.sample_size))
+                                                    search.draws.sample_size))
 
     def planned() -> int:  # adaptive: eq. 25 at the best estimate's inlier ratio
         needed = None if fixed or not adaptive else \

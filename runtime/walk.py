@@ -1,11 +1,11 @@
 """A search's walk through the lattice of models (report §5): the models queued and the parent
 each is searched from, what each searched model became, and which one is best.
 
-The :class:`~kanagen.runtime.estimator.Estimator` drives it: it takes the next model
-(:meth:`LatticeWalk.pop`), searches it, and hands the outcome back (:meth:`LatticeWalk.record`
-or :meth:`LatticeWalk.skip`), which queues the more general models whose parents are all
-settled. The decisions between two models are :mod:`~kanagen.runtime.lattice`'s pure
-functions; the walk holds what they decide on.
+The estimator's :class:`~kanagen.runtime.schedule.Scheduler` drives it: it takes the next
+model (:meth:`LatticeWalk.pop`), searches it, and hands the outcome back
+(:meth:`LatticeWalk.record` or :meth:`LatticeWalk.skip`), which queues the more general models
+whose parents are all settled. The decisions between two models are
+:mod:`~kanagen.runtime.lattice`'s pure functions; the walk holds what they decide on.
 """
 
 from __future__ import annotations
@@ -106,7 +106,7 @@ class LatticeWalk:
         self.skipped.pop(state.model, None)
 
     def improve(self, state: ModelState, corrected) -> None:
-        """A searched model's better estimate (found from a child's: Estimator._into_parent)."""
+        """A searched model's better estimate (found from a child's: Scheduler._into_parent)."""
         self.states[state.model] = state
         self.corrected[state.model] = corrected
         self._relevance = None

@@ -56,15 +56,15 @@ def test_one_call_per_batch_gives_the_solve_by_solve_search(family, motion, monk
     by relevance in the same order of sums: the lattice search is the one of the
     solve-by-solve Python path, bit for bit — and the one of one sample per call
     (Estimator.step)."""
-    from kanagen.runtime import robust
+    from kanagen.runtime import sampling
     from kanagen.runtime.fastsample import Sampler
 
     scene = two_view_scene(motion, n=60, outliers=0.3, sigma=0.5, seed=7)
     used, batches = [], []
 
-    def spy(search):
-        sampler = original(search)
-        used.append((search.model, sampler is not None))
+    def spy(draws):
+        sampler = original(draws)
+        used.append((draws.model, sampler is not None))
         return sampler
 
     def run(stepwise=False):
@@ -85,8 +85,8 @@ def test_one_call_per_batch_gives_the_solve_by_solve_search(family, motion, monk
         batches.append(out[0] if out is not None else 0)
         return out
 
-    original = robust.sampler_for
-    monkeypatch.setattr(robust, "sampler_for", spy)
+    original = sampling.sampler_for
+    monkeypatch.setattr(sampling, "sampler_for", spy)
     monkeypatch.setattr(Sampler, "burst", counted)
     fused = run()
     in_engine = {model for model, engine in used if engine}
@@ -96,7 +96,7 @@ def test_one_call_per_batch_gives_the_solve_by_solve_search(family, motion, monk
     sampled = sum(samples for model, samples, *_ in fused[1] if model in in_engine)
     assert sum(batches) > 0.8 * sampled and len(batches) < 0.2 * sampled
     one_by_one = run(stepwise=True)
-    monkeypatch.setattr(robust, "sampler_for", lambda search: None)
+    monkeypatch.setattr(sampling, "sampler_for", lambda draws: None)
     plain = run()
     for other in (one_by_one, plain):
         assert fused[0].model == other[0].model
@@ -141,11 +141,11 @@ def test_a_child_short_of_its_parent_stops_refining(family, monkeypatch):
     equations per measure it needs a fifth more inliers than its parent to matter; while
     short of them its refinement stops after a lap without progress, instead of
     iterating 100 times (26 ms of a 49 ms scene)."""
-    from kanagen.runtime import robust
+    from kanagen.runtime import refine
 
     scene = two_view_scene("none", n=200, outliers=0.3, sigma=0.5, seed=0)
     iterations = []
-    fit_problem = robust.fit_problem
+    fit_problem = refine.fit_problem  # the fits of the refinement (LO, the final rounds)
 
     def spy(fam, model, *args, **kwargs):
         res = fit_problem(fam, model, *args, **kwargs)
@@ -153,7 +153,7 @@ def test_a_child_short_of_its_parent_stops_refining(family, monkeypatch):
             iterations.append(res.iterations)
         return res
 
-    monkeypatch.setattr(robust, "fit_problem", spy)
+    monkeypatch.setattr(refine, "fit_problem", spy)
     est = kanagen.Estimator(family, scale=9.0, seed=0, constants=scene.constants,
                             adaptive=True)
     est.add_measures("match", scene.data, info=4.0)

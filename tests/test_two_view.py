@@ -232,7 +232,7 @@ def test_a_dominant_plane_guards_the_general_model(fam):
 
     def spy(self, *args, **kwargs):
         original(self, *args, **kwargs)
-        sizes[self.model] = (self.sample_size, self.base_size)
+        sizes[self.model] = (self.draws.sample_size, self.draws.base_size)
 
     robust.ModelSearch.__init__ = spy
     try:
@@ -398,16 +398,16 @@ def test_a_probe_s_samples_count_in_the_model_s_search(fam):
     est = kanagen.Estimator(fam, seed=5000, constants=s.constants)
     est.add_measures("match", s.data, info=1.0 / s.sigma**2)
     seen = {}
-    original = est._model_search
+    original = est._schedule._model_search
 
     def spy(model, *args):
         seen[model] = original(model, *args)
         return seen[model]
 
-    est._model_search = spy
+    est._schedule._model_search = spy
     est.run(max_samples=10_000)
     search = seen["general"]
-    assert search.base is not None and search.drawn_afresh > 0
+    assert search.draws.base is not None and search.drawn_afresh > 0
     floor = SampleBudget.floor(search, 0.0)
     with_probe = search.samples_needed(0.99, floor)
     drawn, search.drawn_afresh = search.drawn_afresh, 0
