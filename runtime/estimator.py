@@ -184,10 +184,13 @@ class Estimator:
 
     def remove_measures(self, ids) -> None:
         """Remove measures by id (any time). Removing an inlier of an accepted model
-        re-queues it and its parent."""
+        re-queues it and its parent; a model searched meanwhile is searched again, afresh,
+        on the measures left."""
         with self._lock:
             gone = set(np.asarray(ids, dtype=int).tolist())
             self._measures.remove(gone)
+            if gone:
+                self._schedule.abandon()  # the search under way drew from the rows gone
             self._schedule.probed.clear()  # what the probes found may have been among them
             removed = np.fromiter(gone, dtype=int, count=len(gone))
             for state in self._schedule.walk.forget(removed):

@@ -178,6 +178,18 @@ class Scheduler:
         score = self.current.search.best_score
         return max(done, score if np.isfinite(score) else 0.0)
 
+    def abandon(self) -> None:
+        """The search under way drops what it drew (measures were removed: its samples and
+        estimates index rows that are gone) and is searched again first, afresh, on the
+        measures left; a probe is probed again."""
+        plan, self.current = self.current, None
+        if plan is None:
+            return
+        if plan.probe:
+            self.probes.insert(0, plan.model)
+        elif all(m != plan.model for m, _, _ in self.walk.queue):
+            self.walk.queue.insert(0, (plan.model, plan.parent, None))
+
     def clear(self) -> None:
         """Nothing more to search (the search stopped on an error)."""
         self.walk.clear()

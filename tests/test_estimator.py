@@ -190,3 +190,25 @@ def test_run_in_batches_is_the_step_by_step_search(lattice):
         runs.append((est.history, [(s.model, s.samples, s.relevance, s.q.tolist())
                                    for s in est.states()]))
     assert runs[0] == runs[1]
+
+
+@pytest.mark.parametrize("probe", [True, False])
+def test_removing_measures_while_a_model_is_searched(lattice, probe):
+    """Measures removed in the middle of a model's search (or of a probe): the search under
+    way was drawing from the old rows, so it starts again on the measures left; the run
+    ends without an error, and no state names a removed measure."""
+    xy, _ = arc("ellipse", 4, n=120)
+    est = kanagen.Estimator(lattice, scale=4.0, seed=4, adaptive=probe)
+    ids = est.add_measures("point", xy)
+    while not est.status.startswith("probing" if probe else "searching line"):
+        assert est.step()
+    for _ in range(5):
+        est.step()
+    gone = ids[::3]
+    est.remove_measures(gone)
+    best = est.run(max_samples=20_000)
+    assert not est.errors, est.errors
+    assert est.status == "done" and best is not None
+    for state in est.states():
+        assert not np.isin(gone, state.measure_ids).any()
+        assert not np.isin(gone, state.inliers).any()
