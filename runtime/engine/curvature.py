@@ -33,7 +33,7 @@ from kanagen.common.borrow import alive, borrow
 from kanagen.common.jit import jit
 from kanagen.common.link import linked
 
-from .measures import eval_measure, row_buffer, unwhiten_column
+from .measures import eval_measure, fields, row_buffer, unwhiten_column
 
 #: Relative step of the central differences of the equations' Jacobians.
 STEP = 1e-5
@@ -142,21 +142,25 @@ def profile_hessian(A, x, lin, W):
             top = max(top, abs(W[a, j]))
         steps[j] = STEP * max(scale_q, 1e-8) / top if top > 0.0 else 0.0
     bq, bqh, bmh, bc, bC, bD, bbuf = borrow((q, qh, mh, c, C, D, buf))
+    mt, Cx, bW = borrow((x.mt, x.C, W))
+    F = fields(A)
+    chan, P, Dn, Gs = F[0], F[1], F[2], F[8]
+    Es, Ls, invs, rbars = borrow((lin.E, lin.L, lin.inv, lin.rbar))
     for i in range(M):
-        ch = A.chan[i]
-        p, d = A.P[ch], A.Dn[ch]
-        G, E = A.G[i], lin.E[i]
-        pk = multipliers_of(lin.L[i], lin.inv[i], lin.rbar[i], p, lam, kept)
+        ch = chan[i]
+        p, d = P[ch], Dn[ch]
+        G, E = Gs[i], Es[i]
+        pk = multipliers_of(Ls[i], invs[i], rbars[i], p, lam, kept)
         if pk == 0:
             continue
         scale_m = 0.0
         for u in range(d):
-            scale_m = max(scale_m, abs(x.mt[i, u]))
+            scale_m = max(scale_m, abs(mt[i, u]))
         # central differences of (Cᵀλ, Dᵀλ): along each corrected component, then along
         # each direction of W
         for v in range(d + k):
             if v < d:
-                h = STEP * max(abs(x.mt[i, v]), 1e-3 * scale_m, 1e-8)
+                h = STEP * max(abs(mt[i, v]), 1e-3 * scale_m, 1e-8)
             else:
                 h = steps[v - d]
                 if h == 0.0:
@@ -170,8 +174,8 @@ def profile_hessian(A, x, lin, W):
                 for j in range(n):
                     bqh[j] = bq[j] + (sign * W[j, v - d] if v >= d else 0.0)
                 for u in range(d):
-                    bmh[u] = x.mt[i, u] + (sign if u == v else 0.0)
-                eval_measure(A, i, bqh, bmh, bc, bC, bD, bbuf)
+                    bmh[u] = mt[i, u] + (sign if u == v else 0.0)
+                eval_measure(F, i, bqh, bmh, bc, bC, bD, bbuf)
                 weighted_gradient(lam, bc, bC, bD, p, n, d, grads, side)
             if v < d:
                 for a in range(n):
@@ -205,7 +209,7 @@ def profile_hessian(A, x, lin, W):
             for e in range(pk):  # C w
                 acc = 0.0
                 for a in range(n):
-                    acc += x.C[i, kept[e], a] * W[a, j]
+                    acc += Cx[i, kept[e], a] * bW[a, j]
                 CW[e, j] = acc
                 R[d + e, j] = -acc
             for a in range(d):  # −G Φmq w
@@ -234,7 +238,7 @@ def profile_hessian(A, x, lin, W):
                 for e in range(pk):
                     acc += CW[e, a] * R[d + e, j]
                 K[a, j] += acc
-    alive((q, qh, mh, c, C, D, buf))
+    alive((q, qh, mh, c, C, D, buf, x, W, lin))
     for a in range(k):
         for b in range(a):
             mean = 0.5 * (K[a, b] + K[b, a])

@@ -45,17 +45,28 @@ def c0_eval(A, q):
 
 
 @jit(inline=True)
-def eval_measure(A, i, q, mt_i, c, C, D, x):
-    """Write measure ``i``'s ``c (p)``, ``C (p, n)``, ``D (p, d)`` at ``(q, mt_i)`` (``x``:
-    a buffer of :func:`row_buffer`'s size)."""
-    ch = A.chan[i]
-    p, d, n, w = A.P[ch], A.Dn[ch], q.size, A.W[ch]
+def fields(A):
+    """The per-measure arrays of ``A`` that the loops over the measures read — ``(chan, P,
+    Dn, W, X, col, meas_addr, k, G, Q, m)`` — borrowed (kanagen.common.borrow): a field read
+    from ``A`` and each view of it are otherwise counted up and down, atomically, at every
+    use, which cost more than a measure's arithmetic. Valid while ``A`` (the kernel's
+    argument) is."""
+    return borrow((A.chan, A.P, A.Dn, A.W, A.X, A.col, A.meas_addr, A.k, A.G, A.Q, A.m))
+
+
+@jit(inline=True)
+def eval_measure(F, i, q, mt_i, c, C, D, x):
+    """Write measure ``i``'s ``c (p)``, ``C (p, n)``, ``D (p, d)`` at ``(q, mt_i)`` (``F``:
+    :func:`fields`; ``x``: a buffer of :func:`row_buffer`'s size)."""
+    chan, P, Dn, W, X, col, addr, k = F[0], F[1], F[2], F[3], F[4], F[5], F[6], F[7]
+    ch = chan[i]
+    p, d, n, w = P[ch], Dn[ch], q.size, W[ch]
     for j in range(w):
-        x[j] = A.X[i, j]
+        x[j] = X[i, j]
     for j in range(d):
-        x[A.col[ch, j]] = mt_i[j]
+        x[col[ch, j]] = mt_i[j]
     out = x[w:]
-    call4(A.meas_addr[ch], q, x[:w], A.k, out)
+    call4(addr[ch], q, x[:w], k, out)
     for a in range(p):
         c[a] = out[a]
         for j in range(n):
@@ -111,8 +122,9 @@ def eval_all(A, q, mt):
     c, C, D = empty_evals(A, q.size)
     x = row_buffer(A, q.size)
     bq, bmt, bc, bC, bD, bx = borrow((q, mt, c, C, D, x))
+    F = fields(A)
     for i in range(A.chan.size):
-        eval_measure(A, i, bq, bmt[i], bc[i], bC[i], bD[i], bx)
+        eval_measure(F, i, bq, bmt[i], bc[i], bC[i], bD[i], bx)
     alive((q, x))
     return c, C, D
 
@@ -146,13 +158,15 @@ def point_values(A, q, mt, c, c0):
             acc += A.Q0[a, b] * dq[b]
         cost += dq[a] * acc
     cost *= 0.5
-    for i in range(A.chan.size):
-        ch = A.chan[i]
-        d = A.Dn[ch]
-        for a in range(A.P[ch]):
-            v = abs(c[i, a])
+    # the loop's arrays borrowed (A's fields read once): no reference counts per measure
+    chan, Dn, P, m_obs, Q, bmt, bc = borrow((A.chan, A.Dn, A.P, A.m, A.Q, mt, c))
+    for i in range(chan.size):
+        ch = chan[i]
+        d = Dn[ch]
+        for a in range(P[ch]):
+            v = abs(bc[i, a])
             delta = np.inf if v != v or delta == np.inf else max(delta, v)
-        cost += 0.5 * quad_between(mt[i], A.m[i], A.Q[i], d)
+        cost += 0.5 * quad_between(bmt[i], m_obs[i], Q[i], d)
     return delta, cost
 
 
@@ -311,15 +325,16 @@ def all_finite(v):
 # -- eq. 22: the measures projected for a fixed q ---------------------------------------
 
 @jit(inline=True)
-def project_measure(A, i, q, m, iterations, tol, c, C, D, E, L, inv, kept, y, rbar, cbar, dm,
-                    step, cand, moved, x):
+def project_measure(A, F, i, q, m, iterations, tol, c, C, D, E, L, inv, kept, y, rbar, cbar,
+                    dm, step, cand, moved, x):
     """Project measure ``i`` onto ``c_i(q, ·) = 0`` from ``m`` (updated in place) in its
-    ``Q_i`` metric (eq. 22 with eq. 18's halving). ``iterations`` counts projector steps
-    plus one. Writes ``c, C, D`` at the returned point; returns ``(violation, rank)``."""
-    ch = A.chan[i]
-    p, d = A.P[ch], A.Dn[ch]
-    G, Q, m_obs = A.G[i], A.Q[i], A.m[i]
-    eval_measure(A, i, q, m, c, C, D, x)
+    ``Q_i`` metric (eq. 22 with eq. 18's halving; ``F``: :func:`fields`). ``iterations``
+    counts projector steps plus one. Writes ``c, C, D`` at the returned point; returns
+    ``(violation, rank)``."""
+    ch = F[0][i]
+    p, d = F[1][ch], F[2][ch]
+    G, Q, m_obs = F[8][i], F[9][i], F[10][i]
+    eval_measure(F, i, q, m, c, C, D, x)
     viol, rank = 0.0, 0
     active = True
     for it in range(iterations):
@@ -335,7 +350,7 @@ def project_measure(A, i, q, m, iterations, tol, c, C, D, E, L, inv, kept, y, rb
             finite = finite and np.isfinite(step[j])
         if not finite:
             step[:d] = 0.0
-        halving(A, i, q, m, c, C, D, step, p, d, cand, moved, x)
+        halving(F, i, q, m, c, C, D, step, p, d, cand, moved, x)
         seen = quad(moved, Q, d) > tol ** 2
         unseen = False
         for j in range(d):
@@ -345,7 +360,7 @@ def project_measure(A, i, q, m, iterations, tol, c, C, D, E, L, inv, kept, y, rb
 
 
 @jit(inline=True)
-def halving(A, i, q, m, c, C, D, step, p, d, cand, moved, x):
+def halving(F, i, q, m, c, C, D, step, p, d, cand, moved, x):
     """Eq. 18 for one measure: ``m + α step`` with α halved while the violation grows (four
     times at most), else no move; updates ``m, c, C, D`` in place, writes the move into
     ``moved``."""
@@ -356,7 +371,7 @@ def halving(A, i, q, m, c, C, D, step, p, d, cand, moved, x):
             alpha = 0.0
         for j in range(d):
             cand[j] = m[j] + alpha * step[j]
-        eval_measure(A, i, q, cand, c, C, D, x)
+        eval_measure(F, i, q, cand, c, C, D, x)
         new_worst = worst_abs(c, p) if p else worst
         if new_worst <= worst + 1e-9 * (1.0 + worst) or attempt == _PROJECT_HALVINGS:
             break
@@ -378,10 +393,11 @@ def project_all(A, q, mt, iterations, tol):
     work = scratch(A, q.size)
     E, L, inv, kept, y, rbar, cbar, dm, step, cand, moved, x = borrow(work)
     bq, bout, bc, bC, bD = borrow((q, out, c, C, D))
+    F = fields(A)
     for i in range(M):
-        viol[i], rank[i] = project_measure(A, i, bq, bout[i], iterations, tol, bc[i], bC[i],
-                                           bD[i], E, L, inv, kept, y, rbar, cbar, dm, step,
-                                           cand, moved, x)
+        viol[i], rank[i] = project_measure(A, F, i, bq, bout[i], iterations, tol, bc[i],
+                                           bC[i], bD[i], E, L, inv, kept, y, rbar, cbar, dm,
+                                           step, cand, moved, x)
     alive((q, work))
     return out, viol, rank, c, C, D
 
@@ -425,6 +441,7 @@ def newton(A, i, q, values, c, C, D, G, work, c_new, C_new, D_new):
     ch = A.chan[i]
     p, d = A.P[ch], A.Dn[ch]
     E, L, inv, kept, y, w, w2, dm, step, cand, moved, x = work
+    F = fields(A)
     for attempt in range(_NEWTON + 1):
         size, finite = violation(c, D, G, p, d, A.eps, work)  # the factor and w = L⁻¹c
         if not (size > UNREACHED * 1e-4 and finite):
@@ -444,7 +461,7 @@ def newton(A, i, q, values, c, C, D, G, work, c_new, C_new, D_new):
         for _ in range(_HALVINGS):
             for j in range(d):
                 cand[j] = values[j] + alpha * step[j]
-            eval_measure(A, i, q, cand, c_new, C_new, D_new, x)
+            eval_measure(F, i, q, cand, c_new, C_new, D_new, x)
             if worst_abs(c_new, p) < worst:
                 for j in range(d):
                     values[j] = cand[j]
@@ -479,7 +496,8 @@ def descend(A, i, q, start, top, c, C, D, work):
     reach = reaching(A, i, top)
     spare = (c.copy(), C.copy(), D.copy())
     values = start.copy()
-    eval_measure(A, i, q, values, c, C, D, x)
+    F = fields(A)
+    eval_measure(F, i, q, values, c, C, D, x)
     normal(A, i, q, values, c, C, D, reach, work, spare)
     distance = quad_between(values, m_obs, Q, d)
     active = violation(c, D, G, p, d, A.eps, work)[0] <= UNREACHED
@@ -502,7 +520,7 @@ def descend(A, i, q, start, top, c, C, D, work):
             alpha = 1.0
             for _ in range(_HALVINGS):
                 trial = values + alpha * along
-                eval_measure(A, i, q, trial, c2, C2, D2, x)
+                eval_measure(F, i, q, trial, c2, C2, D2, x)
                 normal(A, i, q, trial, c2, C2, D2, reach, work, spare)
                 d_trial = quad_between(trial, m_obs, Q, d)
                 worst = worst_abs(c, p)
@@ -516,7 +534,7 @@ def descend(A, i, q, start, top, c, C, D, work):
                     break
                 alpha /= 2
         active = shift > RESTORE_TOL ** 2
-    eval_measure(A, i, q, values, c, C, D, x)
+    eval_measure(F, i, q, values, c, C, D, x)
     return values, violation(c, D, G, p, d, A.eps, work)[0]
 
 

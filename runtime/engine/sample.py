@@ -29,7 +29,7 @@ from kanagen.common.borrow import alive, borrow
 from kanagen.common.jit import NUMBA, jit
 
 from .jacobi import row_svd
-from .measures import c0_eval, eval_measure, row_buffer, scratch, whitened
+from .measures import c0_eval, eval_measure, fields, row_buffer, scratch, whitened
 
 #: Values per candidate of a closed-form initialiser, and candidates at most.
 WIDTH, CANDIDATES = 12, 4
@@ -150,10 +150,12 @@ def _equations(A, rows, q, w, c, J, x, cm, Cm, Dm):
             for j in range(n):
                 J[a, j] = C0[a, j]
     at = r
+    F = fields(A)
+    chan, P, m = F[0], F[1], F[10]
     for s in range(rows.size):
         i = rows[s]
-        p = A.P[A.chan[i]]
-        eval_measure(A, i, q, A.m[i], cm, Cm, Dm, x)
+        p = P[chan[i]]
+        eval_measure(F, i, q, m[i], cm, Cm, Dm, x)
         for a in range(p):
             c[at + a] = cm[a]
             for j in range(n):
@@ -273,14 +275,15 @@ def minimal_solve(A, rows, target, max_iter, xtol, eps):
 # -- eq. 24: every measure's error at a solution -----------------------------------------
 
 @jit(inline=True)
-def observed_error(A, i, q, c, C, D, E, L, inv, kept, w, x):
+def observed_error(A, F, i, q, c, C, D, E, L, inv, kept, w, x):
     """Measure ``i`` at ``q`` where it was observed: its whitened violation
-    ``‖c‖²_{(D Q⁺ Dᵀ)⁻}`` and the equations kept (the rest: buffers of
-    :func:`~.measures.scratch`, borrowed by the caller's loop: kanagen.common.borrow)."""
-    ch = A.chan[i]
-    p = A.P[ch]
-    eval_measure(A, i, q, A.m[i], c, C, D, x)
-    return whitened(c, D, A.G[i], p, A.Dn[ch], A.eps, E, L, inv, kept, w)
+    ``‖c‖²_{(D Q⁺ Dᵀ)⁻}`` and the equations kept (``F``: :func:`~.measures.fields`; the
+    rest: buffers of :func:`~.measures.scratch`, borrowed by the caller's loop:
+    kanagen.common.borrow)."""
+    ch = F[0][i]
+    p = F[1][ch]
+    eval_measure(F, i, q, F[10][i], c, C, D, x)
+    return whitened(c, D, F[8][i], p, F[2][ch], A.eps, E, L, inv, kept, w)
 
 
 @jit
@@ -300,8 +303,9 @@ def observed_all(A, q):
     buffers = _buffers(A, q.size)
     c, C, D, E, L, inv, kept, w, x = borrow(buffers)
     viol, rank = np.empty(A.chan.size), np.empty(A.chan.size, dtype=np.int64)
+    F = fields(A)
     for i in range(A.chan.size):
-        viol[i], rank[i] = observed_error(A, i, q, c, C, D, E, L, inv, kept, w, x)
+        viol[i], rank[i] = observed_error(A, F, i, q, c, C, D, E, L, inv, kept, w, x)
     alive(buffers)
     return viol, rank
 
@@ -317,13 +321,14 @@ def errors_at(A, q, caps, scale, best, errors):
     rounding of the sum. Returns ``(complete, relevance)``."""
     buffers = _buffers(A, q.size)
     c, C, D, E, L, inv, kept, w, x = borrow(buffers)
+    F = fields(A)
     total = A.chan.size
     score = 0.0
     seen = 0
     for ch in range(A.size.size):
         cap, start, size = caps[ch], A.start[ch], A.size[ch]
         for i in range(start, start + size):
-            viol, rank = observed_error(A, i, q, c, C, D, E, L, inv, kept, w, x)
+            viol, rank = observed_error(A, F, i, q, c, C, D, E, L, inv, kept, w, x)
             err = viol / max(min(rank, cap), 1)
             err = err if np.isfinite(err) else np.inf
             errors[i] = err
