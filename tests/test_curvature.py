@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scenarios import SCENARIOS, TWOCHAN, twochan_data
 
 import kanagen
@@ -157,3 +159,24 @@ def test_verified_fit_reports_the_exact_curvature():
     problem = make_problem(fam, model, data, info, start, constants=constants)
     res = fit_problem(fam, model, problem)
     assert res.success and "no negative curvature" in res.message
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 6), st.integers(0, 5), st.integers(0, 2**32 - 1), st.booleans())
+def test_multipliers_are_the_least_squares_solution(r, extra, seed, dependent):
+    """``λ0`` minimises ``‖C0ᵀ λ0 + ∇F‖`` as NumPy's ``lstsq`` does (its minimum-norm
+    solution where constraints are dependent), from the constraints' SVD by rotations
+    when they are independent."""
+    link()
+    rng = np.random.default_rng(seed)
+    n = r + extra
+    C0 = rng.standard_normal((r, n)) * 10.0 ** rng.uniform(-3, 3, (r, 1))
+    if dependent and r > 1:
+        C0[-1] = C0[0] * 2.0
+    g = rng.standard_normal(n)
+    x = points.Pt(np.zeros(n), np.zeros((0, 1)), np.zeros(r), C0, np.zeros((0, 1)),
+                  np.zeros((0, 1, n)), np.zeros((0, 1, 1)), 0.0, 0.0)
+    lam = points.multipliers(x, g)
+    reference = np.linalg.lstsq(C0.T, -g, rcond=np.finfo(float).eps * n)[0]
+    scale = np.abs(reference).max() + 1e-300
+    assert np.abs(lam - reference).max() <= 1e-9 * scale

@@ -14,6 +14,7 @@ from kanagen.common.jit import jit
 from kanagen.common.link import linked, record_kind
 
 from ..sqrt import EPS, REDUNDANT, closest_root
+from .jacobi import row_svd
 from .linear import corrected, linearise, parameter_block, retraction_step, whitened_violation
 from .measures import (
     RESTORE_STEPS,
@@ -256,9 +257,27 @@ def multipliers(x, gradient):
         return np.zeros(0)
     if not (np.all(np.isfinite(x.C0)) and np.all(np.isfinite(gradient))):
         return np.full(r, np.nan)
-    # NumPy's default cut-off (rcond=None): ε·max(n, r)
-    return np.linalg.lstsq(np.ascontiguousarray(x.C0.T), -gradient,
-                           rcond=np.finfo(np.float64).eps * max(n, r))[0]
+    # independent constraints (the usual case): the least-squares solution from C0's SVD
+    # (one-sided Jacobi: C0 = Wᵀ R, R's rows orthogonal) — LAPACK's fixed costs were most
+    # of the time on such sizes; dependent ones (a singular value under NumPy's lstsq
+    # cut-off, ε·max(n, r) of the largest): its minimum-norm solution, as lstsq gives it
+    cut = np.finfo(np.float64).eps * max(n, r)
+    R, W, S = np.empty((r, n)), np.empty((r, r)), np.empty(r)
+    if r > n or row_svd(x.C0, R, W, S) < 0 or not S.min() > 1e3 * cut * S.max():
+        return np.linalg.lstsq(np.ascontiguousarray(x.C0.T), -gradient, rcond=cut)[0]
+    mu = np.zeros(r)
+    for k in range(r):
+        acc = 0.0
+        for j in range(n):
+            acc += R[k, j] * gradient[j]
+        mu[k] = -acc / (S[k] * S[k])
+    lam = np.zeros(r)
+    for a in range(r):
+        acc = 0.0
+        for k in range(r):
+            acc += W[k, a] * mu[k]
+        lam[a] = acc
+    return lam
 
 
 @jit
