@@ -15,6 +15,7 @@ import kanagen
 from kanagen.common.link import link
 from kanagen.runtime.engine import curvature, points, verify
 from kanagen.runtime.engine.data import arrays, pack_measures
+from kanagen.runtime.engine.jacobi import sym_eigh
 from kanagen.runtime.fit import fit_problem, make_problem
 
 CASES = [(spec, k) for spec, make in SCENARIOS.items() for k in range(len(make()))]
@@ -180,3 +181,38 @@ def test_multipliers_are_the_least_squares_solution(r, extra, seed, dependent):
     reference = np.linalg.lstsq(C0.T, -g, rcond=np.finfo(float).eps * n)[0]
     scale = np.abs(reference).max() + 1e-300
     assert np.abs(lam - reference).max() <= 1e-9 * scale
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(1, 12), st.integers(0, 2**32 - 1), st.integers(0, 3))
+def test_symmetric_eigen_as_lapack(n, seed, kind):
+    """``sym_eigh`` (Jacobi rotations) gives NumPy's ``eigh``'s eigenvalues, ascending, from
+    the lower triangle, and orthonormal eigenvectors: definite, indefinite, singular and
+    badly scaled matrices."""
+    rng = np.random.default_rng(seed)
+    B = rng.standard_normal((n, n))
+    if kind == 0:
+        K = B @ B.T
+    elif kind == 1:
+        K = B + B.T
+    elif kind == 2:  # singular: rank n - 1 (or 0)
+        B[:, -1] = 0.0
+        K = B @ B.T
+    else:  # scales over ten orders of magnitude
+        D = np.diag(10.0 ** rng.uniform(-5, 5, n))
+        K = D @ (B @ B.T) @ D
+    upper_garbage = K + np.triu(rng.standard_normal((n, n)), 1)
+    w, V = sym_eigh(upper_garbage)
+    reference = np.linalg.eigvalsh(K)
+    scale = np.abs(K).max()
+    assert np.all(np.diff(w) >= 0)
+    assert np.abs(w - reference).max() <= 1e-12 * scale
+    np.testing.assert_allclose(V.T @ V, np.eye(n), atol=1e-12)
+    assert np.abs(K @ V - V * w).max() <= 1e-12 * scale
+
+
+def test_symmetric_eigen_refuses_non_finite():
+    K = np.eye(3)
+    K[2, 1] = np.nan
+    with pytest.raises(np.linalg.LinAlgError):
+        sym_eigh(K)

@@ -77,3 +77,62 @@ def row_svd(J, R, W, S):
             total += R[a, j] * R[a, j]
         S[a] = np.sqrt(total)
     return -1
+
+
+@jit
+def sym_eigh(K):
+    """The eigenvalues (ascending) and eigenvectors (columns) of the symmetric ``K`` from
+    its lower triangle, as ``np.linalg.eigh`` (``UPLO='L'``), by cyclic Jacobi rotations:
+    LAPACK's fixed costs were most of the time on the engine's sizes (a dozen rows at
+    most). Raises ``LinAlgError`` on non-finite entries, as NumPy's does."""
+    n = K.shape[0]
+    A = np.empty((n, n))
+    for a in range(n):
+        for b in range(a + 1):
+            v = K[a, b]
+            if not np.isfinite(v):
+                raise np.linalg.LinAlgError("Array must not contain infs or NaNs")
+            A[a, b] = v
+            A[b, a] = v
+    V = np.zeros((n, n))
+    for a in range(n):
+        V[a, a] = 1.0
+    for _ in range(SWEEPS):
+        rotated = False
+        for p in range(n - 1):
+            for q in range(p + 1, n):
+                apq = A[p, q]
+                if apq == 0.0 or abs(apq) <= _EPS * np.sqrt(abs(A[p, p] * A[q, q])) * 0.5:
+                    continue
+                rotated = True
+                theta = (A[q, q] - A[p, p]) / (2.0 * apq)
+                t = (1.0 if theta >= 0 else -1.0) / (abs(theta) + np.sqrt(1.0 + theta * theta))
+                c = 1.0 / np.sqrt(1.0 + t * t)
+                s = t * c
+                for k in range(n):  # A ← A Jᵀ (columns p, q)
+                    akp, akq = A[k, p], A[k, q]
+                    A[k, p] = c * akp - s * akq
+                    A[k, q] = s * akp + c * akq
+                for k in range(n):  # A ← J A (rows p, q)
+                    apk, aqk = A[p, k], A[q, k]
+                    A[p, k] = c * apk - s * aqk
+                    A[q, k] = s * apk + c * aqk
+                A[p, q] = 0.0
+                A[q, p] = 0.0
+                for k in range(n):
+                    vkp, vkq = V[k, p], V[k, q]
+                    V[k, p] = c * vkp - s * vkq
+                    V[k, q] = s * vkp + c * vkq
+        if not rotated:
+            break
+    w = np.empty(n)
+    for a in range(n):
+        w[a] = A[a, a]
+    order = np.argsort(w)
+    out_w = np.empty(n)
+    out_V = np.empty((n, n))
+    for a in range(n):
+        out_w[a] = w[order[a]]
+        for k in range(n):
+            out_V[k, a] = V[k, order[a]]
+    return out_w, out_V

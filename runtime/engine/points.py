@@ -14,7 +14,7 @@ from kanagen.common.jit import jit
 from kanagen.common.link import linked, record_kind
 
 from ..sqrt import EPS, REDUNDANT, closest_root
-from .jacobi import row_svd
+from .jacobi import row_svd, sym_eigh
 from .linear import corrected, linearise, parameter_block, retraction_step, whitened_violation
 from .measures import (
     RESTORE_STEPS,
@@ -317,7 +317,7 @@ def lagrangian(A, x, lin, proj):
         K[:, index] = 0.0
     if not np.all(np.isfinite(K)):
         return lin, proj
-    w, V = np.linalg.eigh(K)
+    w, V = sym_eigh(K)
     top = 0.0
     for a in range(lin.H.shape[0]):
         top = max(top, abs(lin.H[a, a]))

@@ -19,6 +19,7 @@ from kanagen.common.link import linked, record_kind
 
 from ..sqrt import put_column
 from .curvature import profile_hessian
+from .jacobi import sym_eigh
 from .linear import linearise, seen_components
 from .measures import RESTORE_STEPS
 from .points import (
@@ -99,7 +100,7 @@ def tangent_basis(x, info):
         return Z
     G = Z.T @ info @ Z
     G = 0.5 * (G + G.T)
-    w, U = np.linalg.eigh(G)
+    w, U = sym_eigh(G)
     top = max(w.max(), np.finfo(np.float64).tiny) if w.size else np.finfo(np.float64).tiny
     keep = np.flatnonzero(w > 1e-14 * max(top, np.finfo(np.float64).tiny))
     out = np.zeros((Z.shape[0], keep.size))
@@ -152,7 +153,7 @@ def weakest(info, x):
     for a in range(k):
         for b in range(k):
             scaled[a, b] = M[a, b] / (d[a] * d[b])
-    w, U = np.linalg.eigh(scaled)
+    w, U = sym_eigh(scaled)
     if not w[-1] > 0:
         return False, 0.0, np.zeros(0)
     return True, w[0] / w[-1], Z @ (U[:, 0] / d)
@@ -212,7 +213,7 @@ def least_eigen(K, W):
     K = 0.5 * (K + K.T)
     if not np.all(np.isfinite(K)):
         return False, 0.0, np.zeros(0)
-    w, U = np.linalg.eigh(K)
+    w, U = sym_eigh(K)
     return True, w[0], W @ np.ascontiguousarray(U[:, 0])
 
 
