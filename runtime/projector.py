@@ -54,9 +54,15 @@ class Problem:
 
 
     def subset(self, rows) -> Problem:
-        """The same problem on some measures only: ``rows`` per channel (index arrays)."""
-        return replace(self, channels=tuple(ch.subset(r) for ch, r in zip(self.channels, rows,
-                                                                           strict=True)))
+        """The same problem on some measures only: ``rows`` per channel (index arrays).
+        When this problem's engine arrays are made, the subset's are gathered from them
+        (:func:`kanagen.runtime.engine.data.arrays`)."""
+        out = replace(self, channels=tuple(ch.subset(r) for ch, r in zip(self.channels, rows,
+                                                                          strict=True)))
+        made = self.__dict__.get("_arrays")
+        if made is not None:
+            object.__setattr__(out, "_subset_of", (made, tuple(rows)))
+        return out
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from kanagen.common.borrow import alive, borrow
 from kanagen.common.jit import NUMBA, jit
 from kanagen.common.link import KINDS, kind, layout, link
 
@@ -154,10 +155,16 @@ def model_rows(fam, model: str, reduced=None) -> RowKernels:
 
 def arrays(problem) -> Arrays:
     """The kernels' arrays of ``problem`` (its :class:`RowKernels` in ``problem.rows``),
-    made once per problem object."""
+    made once per problem object — for a subset of a problem whose arrays are made
+    (``Problem.subset``), gathered from them (:func:`_gathered`)."""
     cached = problem.__dict__.get("_arrays")
     if cached is not None:
         return cached
+    parent = problem.__dict__.get("_subset_of")
+    if parent is not None:
+        out = _subset(*parent)
+        object.__setattr__(problem, "_arrays", out)
+        return out
     rows: RowKernels = problem.rows
     channels = problem.channels
     nch = len(channels)
@@ -198,6 +205,66 @@ def arrays(problem) -> Arrays:
     )
     object.__setattr__(problem, "_arrays", out)
     return out
+
+
+#: The fields :func:`_gathered` makes anew for a subset (the rest are the parent's).
+_GATHERED = ("chan", "X", "m", "Q", "G", "size", "start", "scale")
+
+
+@jit
+def _gathered(A, rows, counts):
+    """The per-measure arrays of ``A``'s measures ``rows`` (each channel's indices among
+    its measures, ``counts[j]`` of channel ``j``, channel after channel; negative ones from
+    its end), each channel's size and start among them and its scale
+    (:attr:`~kanagen.runtime.inputs.ChannelData.scale` of the channel's subset: the
+    largest corrected value times the root of the largest information on the diagonal, 0
+    for no measure), in :data:`_GATHERED`'s order."""
+    M, nch = rows.size, A.P.size
+    chan = np.empty(M, dtype=np.int64)
+    X, m = np.zeros((M, A.X.shape[1])), np.zeros((M, A.m.shape[1]))
+    Q, G = np.zeros((M,) + A.Q.shape[1:]), np.zeros((M,) + A.G.shape[1:])
+    start = np.zeros(nch, dtype=np.int64)
+    scale = np.zeros(nch)
+    # the loop's arrays borrowed (kanagen.common.borrow): no reference counts per row
+    X0, m0, Q0, G0, at0, size0, Dn = borrow((A.X, A.m, A.Q, A.G, A.start, A.size, A.Dn))
+    bX, bm, bQ, bG = borrow((X, m, Q, G))
+    s = 0
+    for ch in range(nch):
+        start[ch] = s
+        top_m, top_q = 0.0, 0.0
+        for _ in range(counts[ch]):
+            r = rows[s]
+            i = at0[ch] + (r + size0[ch] if r < 0 else r)
+            chan[s] = ch
+            for j in range(X0.shape[1]):
+                bX[s, j] = X0[i, j]
+            for u in range(m0.shape[1]):
+                bm[s, u] = m0[i, u]
+                for v in range(m0.shape[1]):
+                    bQ[s, u, v] = Q0[i, u, v]
+                    bG[s, u, v] = G0[i, u, v]
+            for u in range(Dn[ch]):
+                top_m = max(top_m, abs(m0[i, u]))
+                top_q = max(top_q, abs(Q0[i, u, u]))
+            s += 1
+        scale[ch] = top_m * np.sqrt(top_q) if counts[ch] else 0.0
+    alive((X, m, Q, G))
+    return chan, X, m, Q, G, counts.copy(), start, scale
+
+
+def _subset(A: Arrays, rows: tuple) -> Arrays:
+    """The arrays of the problem on the measures ``rows`` (per channel) of the problem
+    whose arrays are ``A``: the same as :func:`arrays` would make, gathered in one kernel
+    call."""
+    picked = [np.flatnonzero(r) if (r := np.asarray(part)).dtype == np.bool_ else r
+              for part in rows]
+    counts = np.array([r.size for r in picked], dtype=np.int64)
+    flat = (picked[0] if len(picked) == 1 else np.concatenate(picked) if picked else
+            np.zeros(0)).astype(np.int64)
+    values = list(A.__dict__["_record"] if hasattr(A, "__dict__") else A)  # interpreted: a tuple
+    for name, value in zip(_GATHERED, _gathered(A, flat, counts), strict=True):
+        values[_INDEX[name]] = value
+    return Arrays(*values)
 
 
 def pack_measures(A: Arrays, mt) -> np.ndarray:
