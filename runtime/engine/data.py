@@ -83,11 +83,18 @@ if NUMBA is not None and not jit.disabled:
         values = tuple(_of_kind(v, dtype, described, rank)
                        for v, (dtype, described, rank) in zip(values, _LAYOUT, strict=True))
         link()
+        return _checked(values)
+
+    def _checked(values: tuple):
+        """The record of ``values`` already of their fields' kinds (:func:`Arrays`')."""
         proxy = _Proxy(*values)
         proxy.__dict__["_record"] = values
         return proxy
 else:  # interpreted: a plain record
     Arrays = namedtuple("Arrays", _FIELDS)
+
+    def _checked(values: tuple):
+        return Arrays(*values)
 
 
 def _row_address(module, function, arity: int) -> int:
@@ -264,7 +271,7 @@ def _subset(A: Arrays, rows: tuple) -> Arrays:
     values = list(A.__dict__["_record"] if hasattr(A, "__dict__") else A)  # interpreted: a tuple
     for name, value in zip(_GATHERED, _gathered(A, flat, counts), strict=True):
         values[_INDEX[name]] = value
-    return Arrays(*values)
+    return _checked(tuple(values))  # the parent's fields and the kernel's: of their kinds
 
 
 def pack_measures(A: Arrays, mt) -> np.ndarray:
