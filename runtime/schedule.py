@@ -187,8 +187,8 @@ class Scheduler:
             return
         if plan.probe:
             self.probes.insert(0, plan.model)
-        elif all(m != plan.model for m, _, _ in self.walk.queue):
-            self.walk.queue.insert(0, (plan.model, plan.parent, None))
+        else:
+            self.walk.first(plan.model, plan.parent, None)
 
     def clear(self) -> None:
         """Nothing more to search (the search stopped on an error)."""

@@ -86,9 +86,14 @@ class LatticeWalk:
         state = self.states.get(model)
         if state is None or state.status == "null":
             return False
-        if all(m != model for m, _, _ in self.queue):
-            self.queue.insert(0, (model, state.parent, state.q))
+        self.first(model, state.parent, state.q)
         return True
+
+    def first(self, model: str, parent: str | None, resume: np.ndarray | None) -> None:
+        """``model`` searched next, from ``parent`` (from the estimate ``resume``, None:
+        afresh), unless it is queued already."""
+        if all(m != model for m, _, _ in self.queue):
+            self.queue.insert(0, (model, parent, resume))
 
     # -- outcomes --------------------------------------------------------------------------
     def skip(self, model: str, parent: str | None) -> None:
