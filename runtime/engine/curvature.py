@@ -37,7 +37,6 @@ from .measures import eval_measure, fields, row_buffer, unwhiten_column
 
 #: Relative step of the central differences of the equations' Jacobians.
 STEP = 1e-5
-_TINY = np.finfo(np.float64).tiny
 
 
 @jit

@@ -167,7 +167,7 @@ def arrays(problem) -> Arrays:
     cached = problem.__dict__.get("_arrays")
     if cached is not None:
         return cached
-    parent = problem.__dict__.get("_subset_of")
+    parent = problem.__dict__.pop("_subset_of", None)  # not kept once used
     if parent is not None:
         out = _subset(*parent)
         object.__setattr__(problem, "_arrays", out)

@@ -158,8 +158,9 @@ def point_values(A, q, mt, c, c0):
             acc += A.Q0[a, b] * dq[b]
         cost += dq[a] * acc
     cost *= 0.5
-    # the loop's arrays borrowed (A's fields read once): no reference counts per measure
-    chan, Dn, P, m_obs, Q, bmt, bc = borrow((A.chan, A.Dn, A.P, A.m, A.Q, mt, c))
+    F = fields(A)  # A's arrays borrowed, and the loop's: no reference counts per measure
+    chan, P, Dn, Q, m_obs = F[0], F[1], F[2], F[9], F[10]
+    bmt, bc = borrow((mt, c))
     for i in range(chan.size):
         ch = chan[i]
         d = Dn[ch]
