@@ -148,7 +148,7 @@ def row_kernels(fam, model: str, reduced=None) -> RowKernels:
     T = np.eye(fam.n) if reduced is None else np.asarray(reduced.T, dtype=float)
     t = np.zeros(fam.n) if reduced is None else np.asarray(reduced.t, dtype=float)
     return RowKernels(_row_address(module, table["c0"], 3), r, measures, slack, kinds,
-                      clauses, np.ascontiguousarray(T), t)
+                      clauses, np.ascontiguousarray(T), np.ascontiguousarray(t))
 
 
 def model_rows(fam, model: str, reduced=None) -> RowKernels:
@@ -175,11 +175,10 @@ def arrays(problem) -> Arrays:
     rows: RowKernels = problem.rows
     channels = problem.channels
     nch = len(channels)
-    sizes = np.array([ch.size for ch in channels], dtype=np.int64)
-    M = int(sizes.sum())
-    widths = np.array([ch.X.shape[1] for ch in channels], dtype=np.int64)
-    dims = np.array([ch.index.size for ch in channels], dtype=np.int64)
-    wmax, dmax = int(widths.max(initial=1)), int(dims.max(initial=1))
+    sizes = [ch.X.shape[0] for ch in channels]
+    widths = [ch.X.shape[1] for ch in channels]
+    dims = [ch.index.size for ch in channels]
+    M, wmax, dmax = sum(sizes), max(widths, default=1), max(dims, default=1)
     X = np.zeros((M, wmax))
     m = np.zeros((M, dmax))
     Q = np.zeros((M, dmax, dmax))
@@ -188,9 +187,11 @@ def arrays(problem) -> Arrays:
     P = np.zeros(nch, dtype=np.int64)
     addr = np.zeros(nch, dtype=np.int64)
     scale = np.zeros(nch)
-    start = np.concatenate(([0], np.cumsum(sizes)[:-1])).astype(np.int64)
+    start = np.zeros(nch, dtype=np.int64)
+    at = 0
     for j, ch in enumerate(channels):
-        at, size, w, d = start[j], ch.size, widths[j], dims[j]
+        size, w, d = sizes[j], widths[j], dims[j]
+        start[j] = at
         X[at:at + size, :w] = ch.X
         m[at:at + size, :d] = ch.m
         Q[at:at + size, :d, :d] = ch.Q
@@ -198,18 +199,20 @@ def arrays(problem) -> Arrays:
         col[j, :d] = ch.index
         addr[j], P[j] = rows.measures[ch.name]
         scale[j] = ch.scale
+        at += size
     strict = problem.strict_slacks
-    out = Arrays(
-        np.ascontiguousarray(problem.q0, dtype=float),
-        np.ascontiguousarray(problem.Q0, dtype=float),
-        np.ascontiguousarray(problem.k, dtype=float), float(problem.eps),
-        rows.c0, rows.r,
+    out = _checked((
+        _of_kind(problem.q0, *_LAYOUT[0]), _of_kind(problem.Q0, *_LAYOUT[1]),
+        _of_kind(problem.k, *_LAYOUT[2]), float(problem.eps),
+        int(rows.c0), int(rows.r),
         np.repeat(np.arange(nch, dtype=np.int64), sizes), X, m, Q, G,
-        col, P, dims, widths, addr, scale, sizes, start,
-        rows.slack, rows.kinds, rows.clauses, rows.T, rows.t,
+        col, P, np.array(dims, dtype=np.int64), np.array(widths, dtype=np.int64), addr,
+        scale, np.array(sizes, dtype=np.int64), start,
+        int(rows.slack), rows.kinds, rows.clauses, rows.T, rows.t,
         np.array([i for i, _ in strict], dtype=np.int64),
         np.array([p for _, p in strict], dtype=np.int64),
-    )
+    ))  # the fields made here of their kinds (RowKernels' too: row_kernels makes them so)
+    link()
     object.__setattr__(problem, "_arrays", out)
     return out
 

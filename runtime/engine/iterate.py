@@ -114,7 +114,7 @@ def damped(A, x, lin, radius, w):
     return solve(A, x, lin, damping_for(A, x, lin, radius, w), w)[1]
 
 
-@jit
+@jit(inline=True)
 def predicted_fall(A, x, lin, s, target_q, lam0):
     fall = -(lin.gradient @ s + 0.5 * (s @ (lin.info @ s)))
     if lam0.size:
@@ -142,7 +142,7 @@ def at_rounding(q, q_new):
     return True
 
 
-@jit
+@jit(inline=True)
 def lowers_violation(trial, trial_violation, x, violation):
     noise = 1e-14 * max(1.0, x.cost)
     return trial_violation < (1 - 1e-4) * violation - noise or (

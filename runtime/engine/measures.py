@@ -37,11 +37,11 @@ _PROJECT_HALVINGS = 4  # halvings of a projector step per measure (eq. 18)
 
 @jit
 def c0_eval(A, q):
-    """``c0 (r)`` and ``C0 (r, n)`` at ``q``."""
+    """``c0 (r)`` and ``C0 (r, n)`` at ``q`` (views of one new array)."""
     n, r = q.size, A.r
     out = np.empty(r + r * n)
     call3(A.c0_addr, np.ascontiguousarray(q), A.k, out)
-    return out[:r].copy(), out[r:].copy().reshape(r, n)
+    return out[:r], out[r:].reshape(r, n)
 
 
 @jit(inline=True)
@@ -274,9 +274,13 @@ def scratch(A, n):
     (:func:`row_buffer`). Allocated once a kernel call."""
     p = equations_max(A)
     d = A.m.shape[1]
-    return (np.zeros((p, d)), np.zeros((p, p)), np.zeros(p), np.zeros(p, dtype=np.bool_),
-            np.zeros(p), np.zeros(p), np.zeros(p), np.zeros(d), np.zeros(d), np.zeros(d),
-            np.zeros(d), row_buffer(A, n))
+    flat = np.zeros(p * d + p * p + 4 * p + 4 * d)  # one allocation, cut into the buffers
+    e, f = p * d, p * d + p * p  # where E and L end; then four of p and four of d
+    return (flat[:e].reshape(p, d), flat[e:f].reshape(p, p), flat[f:f + p],
+            np.zeros(p, dtype=np.bool_), flat[f + p:f + 2 * p], flat[f + 2 * p:f + 3 * p],
+            flat[f + 3 * p:f + 4 * p], flat[f + 4 * p:f + 4 * p + d],
+            flat[f + 4 * p + d:f + 4 * p + 2 * d], flat[f + 4 * p + 2 * d:f + 4 * p + 3 * d],
+            flat[f + 4 * p + 3 * d:f + 4 * p + 4 * d], row_buffer(A, n))
 
 
 @jit(inline=True)

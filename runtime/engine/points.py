@@ -61,7 +61,7 @@ def evaluate(A, q, mt):
     return make_point(A, q, mt, c, C, D)
 
 
-@jit
+@jit(inline=True)
 def finite(x):
     return np.isfinite(x.delta) and np.isfinite(x.cost)
 
@@ -173,13 +173,13 @@ def restored(A, q, mt, root, iterations, retract):
     return x, violation + c0_violation(x, root)
 
 
-@jit
+@jit(inline=True)
 def feasible(violation, cost):
     """The equations hold: their violation negligible against the cost."""
     return violation <= 1e-10 * max(1.0, cost)
 
 
-@jit
+@jit(inline=True)
 def on_constraints(x, violation):
     """The measures on their equations and the parameter on its constraints (rounding)."""
     return feasible(violation, x.cost) and (x.c0.size == 0 or
@@ -283,19 +283,22 @@ def multipliers(x, gradient):
 @jit
 def constraint_curvature(A, q, lam0):
     """``Σ λ0k ∇²c0k`` by central differences of the constraints' Jacobian."""
-    n = q.size
+    n, r = q.size, A.r
     K = np.zeros((n, n))
     scale = max_abs(q)
+    moved = np.ascontiguousarray(q).copy()
+    up, down = np.empty(r + r * n), np.empty(r + r * n)  # c0 then C0 (n by row)
     for j in range(n):
         h = 1e-5 * max(abs(q[j]), 1e-3 * scale, 1e-8)
-        up, down = q.copy(), q.copy()
-        up[j] += h
-        down[j] -= h
-        diff = c0_eval(A, up)[1] - c0_eval(A, down)[1]
+        moved[j] = q[j] + h
+        call3(A.c0_addr, moved, A.k, up)
+        moved[j] = q[j] - h
+        call3(A.c0_addr, moved, A.k, down)
+        moved[j] = q[j]
         for a in range(n):
             acc = 0.0
             for k in range(lam0.size):
-                acc += diff[k, a] * lam0[k]
+                acc += (up[r + k * n + a] - down[r + k * n + a]) * lam0[k]
             K[a, j] = acc / (2 * h)
     return 0.5 * (K + K.T)
 

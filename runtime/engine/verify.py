@@ -55,12 +55,12 @@ def verdict(stationary, decrement, cost, curvature, direction):
     return Verdict(stationary, decrement, cost, curvature, direction, 0, np.zeros(0))
 
 
-@jit
+@jit(inline=True)
 def is_minimum(v):
     return v.stationary and v.plateau == 0 and not v.curvature < -NEGATIVE
 
 
-@jit
+@jit(inline=True)
 def decrement(x, lin, proj):
     """``½ sᵀ H s`` of the tangential part of the projector's step."""
     s = proj.q - x.q
@@ -68,7 +68,7 @@ def decrement(x, lin, proj):
     return max(0.5 * (s @ (lin.H @ s)) - 0.5 * normal, 0.0)
 
 
-@jit
+@jit(inline=True)
 def stationary(A, x, lin, proj):
     return decrement(x, lin, proj) <= STATIONARY * x.cost + cost_rounding(A)
 
