@@ -100,6 +100,7 @@ if NUMBA is not None and not jit.disabled:
             self.kinds = arguments.split()
             self.results = results.split()
             self.function = function
+            self.module = function.__module__
             # the callers need its native code only: no wrappers (their boxing of named
             # tuples of arrays is most of the code of a small kernel)
             self.kernel = NUMBA.njit(cache=True, error_model="numpy",
@@ -199,7 +200,7 @@ if NUMBA is not None and not jit.disabled:
         _LINKED.append(entry)
 
         def stub(*args):
-            link()
+            link(entry.module)
             return entry.python()(*args)
 
         class Call(AbstractTemplate):  # a caller's code: a call through the cell
@@ -231,21 +232,50 @@ def linked(kinds: str, python: bool = False):
     return decorate
 
 
-_filled = 0  # how many of _LINKED (a prefix) have their cells filled
+_linked_for: dict = {}  # roots -> len(_LINKED) when link(*roots) last filled their cells
 
 
-def link() -> None:
-    """Fill every linked kernel's cell (compiled, or loaded from numba's cache). The
-    kernels not in the cache yet are compiled by this process and helper processes at the
-    same time, shares of them each (:func:`processes`): this process then loads theirs
+def reach(roots) -> set:
+    """The modules whose linked kernels the code of ``roots`` (names of modules, or of
+    packages: every module loaded under one) may call: those modules and, transitively, the
+    module of each kernel, function or module their namespaces hold (within kanagen and the
+    modules that define linked kernels)."""
+    owners = {e.module for e in _LINKED}
+    todo = [name for name in list(sys.modules)
+            if any(name == root or name.startswith(root + ".") for root in roots)]
+    seen: set = set()
+    while todo:
+        name = todo.pop()
+        module = sys.modules.get(name)
+        if name in seen or module is None:
+            continue
+        seen.add(name)
+        for value in list(vars(module).values()):
+            owner = value.__name__ if isinstance(value, type(sys)) else \
+                getattr(getattr(value, "py_func", value), "__module__", None)
+            if isinstance(owner, str) and owner not in seen and (
+                    owner.startswith("kanagen.") or owner in owners):
+                todo.append(owner)
+    return seen
+
+
+def link(*roots: str) -> None:
+    """Fill the cells of the linked kernels that the code of the modules (or packages)
+    ``roots`` may call (:func:`reach`; none given: every linked kernel) — compiled, or
+    loaded from numba's cache. A kernel no caller needs is not compiled: the engine's first
+    fit does not compile the two-view closed forms, whose module a program may have loaded.
+    The kernels not in the cache yet are compiled by this process and helper processes at
+    the same time, shares of them each (:func:`processes`): this process then loads theirs
     from the cache they wrote. While the engine is first compiled
     (:func:`kanagen.common.jit.announce`), or when many kernels are (a family's own, the
     first time it is used), a line on stderr and a progress bar on a terminal."""
-    global _filled
-    if _filled == len(_LINKED):
+    if _linked_for.get(roots) == len(_LINKED):
         return
     with _lock:
-        entries = _LINKED[_filled:]
+        count = len(_LINKED)
+        modules = reach(roots) if roots else None
+        entries = [e for e in _LINKED[:count] if e.signature is None and (
+            modules is None or e.module in modules)]
         cold = [e for e in entries if not e.cached()]
         helpers = _start_helpers(cold)
         mine = [e for e in cold if not any(e in share for share, _ in helpers)]
@@ -277,7 +307,7 @@ def link() -> None:
             for _, process in helpers:  # an interrupted link leaves no helper behind
                 if process.poll() is None:
                     process.kill()
-        _filled = len(_LINKED)
+        _linked_for[roots] = count
 
 
 #: At most this many processes compile a cold cache together.

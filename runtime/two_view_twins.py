@@ -381,7 +381,7 @@ def twin_address(name: str) -> int:
     >>> call(2, X.ctypes.data, k3.ctypes.data, out.ctypes.data)
     1
     """
-    link()
+    link(__name__)
     with _lock:
         address = _addresses.get(name)
         if address is None:

@@ -226,3 +226,65 @@ def test_how_many_processes_compile(monkeypatch):
         processes(100)
     monkeypatch.delenv("KANAGEN_COMPILE_PROCESSES")
     assert 1 <= processes(1000) <= MAX_PROCESSES
+
+
+def _halved(x):
+    return 0.5 * x
+
+
+def _quarter(x):
+    return _HALVED(_HALVED(x))
+
+
+def _apart(x):
+    return x + 1.0
+
+
+def test_link_fills_only_what_the_roots_may_call(monkeypatch):
+    """``link(*roots)`` compiles the linked kernels of the modules ``roots`` and of those
+    their namespaces reach, not every kernel a program has loaded (the engine's first fit
+    does not compile the two-view closed forms)."""
+    import sys
+    import types
+
+    from kanagen.common.link import reach
+
+    global _HALVED
+    names = ("kg_test_callee", "kg_test_caller", "kg_test_apart")
+    stubs = {}
+    try:
+        for name, function in zip(names, (_halved, _quarter, _apart), strict=True):
+            monkeypatch.setattr(function, "__module__", name)
+            stubs[name] = linked("f -> f")(function)
+            sys.modules[name] = types.ModuleType(name)
+        _HALVED = stubs[names[0]]
+        vars(sys.modules[names[0]]).update(halved=stubs[names[0]])
+        vars(sys.modules[names[1]]).update(halved=stubs[names[0]], quarter=stubs[names[1]])
+        vars(sys.modules[names[2]]).update(apart=stubs[names[2]])
+        assert reach((names[1],)) >= {names[0], names[1]}
+        assert names[2] not in reach((names[1],))
+        link(names[1])
+        state = {e.module: e.signature is not None for e in _LINKED if e.module in names}
+        assert state == {names[0]: True, names[1]: True, names[2]: False}
+        assert stubs[names[1]](8.0) == 2.0
+        assert stubs[names[2]](1.0) == 2.0  # called from Python: linked then
+    finally:
+        _LINKED[:] = [e for e in _LINKED if e.module not in names]
+        for name in names:
+            sys.modules.pop(name, None)
+
+
+def test_a_fit_does_not_compile_the_vision_kernels_a_program_loaded():
+    import subprocess
+    import sys
+
+    code = ("import numpy as np, kanagen\n"
+            "import kanagen.runtime.two_view_kernels\n"  # loaded (kanagen.scenes loads it)
+            "from kanagen.common.link import _LINKED\n"
+            "fam = kanagen.load('line')\n"
+            "xy = np.array([[0.0, 1.0], [1.0, 2.9], [2.0, 5.1], [3.0, 7.0]])\n"
+            "assert kanagen.fit(fam, 'line', data={'point': xy}).success\n"
+            "print(sorted({e.module for e in _LINKED if e.signature is None}))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, timeout=900)
+    assert out.stdout.strip().splitlines()[-1] == "['kanagen.runtime.two_view_kernels']"

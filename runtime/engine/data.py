@@ -35,6 +35,8 @@ _SCHEMA = (
     ("strict_idx", "i1"), ("strict_pow", "i1"),
 )
 _FIELDS = [name for name, _ in _SCHEMA]
+#: The engine's package: its kernels' linked callees are linked before the arrays are made.
+_ENGINE = __name__.rpartition(".")[0]
 _INDEX = {name: at for at, name in enumerate(_FIELDS)}
 #: Per field: its dtype (a NumPy scalar type, and as a dtype: comparing an array's dtype to
 #: a scalar type costs a microsecond) and rank (0: a number).
@@ -82,7 +84,7 @@ if NUMBA is not None and not jit.disabled:
         """The arrays of one problem (one model, its measures, its prior) for the kernels."""
         values = tuple(_of_kind(v, dtype, described, rank)
                        for v, (dtype, described, rank) in zip(values, _LAYOUT, strict=True))
-        link()
+        link(_ENGINE)
         return _checked(values)
 
     def _checked(values: tuple):
@@ -212,7 +214,7 @@ def arrays(problem) -> Arrays:
         np.array([i for i, _ in strict], dtype=np.int64),
         np.array([p for _, p in strict], dtype=np.int64),
     ))  # the fields made here of their kinds (RowKernels' too: row_kernels makes them so)
-    link()
+    link(_ENGINE)
     object.__setattr__(problem, "_arrays", out)
     return out
 

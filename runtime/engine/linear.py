@@ -21,7 +21,7 @@ from ..sqrt import (
     solve_lower,
     solve_lower_columns,
 )
-from .measures import ROUNDING, correct, factor, residual_into, whiten_column
+from .measures import ROUNDING, correct, factor, residual_into, whiten_column, whiten_rows
 
 
 @linked("A f1 f2 f2 f3 f3 f1 f2 -> f2 f2 f1 f1 f3 f2 f3 f3 f2 b2 i1 f", python=True)
@@ -47,11 +47,11 @@ def linearise(A, q, mt, c, C, D, c0, C0):
     info = A.Q0.copy()
     g = np.zeros(n)
     residual = 0.0
-    cbar, col, wcol, r = np.zeros(pmax), np.zeros(pmax), np.zeros(pmax), np.zeros(pmax)
+    cbar, r = np.zeros(pmax), np.zeros(pmax)
     # the loop's arrays borrowed (kanagen.common.borrow): no reference counts per measure
     bc, bC, bD, bmt, bG, bm = borrow((c, C, D, mt, A.G, A.m))
     bCbar, brbar, bE, bL, binv, bkept = borrow((Cbar, rbar, E, L, inv, kept))
-    bcbar, bcol, bwcol, br = borrow((cbar, col, wcol, r))
+    bcbar, br = borrow((cbar, r))
     for i in range(M):
         ch = A.chan[i]
         p, d = A.P[ch], A.Dn[ch]
@@ -62,19 +62,14 @@ def linearise(A, q, mt, c, C, D, c0, C0):
         residual_into(bD[i], bmt[i], bm[i], bc[i], p, d, br)
         whiten_column(Li, invi, br, p, brbar[i])
         whiten_column(Li, invi, bc[i], p, bcbar)
-        for j in range(n):
-            for a in range(p):
-                bcol[a] = bC[i, a, j]
-            whiten_column(Li, invi, bcol, p, bwcol)
-            for a in range(p):
-                bCbar[i, a, j] = bwcol[a]
+        whiten_rows(Li, invi, bC[i], p, n, bCbar[i])
         for a in range(p):
             residual += bcbar[a] * bcbar[a]
             for j in range(n):
                 g[j] += bCbar[i, a, j] * brbar[i, a]
                 for u in range(j + 1):
                     info[j, u] += bCbar[i, a, j] * bCbar[i, a, u]
-    alive((c, C, D, mt, A, cbar, col, wcol, r))
+    alive((c, C, D, mt, A, cbar, r))
     for j in range(n):
         for u in range(j):
             info[u, j] = info[j, u]

@@ -238,6 +238,18 @@ def whiten_column(L, inv, b, p, out):
 
 
 @jit(inline=True)
+def whiten_rows(L, inv, B, p, n, out):
+    """``out = L⁻¹ B`` for a ``(p, n)`` matrix ``B``: :func:`whiten_column` on each of its
+    ``n`` columns (the same operations), in one pass over its rows."""
+    for a in range(p):
+        for j in range(n):
+            acc = B[a, j]
+            for k in range(a):
+                acc -= L[a, k] * out[k, j]
+            out[a, j] = acc * inv[a]
+
+
+@jit(inline=True)
 def unwhiten_column(L, inv, z, p, y):
     """``y = L⁻ᵀ z`` on the kept equations (``Lᵀ``'s diagonal is ``1 / inv``; dropped ones
     give 0)."""
