@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from kanagen.common.jit import NUMBA, jit
+from kanagen.common.link import linked
 
 # -- LAPACK calls numba's np.linalg does not offer -----------------------------------------
 
@@ -44,9 +45,17 @@ def eigenvalues(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(w.real), np.ascontiguousarray(w.imag)
 
 
+def gesv(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve(A, B)`` for a square ``A`` and a matrix ``B`` (LAPACK's gesv, as
+    NumPy and numba call it; compiled, a direct call: numba's own ``solve`` is a few seconds
+    of compile for its checks of every shape and layout)."""
+    return np.linalg.solve(A, B)
+
+
 if NUMBA is not None:
     from numba import types
     from numba.extending import overload
+    from numba.np.linalg import F_INT_nbtype, F_INT_nptype
 
     _KIND, _NONE = ord("d"), ord("N")  # double precision; no vectors
     _P = types.CPointer(types.float64)
@@ -72,6 +81,28 @@ if NUMBA is not None:
             if info != 0 or a.size == 0 or unused.size == 0:  # the sizes keep them alive
                 raise np.linalg.LinAlgError("SVD did not converge")
             return s
+        return impl
+
+    _GESV = types.ExternalFunction("numba_xgesv", types.intc(
+        types.char, types.intp, types.intp, _P, types.intp, types.CPointer(F_INT_nbtype), _P,
+        types.intp))
+
+    @overload(gesv, jit_options={"cache": True})
+    def _gesv(A, B):
+        def impl(A, B):
+            n, nrhs = A.shape[0], B.shape[1]
+            if not (finite(A) and finite(B)):
+                raise np.linalg.LinAlgError("Array must not contain infs or NaNs")
+            a, b = column_major(A), column_major(B)
+            pivots = np.empty(n, dtype=F_INT_nptype)
+            info = _GESV(_KIND, n, nrhs, a.ctypes, n, pivots.ctypes, b.ctypes, n)
+            if info != 0 or a.size == 0 or pivots.size == 0:  # the sizes keep them alive
+                raise np.linalg.LinAlgError("Matrix is singular to machine precision.")
+            out = np.empty((n, nrhs))
+            for i in range(n):
+                for j in range(nrhs):
+                    out[i, j] = b[j, i]
+            return out
         return impl
 
     @overload(eigenvalues, jit_options={"cache": True})
@@ -146,7 +177,7 @@ def floor0(x: float) -> float:
     return 0.0 if 0.0 > x else x
 
 
-@jit
+@linked("f2 -> f2 f1 f2")
 def svd(A):
     """``np.linalg.svd(A)`` (full matrices), its factors laid out by rows as NumPy's; a
     matrix that is not finite raises, as NumPy's does with a NaN (with an infinity LAPACK
@@ -157,7 +188,7 @@ def svd(A):
     return np.ascontiguousarray(U), S, np.ascontiguousarray(Vt)
 
 
-@jit
+@linked("f2 -> f1 f2")
 def null_space_svd(A):
     """``np.linalg.svd(A)[1:]``, the singular values and ``Vᵀ`` (by rows), of a system whose
     null vectors are wanted: without the left vectors of a tall ``A`` (LAPACK's gesdd
@@ -171,10 +202,17 @@ def null_space_svd(A):
     return S, np.ascontiguousarray(Vt)
 
 
+@linked("f2 f2 -> f2")
+def solved(A, B):
+    """``np.linalg.solve(A, B)`` laid out by rows (:func:`gesv`), compiled once for its
+    callers."""
+    return np.ascontiguousarray(gesv(A, B))
+
+
 @jit
 def inverse(A):
     """``np.linalg.inv``: NumPy solves ``A X = I`` (gesv), numba would factor and invert."""
-    return np.ascontiguousarray(np.linalg.solve(A, np.eye(A.shape[0])))
+    return solved(A, np.eye(A.shape[0]))
 
 
 @jit

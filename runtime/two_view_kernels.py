@@ -36,6 +36,7 @@ from .numpy_rules import (
     put,
     put_matrix,
     singular_values,
+    solved,
     svd,
     unit,
     vector_sum,
@@ -47,7 +48,7 @@ _CUBIC_FROM_VALUES = np.linalg.inv(np.vander(_ALPHAS, 4))  # values at _ALPHAS -
 
 # -- fundamental matrix and homography ------------------------------------------------------
 
-@jit
+@linked("f2 i -> f2", python=True)
 def normalising_transform(X, c: int):
     """Hartley's conditioning of the points in columns ``c, c + 1`` of ``X``: centroid to the
     origin, mean distance √2 (``T``, 3 × 3)."""
@@ -68,7 +69,7 @@ def normalising_transform(X, c: int):
     return T
 
 
-@jit
+@linked("f2 i f2 -> f2")
 def normalised(X, c: int, T):
     """The points of columns ``c, c + 1`` of ``X``, homogeneous, mapped by ``T``."""
     n = X.shape[0]
@@ -78,7 +79,7 @@ def normalised(X, c: int, T):
     return p @ T.T
 
 
-@jit
+@linked("f2 -> f2 f2 f2")
 def epipolar_rows(X):
     """The rows ``p2 ⊗ p1`` of ``p2ᵀ F p1 = 0`` in Hartley's conditioning, and its two
     transforms."""
@@ -177,7 +178,7 @@ def homography_dlt(X):
             A[n + k, j] = p2[k, 2] * p1[k, j]
             A[n + k, 6 + j] = -p2[k, 0] * p1[k, j]
     H = null_space_svd(A)[1][-1].copy().reshape(3, 3)
-    return unit(np.ascontiguousarray(np.linalg.solve(T2, H @ T1)))  # by rows, as NumPy's
+    return unit(solved(T2, H @ T1))  # by rows, as NumPy's
 
 
 @jit
