@@ -6,9 +6,10 @@ LAPACK's arbitrary basis of a null space — is written with these:
 
 * LAPACK as NumPy calls it: numba's ``np.linalg`` runs the same routines (SciPy's build of
   LAPACK, NumPy has its own: the same results here, tests/test_two_view_kernels.py), its
-  factors laid out by rows as NumPy returns them (:func:`svd`); :func:`singular_values` and
-  :func:`eigenvalues` for the two calls numba's lacks; ``np.linalg.inv`` solved as NumPy
-  solves it (:func:`inverse`);
+  factors laid out by rows as NumPy returns them (:func:`svd`); :mod:`.lapack`'s direct
+  calls for the two numba's lacks (``singular_values``, ``eigenvalues``) and for ``solve``
+  (``gesv``, whose numba wrapper is seconds of compile); ``np.linalg.inv`` solved as NumPy
+  solves it (:func:`inverse`); the shared parts linked kernels, compiled once;
 * products through BLAS where NumPy's went through it (``@``, ``np.dot``, :func:`norm`), the
   operands in the same layouts (a transposed operand stays a transposed view: a copy can
   change BLAS's order of sums);
@@ -25,124 +26,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from kanagen.common.jit import NUMBA, jit
+from kanagen.common.jit import jit
 from kanagen.common.link import linked
 
-# -- LAPACK calls numba's np.linalg does not offer -----------------------------------------
-
-def singular_values(A: np.ndarray) -> np.ndarray:
-    """The singular values of ``A``, decreasing: ``np.linalg.svd(A, compute_uv=False)``
-    (LAPACK's gesdd without vectors, whose values may differ in the last bit from those
-    computed with them)."""
-    return np.linalg.svd(A, compute_uv=False)
-
-
-def eigenvalues(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The real and imaginary parts of the eigenvalues of the real square ``A``, in
-    LAPACK's order: ``np.linalg.eigvals(A)`` (geev without vectors; numba's own refuses a
-    real matrix with complex eigenvalues)."""
-    w = np.linalg.eigvals(A)
-    return np.ascontiguousarray(w.real), np.ascontiguousarray(w.imag)
-
-
-def gesv(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """``np.linalg.solve(A, B)`` for a square ``A`` and a matrix ``B`` (LAPACK's gesv, as
-    NumPy and numba call it; compiled, a direct call: numba's own ``solve`` is a few seconds
-    of compile for its checks of every shape and layout)."""
-    return np.linalg.solve(A, B)
-
-
-if NUMBA is not None:
-    from numba import types
-    from numba.extending import overload
-    from numba.np.linalg import F_INT_nbtype, F_INT_nptype
-
-    _KIND, _NONE = ord("d"), ord("N")  # double precision; no vectors
-    _P = types.CPointer(types.float64)
-    # numba's LAPACK helpers (numba/_lapack.c, as numba.np.linalg declares them): a
-    # workspace query, then the routine; the LAPACK is SciPy's, as for np.linalg in numba
-    _GESDD = types.ExternalFunction("numba_ez_gesdd", types.intc(
-        types.char, types.char, types.intp, types.intp, _P, types.intp, _P, _P, types.intp,
-        _P, types.intp))
-    _GEEV = types.ExternalFunction("numba_ez_rgeev", types.intc(
-        types.char, types.char, types.char, types.intp, _P, types.intp, _P, _P, _P,
-        types.intp, _P, types.intp))
-
-    @overload(singular_values, jit_options={"cache": True})
-    def _singular_values(A):
-        def impl(A):
-            m, n = A.shape
-            if not finite(A):
-                raise np.linalg.LinAlgError("SVD did not converge")
-            a = column_major(A)
-            s, unused = np.empty(min(m, n)), np.empty(1)
-            info = _GESDD(_KIND, _NONE, m, n, a.ctypes, m, s.ctypes, unused.ctypes, 1,
-                          unused.ctypes, 1)
-            if info != 0 or a.size == 0 or unused.size == 0:  # the sizes keep them alive
-                raise np.linalg.LinAlgError("SVD did not converge")
-            return s
-        return impl
-
-    _GESV = types.ExternalFunction("numba_xgesv", types.intc(
-        types.char, types.intp, types.intp, _P, types.intp, types.CPointer(F_INT_nbtype), _P,
-        types.intp))
-
-    @overload(gesv, jit_options={"cache": True})
-    def _gesv(A, B):
-        def impl(A, B):
-            n, nrhs = A.shape[0], B.shape[1]
-            if not (finite(A) and finite(B)):
-                raise np.linalg.LinAlgError("Array must not contain infs or NaNs")
-            a, b = column_major(A), column_major(B)
-            pivots = np.empty(n, dtype=F_INT_nptype)
-            info = _GESV(_KIND, n, nrhs, a.ctypes, n, pivots.ctypes, b.ctypes, n)
-            if info != 0 or a.size == 0 or pivots.size == 0:  # the sizes keep them alive
-                raise np.linalg.LinAlgError("Matrix is singular to machine precision.")
-            out = np.empty((n, nrhs))
-            for i in range(n):
-                for j in range(nrhs):
-                    out[i, j] = b[j, i]
-            return out
-        return impl
-
-    @overload(eigenvalues, jit_options={"cache": True})
-    def _eigenvalues(A):
-        def impl(A):
-            n = A.shape[0]
-            if not finite(A):
-                raise np.linalg.LinAlgError("Array must not contain infs or NaNs")
-            a = column_major(A)
-            wr, wi, unused = np.empty(n), np.empty(n), np.empty(1)
-            info = _GEEV(_KIND, _NONE, _NONE, n, a.ctypes, n, wr.ctypes, wi.ctypes,
-                         unused.ctypes, 1, unused.ctypes, 1)
-            if info != 0 or a.size == 0 or unused.size == 0:
-                raise np.linalg.LinAlgError("Eigenvalues did not converge")
-            return wr, wi
-        return impl
-
+from .lapack import (  # noqa: F401 - LAPACK as NumPy calls it, for the two-view kernels
+    column_major,
+    eigenvalues,
+    finite,
+    gesv,
+    least_squares,
+    singular_values,
+)
 
 # -- NumPy's rules ---------------------------------------------------------------------------
-
-@jit
-def column_major(A):
-    """A copy of the matrix ``A`` laid out by columns (LAPACK's order; LAPACK overwrites
-    it): ``A[i, j]`` at ``j * rows + i``."""
-    m, n = A.shape
-    a = np.empty((n, m))
-    for i in range(m):
-        for j in range(n):
-            a[j, i] = A[i, j]
-    return a
-
-
-@jit
-def finite(A) -> bool:
-    """Every entry of ``A`` is finite."""
-    for v in A.flat:
-        if not np.isfinite(v):
-            return False
-    return True
-
 
 @jit
 def vector_sum(a) -> float:

@@ -13,6 +13,7 @@ import numpy as np
 from kanagen.common.jit import jit
 from kanagen.common.link import linked, record_kind
 
+from ..lapack import least_squares
 from ..sqrt import EPS, REDUNDANT, closest_root
 from .jacobi import row_svd, sym_eigh
 from .linear import corrected, linearise, parameter_block, retraction_step, whitened_violation
@@ -264,7 +265,7 @@ def multipliers(x, gradient):
     cut = np.finfo(np.float64).eps * max(n, r)
     R, W, S = np.empty((r, n)), np.empty((r, r)), np.empty(r)
     if r > n or row_svd(x.C0, R, W, S) < 0 or not S.min() > 1e3 * cut * S.max():
-        return np.linalg.lstsq(np.ascontiguousarray(x.C0.T), -gradient, rcond=cut)[0]
+        return least_squares(np.ascontiguousarray(x.C0.T), -gradient, cut)
     mu = np.zeros(r)
     for k in range(r):
         acc = 0.0
