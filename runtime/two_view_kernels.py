@@ -192,7 +192,7 @@ def _squared(G, e, p, p_other) -> float:
     return -np.dot(aG, p) * np.dot(p, Gtp) / den if den != 0 else np.inf
 
 
-@jit
+@linked("f2 -> f1 f1", python=True)
 def epipoles(F):
     """``(e1, e2)`` with ``F e1 = 0`` and ``Fᵀ e2 = 0``: the singular vectors of ``F``'s
     least singular value (unit)."""

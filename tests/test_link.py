@@ -292,3 +292,24 @@ def test_a_fit_does_not_compile_the_vision_kernels_a_program_loaded():
     left = set(json.loads(out.stdout.strip().splitlines()[-1]))
     assert "kanagen.runtime.two_view_kernels" in left
     assert left <= {"kanagen.runtime.two_view_kernels", "kanagen.runtime.numpy_rules"}
+
+
+def test_the_closed_forms_called_first_from_python_in_a_fresh_process():
+    """A kernel called from Python links what it calls, whatever ran before it: the public
+    closed forms first thing in a process whose cache holds them (epipoles calls the linked
+    SVD: it used to be an ordinary kernel, whose cached code found the SVD's cell empty)."""
+    import subprocess
+    import sys
+
+    code = ("import numpy as np\n"
+            "from kanagen.runtime import geometry\n"
+            "F = np.array([[0, -1e-3, 0.1], [1e-3, 0, -0.2], [-0.1, 0.2, 1.0]])\n"
+            "geometry.epipoles(F)\n"
+            "X = np.random.default_rng(0).uniform(0, 500, (8, 4))\n"
+            "geometry.fundamental_8point(X[:, :2], X[:, 2:])\n"
+            "geometry.homography_dlt(X[:, :2], X[:, 2:])\n"
+            "print('ok')\n")
+    for _ in range(2):  # the second run loads every kernel from the cache
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                             timeout=900)
+        assert out.returncode == 0 and out.stdout.strip().endswith("ok"), out.stderr[-2000:]
