@@ -251,12 +251,21 @@ def reach(roots) -> set:
             continue
         seen.add(name)
         for value in list(vars(module).values()):
-            owner = value.__name__ if isinstance(value, type(sys)) else \
-                getattr(getattr(value, "py_func", value), "__module__", None)
+            owner = _owner(value)
             if isinstance(owner, str) and owner not in seen and (
                     owner.startswith("kanagen.") or owner in owners):
                 todo.append(owner)
     return seen
+
+
+def _owner(value):
+    """The name of the module that defines ``value`` (a module's own name), or None."""
+    if isinstance(value, type(sys)):
+        return value.__name__
+    try:  # any object: a proxy's attribute lookup may do anything
+        return getattr(getattr(value, "py_func", value), "__module__", None)
+    except Exception:  # noqa: BLE001 - an object that cannot say is no kernel's
+        return None
 
 
 def link(*roots: str) -> None:
