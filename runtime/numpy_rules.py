@@ -29,12 +29,10 @@ import numpy as np
 from kanagen.common.jit import jit
 from kanagen.common.link import linked
 
-from .lapack import (  # noqa: F401 - LAPACK as NumPy calls it, for the two-view kernels
-    column_major,
+from .lapack import (  # noqa: F401 - eigenvalues, singular_values: for the two-view kernels
     eigenvalues,
     finite,
     gesv,
-    least_squares,
     singular_values,
 )
 

@@ -81,22 +81,13 @@ if NUMBA is not None and not jit.disabled:
     kind("A", lambda: ArraysType([(name, KINDS[k]()) for name, k in _SCHEMA]))
 
     def Arrays(*values):  # noqa: N802 - the record's constructor
-        """The arrays of one problem (one model, its measures, its prior) for the kernels."""
-        values = tuple(_of_kind(v, dtype, described, rank)
-                       for v, (dtype, described, rank) in zip(values, _LAYOUT, strict=True))
-        link(_ENGINE)
-        return _checked(values)
-
-    def _checked(values: tuple):
-        """The record of ``values`` already of their fields' kinds (:func:`Arrays`')."""
+        """The arrays of one problem (one model, its measures, its prior) for the kernels:
+        ``values`` in :data:`_SCHEMA`'s order, each of its field's kind (:func:`_of_kind`)."""
         proxy = _Proxy(*values)
         proxy.__dict__["_record"] = values
         return proxy
 else:  # interpreted: a plain record
     Arrays = namedtuple("Arrays", _FIELDS)
-
-    def _checked(values: tuple):
-        return Arrays(*values)
 
 
 def _row_address(module, function, arity: int) -> int:
@@ -203,9 +194,10 @@ def arrays(problem) -> Arrays:
         scale[j] = ch.scale
         at += size
     strict = problem.strict_slacks
-    out = _checked((
-        _of_kind(problem.q0, *_LAYOUT[0]), _of_kind(problem.Q0, *_LAYOUT[1]),
-        _of_kind(problem.k, *_LAYOUT[2]), float(problem.eps),
+    out = Arrays(
+        _of_kind(problem.q0, *_LAYOUT[_INDEX["q0"]]),
+        _of_kind(problem.Q0, *_LAYOUT[_INDEX["Q0"]]),
+        _of_kind(problem.k, *_LAYOUT[_INDEX["k"]]), float(problem.eps),
         int(rows.c0), int(rows.r),
         np.repeat(np.arange(nch, dtype=np.int64), sizes), X, m, Q, G,
         col, P, np.array(dims, dtype=np.int64), np.array(widths, dtype=np.int64), addr,
@@ -213,7 +205,7 @@ def arrays(problem) -> Arrays:
         int(rows.slack), rows.kinds, rows.clauses, rows.T, rows.t,
         np.array([i for i, _ in strict], dtype=np.int64),
         np.array([p for _, p in strict], dtype=np.int64),
-    ))  # the fields made here of their kinds (RowKernels' too: row_kernels makes them so)
+    )  # the fields made here of their kinds (RowKernels' too: row_kernels makes them so)
     link(_ENGINE)
     object.__setattr__(problem, "_arrays", out)
     return out
@@ -276,7 +268,7 @@ def _subset(A: Arrays, rows: tuple) -> Arrays:
     values = list(A.__dict__["_record"] if hasattr(A, "__dict__") else A)  # interpreted: a tuple
     for name, value in zip(_GATHERED, _gathered(A, flat, counts), strict=True):
         values[_INDEX[name]] = value
-    return _checked(tuple(values))  # the parent's fields and the kernel's: of their kinds
+    return Arrays(*values)  # the parent's fields and the kernel's: of their kinds
 
 
 def pack_measures(A: Arrays, mt) -> np.ndarray:

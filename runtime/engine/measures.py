@@ -287,12 +287,12 @@ def scratch(A, n):
     p = equations_max(A)
     d = A.m.shape[1]
     flat = np.zeros(p * d + p * p + 4 * p + 4 * d)  # one allocation, cut into the buffers
-    e, f = p * d, p * d + p * p  # where E and L end; then four of p and four of d
-    return (flat[:e].reshape(p, d), flat[e:f].reshape(p, p), flat[f:f + p],
-            np.zeros(p, dtype=np.bool_), flat[f + p:f + 2 * p], flat[f + 2 * p:f + 3 * p],
-            flat[f + 3 * p:f + 4 * p], flat[f + 4 * p:f + 4 * p + d],
-            flat[f + 4 * p + d:f + 4 * p + 2 * d], flat[f + 4 * p + 2 * d:f + 4 * p + 3 * d],
-            flat[f + 4 * p + 3 * d:f + 4 * p + 4 * d], row_buffer(A, n))
+    square = p * d + p * p
+    of_p = flat[square:square + 4 * p].reshape(4, p)  # four buffers of p, then four of d
+    of_d = flat[square + 4 * p:].reshape(4, d)
+    return (flat[:p * d].reshape(p, d), flat[p * d:square].reshape(p, p), of_p[0],
+            np.zeros(p, dtype=np.bool_), of_p[1], of_p[2], of_p[3], of_d[0], of_d[1],
+            of_d[2], of_d[3], row_buffer(A, n))
 
 
 @jit(inline=True)
