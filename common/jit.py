@@ -4,7 +4,9 @@ A kernel is written once, in the subset of Python and NumPy that numba compiles 
 small fixed-size matrices, no Python objects); the same source runs interpreted where numba
 is missing or ``NUMBA_DISABLE_JIT=1`` is set (for debugging: slower, the same answers up to
 rounding). Compiled kernels are cached on disk (numba's cache, in the user's cache directory:
-:func:`_cache_dir`), so a kernel is compiled once per machine and signature.
+:func:`_cache_dir`), so a kernel is compiled once per machine and signature. An installed
+kanagen ships the cache of its shipped families' kernels, compiled when its wheel was built
+(:mod:`kanagen.precompile`); an empty cache is seeded from it (:func:`seed`).
 
 Numba's cache keys a kernel by its own file only: a kernel calling a kernel of another file
 would keep the old callee after that file changed. The cache directory is therefore named
@@ -65,7 +67,38 @@ def _import_numba():
     if not os.environ.get("NUMBA_CACHE_DIR"):
         numba.config.CACHE_DIR = _cache_dir()
         _locate_by_package(numba)
+        if not numba.config.DISABLE_JIT:
+            seed(Path(numba.config.CACHE_DIR))
     return numba
+
+
+#: The kernels compiled when the wheel was built, beside the package's modules:
+#: ``kernels/<digest>`` (none in a source checkout).
+SHIPPED_KERNELS = _RUNTIME.parent / "kernels"
+
+
+def seed(cache: Path, shipped: Path = SHIPPED_KERNELS) -> bool:
+    """Fill ``cache`` (a kernel cache folder, named by the sources' digest) from the
+    kernels shipped for the same digest when ``cache`` does not exist yet: the package's
+    first process on a machine then loads its kernels instead of compiling them (~40 s).
+    numba checks every entry as it loads it (the source's content, numba's version, the
+    processor): an entry compiled for another is compiled again, as in an empty cache.
+    The copy is made beside ``cache`` and renamed into place, so that processes starting
+    together never read a half-copied cache; True when this call seeded it."""
+    source = shipped / cache.name
+    if cache.exists() or not source.is_dir():
+        return False
+    import shutil
+
+    partial = cache.with_name(f"{cache.name}.seeding-{os.getpid()}")
+    try:
+        shutil.copytree(source, partial)
+        partial.rename(cache)
+    except OSError:  # another process was first, or the cache is not writable
+        shutil.rmtree(partial, ignore_errors=True)
+        return False
+    prune(cache)
+    return True
 
 
 def _locate_by_package(numba) -> None:
@@ -97,10 +130,6 @@ def _locate_by_package(numba) -> None:
 
     if not any(getattr(c, "__name__", "") == "PackageLocator" for c in impl._locator_classes):
         impl._locator_classes = [PackageLocator, *impl._locator_classes]
-
-
-#: numba, or None where it cannot be imported.
-NUMBA = _import_numba()
 
 
 def jit(function=None, *, inline: bool = False):
@@ -182,6 +211,10 @@ def prune(current: Path) -> list[Path]:
         shutil.rmtree(folder, ignore_errors=True)
         removed.append(folder)
     return removed
+
+
+#: numba, or None where it cannot be imported.
+NUMBA = _import_numba()
 
 
 #: True when :func:`announce` found the cache empty: the kernels are being compiled.
