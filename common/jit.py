@@ -30,10 +30,11 @@ KERNEL_SOURCES = ("runtime/sqrt.py", "runtime/lapack.py", "runtime/engine/*.py",
                   "runtime/two_view_twins.py")
 
 
-def _sources_digest() -> str:
+def _sources_digest(root: Path = _RUNTIME.parent) -> str:
+    """The digest of the kernels' sources of the package at ``root`` (this one's)."""
     digest = hashlib.sha256()
     for pattern in KERNEL_SOURCES:
-        for path in sorted(_RUNTIME.parent.glob(pattern)):
+        for path in sorted(root.glob(pattern)):
             digest.update(path.name.encode())
             digest.update(path.read_bytes())
     return digest.hexdigest()[:16]
@@ -193,8 +194,10 @@ KEEP_OTHERS = 2
 def prune(current: Path) -> list[Path]:
     """Remove the caches of kernel sources other than ``current`` (its siblings, named by
     digest) except the :data:`KEEP_OTHERS` most recently written: each holds 30–140 MB,
-    and every kanagen upgrade starts a new one. Returns the folders removed."""
+    and every kanagen upgrade starts a new one; and the partial copies of a :func:`seed`
+    left by a process killed while copying (an hour old). Returns the folders removed."""
     import shutil
+    import time
 
     def written(folder: Path) -> float:
         return max((f.stat().st_mtime for f in folder.rglob("*") if f.is_file()),
@@ -207,7 +210,12 @@ def prune(current: Path) -> list[Path]:
     except OSError:
         return []
     removed = []
-    for folder in others[KEEP_OTHERS:]:
+    try:
+        stale = [f for f in current.parent.iterdir() if ".seeding-" in f.name
+                 and f.stat().st_mtime < time.time() - 3600]
+    except OSError:
+        stale = []
+    for folder in others[KEEP_OTHERS:] + stale:
         shutil.rmtree(folder, ignore_errors=True)
         removed.append(folder)
     return removed

@@ -41,9 +41,15 @@ def test_seeding_prunes_the_caches_of_other_sources(tmp_path):
         f.mkdir(parents=True)
         (f / "x.nbi").write_bytes(b"")
         os.utime(f / "x.nbi", (1e9 + i, 1e9 + i))
+    killed = folder / "0123456789abcdef.seeding-12345"  # a copy its process did not finish
+    killed.mkdir()
+    os.utime(killed, (1e9, 1e9))
+    recent = folder / "0123456789abcdef.seeding-12346"  # another process copying now
+    recent.mkdir()
     assert jit.seed(folder / "0123456789abcdef", shipped)
     left = sorted(p.name for p in folder.iterdir())
-    assert left == sorted(["0123456789abcdef", *(f.name for f in old[-jit.KEEP_OTHERS:])])
+    assert left == sorted(["0123456789abcdef", recent.name,
+                           *(f.name for f in old[-jit.KEEP_OTHERS:])])
 
 
 @pytest.mark.skipif(jit.NUMBA is None or jit.jit.disabled, reason="kernels run interpreted")
@@ -82,6 +88,30 @@ def test_a_first_fit_loads_the_shipped_kernels_instead_of_compiling(tmp_path):
     assert "compiling the estimator's kernels" not in out.stderr
     for name, content in indexes.items():
         assert (Path(cache) / name).read_bytes() == content, name
+
+
+def test_an_installed_kanagen_ships_the_kernels_of_its_sources():
+    """The wheel's build step ran: an installed kanagen (the one ``pip install .`` made of
+    these sources; CI installs it so) holds the engine's kernels under their digest."""
+    import json
+    from importlib import metadata
+
+    # pip's install (a RECORD), not the metadata a build leaves in the checkout
+    installed = [d for d in metadata.distributions(name="kanagen") if d.read_text("RECORD")]
+    if not installed:
+        pytest.skip("kanagen is not installed by pip")
+    dist = installed[0]
+    direct = json.loads(dist.read_text("direct_url.json") or "{}")
+    if direct.get("dir_info", {}).get("editable"):
+        pytest.skip("an editable install ships no kernels (they compile at first use)")
+    digest = jit._sources_digest(Path(dist.locate_file("kanagen")))
+    if digest != jit._sources_digest():
+        pytest.skip("the installed kanagen's kernels are of other sources than these")
+    folder = f"kanagen/kernels/{digest}/kanagen_engine/"
+    if os.environ.get("KANAGEN_PRECOMPILE", "1").strip() == "0":
+        pytest.skip("KANAGEN_PRECOMPILE=0: the build step was skipped")
+    assert any(str(f).startswith(folder) and str(f).endswith(".nbi")
+               for f in dist.files or ()), f"no {folder}*.nbi in the installed kanagen"
 
 
 def test_the_build_step_workload_runs_every_shipped_family():
