@@ -132,8 +132,8 @@ def main(argv=None) -> int:
         return 1
     start = time.perf_counter()
     outcome = precompile(echo=lambda line: print(line, file=sys.stderr, flush=True))
-    print(f"compiled in {time.perf_counter() - start:.0f} s; cached in "
-          f"{NUMBA.config.CACHE_DIR}", file=sys.stderr)
+    print(f"done in {time.perf_counter() - start:.0f} s (the kernels compiled, or loaded "
+          f"where cached already); cached in {NUMBA.config.CACHE_DIR}", file=sys.stderr)
     return 0 if any(v == "ok" for v in outcome.values()) else 1
 
 
