@@ -8,6 +8,7 @@ install (its kernels are compiled at first use, into the user's cache), nor with
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -18,18 +19,23 @@ from setuptools.command.build_py import build_py as _build_py
 class build_py(_build_py):  # noqa: N801 - setuptools' command name
     def run(self):
         super().run()
+        kernels = Path(self.build_lib).resolve() / "kanagen" / "kernels"
+        shutil.rmtree(kernels, ignore_errors=True)  # an earlier build's, in build/lib
         if getattr(self, "editable_mode", False) or \
                 os.environ.get("KANAGEN_PRECOMPILE", "1").strip() == "0":
             return
-        lib = Path(self.build_lib).resolve()
+        lib = kernels.parent.parent
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(
             [str(lib), *filter(None, [os.environ.get("PYTHONPATH")])]),
             KANAGEN_BACKEND="numpy")  # the kernels are the same on every backend
         print("compiling the shipped families' kernels (kanagen.precompile, ~1-2 minutes)",
               flush=True)
-        done = subprocess.run([sys.executable, "-m", "kanagen.precompile",
-                               str(lib / "kanagen" / "kernels")], env=env, cwd=lib,
-                              check=False)
-        if done.returncode != 0:
-            self.warn("kanagen: the kernels could not be compiled while building; they will "
-                      "be compiled at first use")
+        try:
+            done = subprocess.run([sys.executable, "-m", "kanagen.precompile", str(kernels)],
+                                  env=env, cwd=lib, check=False, timeout=3600).returncode
+        except (OSError, subprocess.SubprocessError) as exc:
+            done = exc
+        if done != 0:
+            shutil.rmtree(kernels, ignore_errors=True)
+            self.warn(f"kanagen: the kernels could not be compiled while building ({done}); "
+                      "they will be compiled at first use")

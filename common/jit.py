@@ -74,28 +74,62 @@ def _import_numba():
 
 
 #: The kernels compiled when the wheel was built, beside the package's modules:
-#: ``kernels/<digest>`` (none in a source checkout).
+#: ``kernels/<digest>`` (none in a source checkout), with :data:`SHIPPED_MANIFEST`.
 SHIPPED_KERNELS = _RUNTIME.parent / "kernels"
+#: The file of a shipped kernels' folder naming what they were compiled for
+#: (:func:`kernel_target`).
+SHIPPED_MANIFEST = "kanagen-kernels.json"
 
 
-def seed(cache: Path, shipped: Path = SHIPPED_KERNELS) -> bool:
+def kernel_target() -> dict:
+    """What numba's cached code is valid for in this process: numba's, NumPy's and
+    Python's versions and numba's processor (its target triple, name and features, as
+    numba keys its cache entries: ``NUMBA_CPU_NAME`` included)."""
+    import numba
+    import numpy
+    from numba.core.registry import cpu_target
+
+    return {"numba": numba.__version__,
+            "numpy": ".".join(numpy.__version__.split(".")[:2]),
+            "python": "{}.{}".format(*sys.version_info[:2]),
+            "processor": list(cpu_target.target_context.codegen().magic_tuple())}
+
+
+def seed(cache: Path, shipped: Path = SHIPPED_KERNELS, target: dict | None = None) -> bool:
     """Fill ``cache`` (a kernel cache folder, named by the sources' digest) from the
-    kernels shipped for the same digest when ``cache`` does not exist yet: the package's
-    first process on a machine then loads its kernels instead of compiling them (~40 s).
-    numba checks every entry as it loads it (the source's content, numba's version, the
-    processor): an entry compiled for another is compiled again, as in an empty cache.
-    The copy is made beside ``cache`` and renamed into place, so that processes starting
-    together never read a half-copied cache; True when this call seeded it."""
-    source = shipped / cache.name
-    if cache.exists() or not source.is_dir():
-        return False
+    kernels shipped for the same digest when ``cache`` does not exist yet and they were
+    compiled for this process (their :data:`SHIPPED_MANIFEST` is ``target``, default
+    :func:`kernel_target`): the package's first process on a machine then loads its
+    kernels instead of compiling them (~40 s). Kernels compiled for another numba,
+    processor ... are not copied: the cache stays empty and the first use compiles, saying
+    so. The files are copied with the user's permissions (a read-only install gives a
+    writable cache) into a folder of this process's own beside ``cache``, renamed into
+    place, so that processes starting together never read a half-copied cache. Never
+    raises; True when this call seeded ``cache``."""
+    import json
     import shutil
+    import tempfile
 
-    partial = cache.with_name(f"{cache.name}.seeding-{os.getpid()}")
+    source = shipped / cache.name
     try:
-        shutil.copytree(source, partial)
+        if cache.exists() or not source.is_dir():
+            return False
+        made_for = json.loads((source / SHIPPED_MANIFEST).read_text())
+        if made_for != (kernel_target() if target is None else target):
+            return False
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        partial = Path(tempfile.mkdtemp(prefix=f"{cache.name}.seeding-", dir=cache.parent))
+    except Exception:  # noqa: BLE001 - no manifest, unreadable, a cache not writable ...
+        return False
+    try:
+        for folder, _, files in os.walk(source):
+            into = partial / Path(folder).relative_to(source)
+            into.mkdir(exist_ok=True)
+            for name in files:
+                if name != SHIPPED_MANIFEST:
+                    shutil.copyfile(Path(folder) / name, into / name)
         partial.rename(cache)
-    except OSError:  # another process was first, or the cache is not writable
+    except OSError:  # another process was first, or a copy failed
         shutil.rmtree(partial, ignore_errors=True)
         return False
     prune(cache)

@@ -20,6 +20,7 @@ generated scenes with outliers).
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shutil
 import sys
@@ -95,25 +96,40 @@ def precompile(families=SHIPPED, *, echo=None) -> dict[str, str]:
 
 
 def _into(target: Path) -> int:
-    """Compile in a fresh cache (a child process: the cache folder is fixed at import), and
-    copy it to ``target/<digest>``; 0, or 1 when nothing could be compiled."""
+    """Compile in a fresh cache (a child process: the cache folder is fixed at import, and
+    numba's settings from the environment are left out: its cache does not key them), and
+    copy that cache with its manifest (:func:`~kanagen.common.jit.kernel_target`) to
+    ``target/<digest>``, replacing what ``target`` held; 0, or 1 when nothing could be
+    compiled (``target`` then holds nothing)."""
     import subprocess
 
+    shutil.rmtree(target, ignore_errors=True)  # first: no kernels to seed from at import
+    from .common.jit import SHIPPED_MANIFEST
+
     with tempfile.TemporaryDirectory(prefix="kanagen-kernels-") as cache:
-        env = dict(os.environ, XDG_CACHE_HOME=cache, KANAGEN_CACHE=str(Path(cache) / "specs"))
-        env.pop("NUMBA_CACHE_DIR", None)
-        env.pop("NUMBA_DISABLE_JIT", None)
-        done = subprocess.run([sys.executable, "-m", "kanagen.precompile"], env=env,
-                              check=False)
+        env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
+        env.update(XDG_CACHE_HOME=cache, KANAGEN_CACHE=str(Path(cache) / "specs"))
+        try:
+            done = subprocess.run([sys.executable, "-m", "kanagen.precompile", "--manifest"],
+                                  env=env, check=False, timeout=3600).returncode
+        except subprocess.TimeoutExpired:
+            done = "timed out"
         kernels = Path(cache) / "kanagen" / "numba"
         folders = [f for f in kernels.iterdir() if f.is_dir()] if kernels.is_dir() else []
-        if done.returncode != 0 or len(folders) != 1:
-            print(f"kanagen.precompile: no kernels to ship (exit {done.returncode})",
+        if done != 0 or len(folders) != 1 or not (folders[0] / SHIPPED_MANIFEST).is_file():
+            print(f"kanagen.precompile: no kernels to ship (exit {done})", file=sys.stderr)
+            return 1
+        partial = target.with_name(target.name + ".partial")  # then renamed: all or none
+        shutil.rmtree(partial, ignore_errors=True)
+        try:
+            shutil.copytree(folders[0], partial / folders[0].name,
+                            ignore=shutil.ignore_patterns("*.lock", "*.tmp*"))
+            partial.rename(target)
+        except OSError as exc:
+            shutil.rmtree(partial, ignore_errors=True)
+            print(f"kanagen.precompile: the kernels could not be copied ({exc})",
                   file=sys.stderr)
             return 1
-        shutil.rmtree(target, ignore_errors=True)  # ours: no other sources' kernels left
-        shutil.copytree(folders[0], target / folders[0].name,
-                        ignore=shutil.ignore_patterns("*.lock", "*.tmp"), dirs_exist_ok=True)
     return 0
 
 
@@ -122,16 +138,20 @@ def main(argv=None) -> int:
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("into", nargs="?", type=Path,
                         help="compile in a fresh cache and copy it to INTO/<digest>")
+    parser.add_argument("--manifest", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.into is not None:
         return _into(args.into)
-    from .common.jit import NUMBA
+    from .common.jit import NUMBA, SHIPPED_MANIFEST, kernel_target
 
     if NUMBA is None or NUMBA.config.DISABLE_JIT:
         print("kanagen.precompile: numba is not in use; nothing to compile", file=sys.stderr)
         return 1
     start = time.perf_counter()
     outcome = precompile(echo=lambda line: print(line, file=sys.stderr, flush=True))
+    if args.manifest:  # what the kernels were compiled for (common/jit.py: seed reads it)
+        Path(NUMBA.config.CACHE_DIR, SHIPPED_MANIFEST).write_text(
+            json.dumps(kernel_target(), indent=1) + "\n")
     print(f"done in {time.perf_counter() - start:.0f} s (the kernels compiled, or loaded "
           f"where cached already); cached in {NUMBA.config.CACHE_DIR}", file=sys.stderr)
     return 0 if any(v == "ok" for v in outcome.values()) else 1

@@ -3,6 +3,7 @@ seeding of an empty cache from them (common/jit.py: seed)."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -16,40 +17,88 @@ from kanagen.common import jit
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_an_empty_cache_is_seeded_from_the_shipped_kernels(tmp_path):
+TARGET = {"numba": "0.68.1", "numpy": "2.4", "python": "3.11", "processor": ["x", "cpu", "+f"]}
+DIGEST = "0123456789abcdef"
+
+
+def _shipped(tmp_path, target=TARGET) -> Path:
+    """A shipped kernels' folder of digest :data:`DIGEST` compiled for ``target``, read-only
+    as an installed package may be."""
     shipped = tmp_path / "kernels"
-    (shipped / "0123456789abcdef" / "kanagen_engine").mkdir(parents=True)
-    (shipped / "0123456789abcdef" / "kanagen_engine" / "a.nbi").write_bytes(b"index")
-    cache = tmp_path / "cache" / "kanagen" / "numba" / "0123456789abcdef"
-    assert jit.seed(cache, shipped)
+    engine = shipped / DIGEST / "kanagen_engine"
+    engine.mkdir(parents=True)
+    (engine / "a.nbi").write_bytes(b"index")
+    (shipped / DIGEST / jit.SHIPPED_MANIFEST).write_text(json.dumps(target))
+    for path in (engine / "a.nbi", engine, shipped / DIGEST):
+        path.chmod(0o444 if path.is_file() else 0o555)
+    return shipped
+
+
+def test_an_empty_cache_is_seeded_from_the_shipped_kernels(tmp_path):
+    shipped = _shipped(tmp_path)
+    cache = tmp_path / "cache" / "kanagen" / "numba" / DIGEST
+    assert jit.seed(cache, shipped, TARGET)
     assert (cache / "kanagen_engine" / "a.nbi").read_bytes() == b"index"
-    assert sorted(p.name for p in cache.parent.iterdir()) == ["0123456789abcdef"]  # no partial
+    assert not (cache / jit.SHIPPED_MANIFEST).exists()  # numba's files only
+    for path in (cache, cache / "kanagen_engine", cache / "kanagen_engine" / "a.nbi"):
+        assert path.stat().st_mode & 0o200, path  # the user's to write (numba writes there)
+    assert sorted(p.name for p in cache.parent.iterdir()) == [DIGEST]  # no partial copy
     (cache / "kanagen_engine" / "a.nbi").write_bytes(b"compiled here")
-    assert not jit.seed(cache, shipped)  # a cache that exists is the user's: left as it is
+    assert not jit.seed(cache, shipped, TARGET)  # a cache that exists is the user's
     assert (cache / "kanagen_engine" / "a.nbi").read_bytes() == b"compiled here"
     other = cache.with_name("fedcba9876543210")
-    assert not jit.seed(other, shipped)  # no kernels shipped for those sources
+    assert not jit.seed(other, shipped, TARGET)  # no kernels shipped for those sources
     assert not other.exists()
 
 
-def test_seeding_prunes_the_caches_of_other_sources(tmp_path):
-    shipped = tmp_path / "kernels"
-    (shipped / "0123456789abcdef").mkdir(parents=True)
+@pytest.mark.parametrize("field", sorted(TARGET))
+def test_kernels_compiled_for_another_process_are_not_seeded(tmp_path, field):
+    """Kernels of another numba, NumPy, Python or processor are not copied: the cache stays
+    absent, and the first use compiles and says so (an empty cache is announced)."""
+    shipped = _shipped(tmp_path)
+    cache = tmp_path / "cache" / DIGEST
+    assert not jit.seed(cache, shipped, {**TARGET, field: "other"})
+    assert not cache.exists()
+    (shipped / DIGEST).chmod(0o755)
+    (shipped / DIGEST / jit.SHIPPED_MANIFEST).unlink()  # no manifest: not seeded either
+    assert not jit.seed(cache, shipped, TARGET)
+    assert not cache.exists()
+
+
+def test_seeding_never_raises(tmp_path):
+    shipped = _shipped(tmp_path)
+    blocked = tmp_path / "a-file"
+    blocked.write_text("")
+    assert not jit.seed(blocked / "numba" / DIGEST, shipped, TARGET)  # its parent: a file
+
+
+def test_the_running_process_is_described_as_numba_keys_its_cache():
+    from numba.core.registry import cpu_target
+
+    target = jit.kernel_target()
+    assert target["numba"] == jit.NUMBA.__version__
+    assert target["processor"] == list(cpu_target.target_context.codegen().magic_tuple())
+    assert json.loads(json.dumps(target)) == target  # as the manifest reads back
+
+
+def test_seeding_prunes_the_caches_of_other_sources_and_only_stale_partial_copies(tmp_path):
+    shipped = _shipped(tmp_path)
     folder = tmp_path / "numba"
     old = [folder / f"{i:016x}" for i in range(jit.KEEP_OTHERS + 2)]
     for i, f in enumerate(old):
         f.mkdir(parents=True)
         (f / "x.nbi").write_bytes(b"")
         os.utime(f / "x.nbi", (1e9 + i, 1e9 + i))
-    killed = folder / "0123456789abcdef.seeding-12345"  # a copy its process did not finish
+    killed = folder / f"{DIGEST}.seeding-12345"  # a copy its process did not finish
     killed.mkdir()
     os.utime(killed, (1e9, 1e9))
-    recent = folder / "0123456789abcdef.seeding-12346"  # another process copying now
-    recent.mkdir()
-    assert jit.seed(folder / "0123456789abcdef", shipped)
+    copying = folder / f"{DIGEST}.seeding-{os.getpid()}"  # another process copying now,
+    copying.mkdir()  # whatever its name
+    (copying / "part").write_bytes(b"")
+    assert jit.seed(folder / DIGEST, shipped, TARGET)
     left = sorted(p.name for p in folder.iterdir())
-    assert left == sorted(["0123456789abcdef", recent.name,
-                           *(f.name for f in old[-jit.KEEP_OTHERS:])])
+    assert left == sorted([DIGEST, copying.name, *(f.name for f in old[-jit.KEEP_OTHERS:])])
+    assert (copying / "part").exists()
 
 
 @pytest.mark.skipif(jit.NUMBA is None or jit.jit.disabled, reason="kernels run interpreted")
@@ -67,6 +116,8 @@ def test_a_first_fit_loads_the_shipped_kernels_instead_of_compiling(tmp_path):
                         ignore=shutil.ignore_patterns("__pycache__"))
     shutil.copytree(source, package / "kernels" / source.name,
                     ignore=shutil.ignore_patterns("*.seeding-*"))
+    (package / "kernels" / source.name / jit.SHIPPED_MANIFEST).write_text(
+        json.dumps(jit.kernel_target()))  # what the build step writes
     indexes = {p.relative_to(source): p.read_bytes()
                for p in (source / "kanagen_engine").glob("*.nbi")}
     env = dict(os.environ, XDG_CACHE_HOME=str(tmp_path / "xdg"),
@@ -112,6 +163,30 @@ def test_an_installed_kanagen_ships_the_kernels_of_its_sources():
         pytest.skip("KANAGEN_PRECOMPILE=0: the build step was skipped")
     assert any(str(f).startswith(folder) and str(f).endswith(".nbi")
                for f in dist.files or ()), f"no {folder}*.nbi in the installed kanagen"
+    manifest = f"kanagen/kernels/{digest}/{jit.SHIPPED_MANIFEST}"
+    assert any(str(f) == manifest for f in dist.files or ()), f"no {manifest}"
+
+
+def test_the_build_step_ships_no_earlier_builds_kernels(tmp_path, monkeypatch):
+    """build/lib outlives a build: its kernels are removed before the step compiles, and
+    when the step is skipped or fails the wheel holds none."""
+    from setuptools.dist import Distribution
+
+    import build_kernels
+
+    monkeypatch.setattr(build_kernels._build_py, "run", lambda self: None)  # modules copied
+    stale = tmp_path / "lib" / "kanagen" / "kernels" / "fedcba9876543210"
+    stale.mkdir(parents=True)
+    command = build_kernels.build_py(Distribution({"name": "kanagen"}))
+    command.build_lib = str(tmp_path / "lib")
+    monkeypatch.setenv("KANAGEN_PRECOMPILE", "0")
+    command.run()
+    assert not stale.parent.exists()
+    stale.mkdir(parents=True)
+    monkeypatch.setenv("KANAGEN_PRECOMPILE", "1")
+    monkeypatch.setattr(sys, "executable", shutil.which("false"))  # the step fails: a
+    command.run()  # warning, not an error, and no kernels
+    assert not stale.parent.exists()
 
 
 def test_the_build_step_workload_runs_every_shipped_family():
