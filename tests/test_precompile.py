@@ -184,8 +184,15 @@ def test_the_build_step_ships_no_earlier_builds_kernels(tmp_path, monkeypatch):
     assert not stale.parent.exists()
     stale.mkdir(parents=True)
     monkeypatch.setenv("KANAGEN_PRECOMPILE", "1")
-    monkeypatch.setattr(sys, "executable", shutil.which("false"))  # the step fails: a
-    command.run()  # warning, not an error, and no kernels
+    ran = []
+
+    def fails(args, **options):  # the step's child exits with an error
+        ran.append(args)
+        return subprocess.CompletedProcess(args, 1)
+
+    monkeypatch.setattr(build_kernels.subprocess, "run", fails)
+    command.run()  # a warning, not an error, and no kernels
+    assert ran and ran[0][1:3] == ["-m", "kanagen.precompile"]
     assert not stale.parent.exists()
 
 
