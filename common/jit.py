@@ -238,17 +238,15 @@ def prune(current: Path) -> list[Path]:
                    default=folder.stat().st_mtime)
 
     try:
-        others = [f for f in current.parent.iterdir() if f.is_dir() and f != current
-                  and len(f.name) == 16 and all(c in "0123456789abcdef" for c in f.name)]
+        siblings = [f for f in current.parent.iterdir() if f.is_dir() and f != current]
+        others = [f for f in siblings if len(f.name) == 16
+                  and all(c in "0123456789abcdef" for c in f.name)]
         others.sort(key=written, reverse=True)
+        stale = [f for f in siblings if ".seeding-" in f.name
+                 and f.stat().st_mtime < time.time() - 3600]
     except OSError:
         return []
     removed = []
-    try:
-        stale = [f for f in current.parent.iterdir() if ".seeding-" in f.name
-                 and f.stat().st_mtime < time.time() - 3600]
-    except OSError:
-        stale = []
     for folder in others[KEEP_OTHERS:] + stale:
         shutil.rmtree(folder, ignore_errors=True)
         removed.append(folder)

@@ -3,10 +3,10 @@
 A fit's kernels are compiled by numba on a machine's first use and cached
 (:mod:`kanagen.common.jit`): about 40 s for the engine, 1–3 s for each family's own. Building
 kanagen's wheel (``pip install .``) runs :func:`precompile` once, in a fresh cache, and ships
-that cache inside the package (``kanagen/kernels/<digest>``); a process whose own cache is
-empty seeds it from there (:func:`kanagen.common.jit.seed`). numba checks every cached entry
-against its source's content, its own version and the processor it was compiled for: where
-any differs (another numba, another machine) the kernels are compiled at first use as
+that cache inside the package (``kanagen/kernels/<digest>``, with a manifest of what it was
+compiled for: :func:`kanagen.common.jit.kernel_target`); a process whose own cache is empty
+seeds it from there when the manifest names that process (:func:`kanagen.common.jit.seed`).
+Where it does not (another numba, another machine) the kernels are compiled at first use as
 before, with the same answers.
 
 ``python -m kanagen.precompile [INTO]``: compile into the user's cache (or, with ``INTO``,
@@ -119,14 +119,13 @@ def _into(target: Path) -> int:
         if done != 0 or len(folders) != 1 or not (folders[0] / SHIPPED_MANIFEST).is_file():
             print(f"kanagen.precompile: no kernels to ship (exit {done})", file=sys.stderr)
             return 1
-        partial = target.with_name(target.name + ".partial")  # then renamed: all or none
-        shutil.rmtree(partial, ignore_errors=True)
-        try:
-            shutil.copytree(folders[0], partial / folders[0].name,
+        partial = target / f".{folders[0].name}.partial"  # inside target, then renamed:
+        try:  # the digest's folder is all or none, and removing target removes any leftover
+            shutil.copytree(folders[0], partial,
                             ignore=shutil.ignore_patterns("*.lock", "*.tmp*"))
-            partial.rename(target)
+            partial.rename(target / folders[0].name)
         except OSError as exc:
-            shutil.rmtree(partial, ignore_errors=True)
+            shutil.rmtree(target, ignore_errors=True)
             print(f"kanagen.precompile: the kernels could not be copied ({exc})",
                   file=sys.stderr)
             return 1
