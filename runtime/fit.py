@@ -172,7 +172,8 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
     if projected is not None:
         info_q, rank0, ranks, residual = (projected.info, projected.rank0, projected.ranks,
                                           projected.residual)
-        covariance = constrained_covariance(info_q, projected.C0)
+        covariance = projected.covariance if projected.covariance is not None else \
+            constrained_covariance(info_q, projected.C0)
     else:
         info_q, rank0, residual = np.full((n, n), np.nan), 0, np.nan
         ranks = tuple(np.zeros(ch.size, dtype=int) for ch in problem.channels)

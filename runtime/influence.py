@@ -70,14 +70,29 @@ class Influence:
     def joint(self, measures) -> float:
         """The deletion drop of ``measures`` (``(channel, index)`` pairs) together, per
         equation kept."""
-        if self.blind:
-            return float("nan")
-        A = np.concatenate([self.parts[c][0][i] for c, i in measures])  # (P, n)
-        r = np.concatenate([self.parts[c][1][i] for c, i in measures])
-        p = sum(int(self.parts[c][2][i]) for c, i in measures)
-        with np.errstate(all="ignore"):
-            K = np.eye(A.shape[0]) - A @ self.S @ A.T
-            return float(_quadratic_or_inf(K[None], r[None])[0]) / p * len(measures)
+        return float(self.joints([measures])[0])
+
+    def joints(self, groups) -> np.ndarray:
+        """:meth:`joint` of each group of ``groups`` (lists of ``(channel, index)``
+        pairs), groups of one shape (their measures' equations alike) in one stack."""
+        out = np.full(len(groups), np.nan)
+        if self.blind or not groups:
+            return out
+        shapes: dict = {}
+        for g, measures in enumerate(groups):
+            A = np.concatenate([self.parts[c][0][i] for c, i in measures])  # (P, n)
+            r = np.concatenate([self.parts[c][1][i] for c, i in measures])
+            p = sum(int(self.parts[c][2][i]) for c, i in measures) / len(measures)
+            shapes.setdefault(A.shape, []).append((g, A, r, p))
+        for (P, _), members in shapes.items():
+            A = np.stack([m[1] for m in members])  # (G, P, n)
+            r = np.stack([m[2] for m in members])
+            with np.errstate(all="ignore"):
+                K = np.eye(P) - np.einsum("gpi,ij,gqj->gpq", A, self.S, A)
+                drops = _quadratic_or_inf(K, r)
+            for (g, _, _, p), drop in zip(members, drops, strict=True):
+                out[g] = drop / p
+        return out
 
 
 def _quadratic_or_inf(K: np.ndarray, r: np.ndarray) -> np.ndarray:

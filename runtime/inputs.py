@@ -122,8 +122,8 @@ def information(value, k: int, M: int, what: str) -> np.ndarray:
 def inverse_root(Q: np.ndarray) -> np.ndarray:
     """``G = L⁻¹`` for ``L`` the closest square root of ``Q`` (so ``Q⁺ = Gᵀ G``)."""
     L = closest_sqrt(Q)
-    if Q.ndim == 2 and not np.any(L - np.diag(np.diagonal(L))):  # diagonal: the solve's
-        return np.diag(1.0 / np.diagonal(L))  # own divisions (the same numbers, 3× faster)
+    if Q.ndim == 2 and np.count_nonzero(L) == np.count_nonzero(np.diagonal(L)):  # diagonal:
+        return np.diag(1.0 / np.diagonal(L))  # the solve's own divisions (the same numbers)
     eye = np.broadcast_to(np.eye(Q.shape[-1]), Q.shape)
     return np.linalg.solve(L, eye)
 

@@ -97,13 +97,16 @@ MESSAGES = {
 class Projected:
     """What a fit reports from the projector at its returned point: the information
     ``Q̃``, each measure's equations kept (per channel), the rows of ``C0`` kept and their
-    rank, the residual E² (:func:`~kanagen.runtime.engine.iterate.projected_at`)."""
+    rank, the residual E² (:func:`~kanagen.runtime.engine.iterate.projected_at`) and the
+    covariance they give (:func:`~kanagen.runtime.results.constrained_covariance`; None:
+    not computed yet)."""
 
     info: np.ndarray
     ranks: tuple
     C0: np.ndarray
     rank0: int
     residual: float
+    covariance: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -131,9 +134,9 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
     q_start = np.ascontiguousarray(q_start, dtype=float).copy()
     try:
         (status, iterations, kind, delta0, *x, stationary, decrement, cost, curvature,
-         direction, plateau, vector, ok, info, ranks, kept0, rank0,
-         residual) = engine.run_flat(A, q_start, int(max_iter), float(xtol), bool(verify),
-                                     bool(report))
+         direction, plateau, vector, ok, info, ranks, kept0, rank0, residual,
+         covariance) = engine.run_flat(A, q_start, int(max_iter), float(xtol), bool(verify),
+                                       bool(report))
     except SystemError as exc:
         if interrupted(exc):  # Ctrl-C, raised inside the kernel's boxing of its results
             raise KeyboardInterrupt from exc
@@ -155,7 +158,7 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
     checked = status in (CONVERGED, STALLED, SADDLE) or kind == engine.PLATEAU_DETAIL
     point = _point(problem, A, x)
     projected = Projected(info, per_channel(A, ranks), point.C0[kept0], int(rank0),
-                          float(residual)) if report and ok else None
+                          float(residual), covariance) if report and ok else None
     return Outcome(point, None, None, int(iterations), int(status), message,
                    float(delta0), verdict if checked else None, projected)
 

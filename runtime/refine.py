@@ -19,7 +19,7 @@ from .influence import Influence
 from .iterate import MAX_ITER, UNVERIFIED
 from .minimal import coherence_errors
 from .projector import Problem
-from .results import FitResult, derived_values
+from .results import DerivedQuantities, FitResult
 
 _REFINE_ROUNDS = 6  # threshold-and-refine rounds at most (they stop when the inliers do)
 _ROUND_ITER = 20  # iterations of a refinement round whose inliers may still change
@@ -209,10 +209,10 @@ class Refinement:
 
     def _derived(self, fit: FitResult | None) -> FitResult | None:
         """``fit`` with its derived quantities (the rounds' fits are made without)."""
-        if fit is None or fit.derived:
+        if fit is None or isinstance(fit.derived, DerivedQuantities) or fit.derived:
             return fit
-        return replace(fit, derived=derived_values(self.fam, fit.q, fit.covariance,
-                                                   self.problem.k, self.model))
+        return replace(fit, derived=DerivedQuantities(self.fam, fit.q, fit.covariance,
+                                                      self.problem.k, self.model))
 
     def _verified(self, fit: FitResult, rows, q0, Q0, max_iter: int) -> FitResult:
         """The rounds' last fit, its end verified (:func:`~kanagen.runtime.iterate.iterate`):
@@ -326,8 +326,9 @@ class Refinement:
             out = [int(np.argmax(drops))]
             if not drops[out[0]] > threshold:
                 best, out = 2.0 * threshold, None
-                for a, b in itertools.combinations(np.argsort(-drops)[:_PAIRS], 2):
-                    d = influence.joint([place(a), place(b)])
+                pairs = list(itertools.combinations(np.argsort(-drops)[:_PAIRS], 2))
+                joint = influence.joints([[place(a), place(b)] for a, b in pairs])
+                for (a, b), d in zip(pairs, joint, strict=True):
                     if d > best:
                         best, out = d, [int(a), int(b)]
                 if out is None:

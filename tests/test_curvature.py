@@ -15,7 +15,7 @@ import kanagen
 from kanagen.common.link import link
 from kanagen.runtime.engine import curvature, points, verify
 from kanagen.runtime.engine.data import arrays, pack_measures
-from kanagen.runtime.engine.jacobi import sym_eigh
+from kanagen.runtime.engine.jacobi import null_space, sym_eigh
 from kanagen.runtime.fit import fit_problem, make_problem
 
 CASES = [(spec, k) for spec, make in SCENARIOS.items() for k in range(len(make()))]
@@ -216,3 +216,30 @@ def test_symmetric_eigen_refuses_non_finite():
     K[2, 1] = np.nan
     with pytest.raises(np.linalg.LinAlgError):
         sym_eigh(K)
+
+
+@settings(max_examples=120, deadline=None)
+@given(st.integers(0, 5), st.integers(1, 10), st.integers(0, 2**32 - 1), st.integers(0, 3))
+def test_null_space_as_lapack(r, s, seed, kind):
+    """``null_space`` (Jacobi rotations, completed by Householder reflections) spans the
+    space LAPACK's SVD gives — the same rank cut, the same projector — with orthonormal
+    columns: independent, dependent, more rows than columns, tiny and zero rows."""
+    rng = np.random.default_rng(seed)
+    B = rng.standard_normal((r, s))
+    if kind == 1 and r >= 2:
+        B[-1] = 2.0 * B[0]  # a dependent row
+    elif kind == 2:
+        B *= 1e-9
+    elif kind == 3 and r:
+        B[0] = 0.0
+    Z = null_space(B, 1e-10)
+    if r and np.abs(B).max() > 0:
+        _, S, Vt = np.linalg.svd(B)
+        reference = Vt[int((S > 1e-10 * S[0]).sum()):].T
+    else:
+        reference = np.eye(s)
+    assert Z.shape == reference.shape
+    np.testing.assert_allclose(Z.T @ Z, np.eye(Z.shape[1]), atol=1e-13)
+    np.testing.assert_allclose(Z @ Z.T, reference @ reference.T, atol=1e-12)
+    if r:
+        assert np.abs(B @ Z).max(initial=0.0) <= 1e-12 * max(np.abs(B).max(), 1e-300)

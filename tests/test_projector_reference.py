@@ -25,7 +25,7 @@ from reference import (
 )
 
 import kanagen
-from kanagen.runtime.fit import make_problem
+from kanagen.runtime.fit import fit_problem, make_problem
 from kanagen.runtime.projector import evaluate, project
 
 RTOL = 1e-8
@@ -874,3 +874,27 @@ def test_reference_sanity_on_problem_family() -> None:
         dm[:, j] = h
         fd = (prob.ci(q, mk + dm)[0] - prob.ci(q, mk - dm)[0]) / (2 * h)
         assert np.allclose(fd, D[:, :, j], atol=1e-7)
+
+
+@pytest.mark.parametrize("spec", ["conic.yaml", "hysteresis.yaml", "two_view.yaml",
+                                  "two_view_calibrated.yaml"])
+def test_reported_covariance_is_the_entry_points(spec):
+    """The covariance a fit reports (made by the kernel that ran the iteration, beside its
+    information) is :func:`~kanagen.runtime.results.constrained_covariance` of that
+    information and the constraints kept, bit for bit — pinned components' zero variances
+    and unobservable ones' infinite variances included (hysteresis: 19 constraints on 11
+    components)."""
+    from scenarios import SCENARIOS
+
+    from kanagen.runtime.results import constrained_covariance as entry
+
+    fam = kanagen.load(spec.removesuffix(".yaml"))
+    for model, data, info, start, constants in SCENARIOS[spec]():
+        problem = make_problem(fam, model, data, info, start, constants=constants)
+        res = fit_problem(fam, model, problem)
+        if fam.reduction(model) is not None:
+            continue  # a reduced model's outputs are projected in Python
+        x = evaluate(problem, res.q, tuple(res.measures[ch.name][:, ch.index]
+                                           for ch in problem.channels))
+        _, proj = project(problem, x)
+        np.testing.assert_array_equal(res.covariance, entry(res.info, proj.C0))

@@ -15,6 +15,7 @@ import numpy as np
 from kanagen.common.jit import jit
 from kanagen.common.link import linked, record_kind
 
+from .covariance import constrained_covariance
 from .linear import linearise, parameter_block
 from .measures import RESTORE_STEPS, ROUNDING
 from .points import (
@@ -453,12 +454,15 @@ def projected_at(A, x):
 def run_flat(A, q_start, max_iter, xtol, verify_end, report):
     """:func:`run` with its outcome as a plain tuple: boxing a named tuple calls its Python
     class, where a pending Ctrl-C would raise inside numba's boxing (and crash).
-    ``report``: with :func:`projected_at` the returned point (else ``ok`` False and empty
-    arrays)."""
+    ``report``: with :func:`projected_at` the returned point and the covariance there
+    (:func:`.covariance.constrained_covariance`; else ``ok`` False and empty arrays)."""
     out, delta0 = run(A, q_start, max_iter, xtol, verify_end)
     x, v = out.x, out.verdict
+    covariance = np.zeros((0, 0))
     if report:
         ok, info, ranks, kept0, rank0, residual = projected_at(A, x)
+        if ok:
+            covariance = constrained_covariance(info, kept_rows(x.C0, kept0))
     else:
         ok, info, ranks, kept0 = False, np.zeros((0, 0)), np.zeros(0, np.int64), \
             np.zeros(0, np.bool_)
@@ -466,4 +470,16 @@ def run_flat(A, q_start, max_iter, xtol, verify_end, report):
     return (out.status, out.iterations, out.detail, delta0,
             x.q, x.mt, x.c0, x.C0, x.c, x.C, x.D, x.delta, x.cost,
             v.stationary, v.decrement, v.cost, v.curvature, v.direction, v.plateau,
-            v.plateau_vector, ok, info, ranks, kept0, rank0, residual)
+            v.plateau_vector, ok, info, ranks, kept0, rank0, residual, covariance)
+
+
+@jit
+def kept_rows(C0, kept0):
+    """The rows of ``C0`` kept (``C0[kept0]``)."""
+    out = np.empty((int(kept0.sum()), C0.shape[1]))
+    at = 0
+    for a in range(C0.shape[0]):
+        if kept0[a]:
+            out[at] = C0[a]
+            at += 1
+    return out

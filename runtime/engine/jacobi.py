@@ -136,3 +136,64 @@ def sym_eigh(K):
         for k in range(n):
             out_V[k, a] = V[k, order[a]]
     return out_w, out_V
+
+
+@jit
+def null_space(B, cut):
+    """Orthonormal columns spanning the null space of ``B`` (r, s): the complement of the
+    right singular vectors of the singular values above ``cut`` times the largest
+    (:func:`row_svd`'s, completed by Householder reflections of them). The same space as
+    ``np.linalg.svd``'s ``Vt[rank:].T``, in another basis; LAPACK's SVD where the rotations
+    do not converge."""
+    r, s = B.shape
+    R, W, S = np.empty((r, s)), np.empty((r, r)), np.empty(r)
+    if r == 0:
+        top = 0.0
+    elif row_svd(B, R, W, S) < 0:
+        _, sv, Vt = np.linalg.svd(B)
+        rank = 0
+        if sv.size and sv[0] > 0:
+            for a in range(sv.size):
+                rank += 1 if sv[a] > cut * sv[0] else 0
+        return np.ascontiguousarray(Vt[rank:].T)
+    else:
+        top = S.max()
+    V = np.empty((s, r))  # the kept right singular vectors, as columns
+    rank = 0
+    for a in range(r):
+        if top > 0 and S[a] > cut * top:
+            for j in range(s):
+                V[j, rank] = R[a, j] / S[a]
+            rank += 1
+    # Householder reflections H_k = I − 2 v_k v_kᵀ with H_{rank−1} ⋯ H_0 V upper triangular:
+    # the last s − rank columns of H_0 ⋯ H_{rank−1} are orthogonal to V's columns
+    U = np.zeros((s, rank))
+    for k in range(rank):
+        norm = 0.0
+        for j in range(k, s):
+            norm += V[j, k] * V[j, k]
+        alpha = -np.sqrt(norm) if V[k, k] >= 0 else np.sqrt(norm)
+        length = 0.0
+        for j in range(k, s):
+            U[j, k] = V[j, k] - (alpha if j == k else 0.0)
+            length += U[j, k] * U[j, k]
+        length = np.sqrt(length)
+        if length > 0:
+            for j in range(k, s):
+                U[j, k] /= length
+        for col in range(k, rank):
+            dot = 0.0
+            for j in range(k, s):
+                dot += U[j, k] * V[j, col]
+            for j in range(k, s):
+                V[j, col] -= 2.0 * dot * U[j, k]
+    Z = np.zeros((s, s - rank))
+    for c in range(s - rank):
+        Z[rank + c, c] = 1.0
+        for k in range(rank - 1, -1, -1):
+            dot = 0.0
+            for j in range(k, s):
+                dot += U[j, k] * Z[j, c]
+            for j in range(k, s):
+                Z[j, c] -= 2.0 * dot * U[j, k]
+    return Z

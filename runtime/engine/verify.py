@@ -19,7 +19,7 @@ from kanagen.common.link import linked, record_kind
 
 from ..sqrt import put_column
 from .curvature import profile_hessian
-from .jacobi import sym_eigh
+from .jacobi import null_space, sym_eigh
 from .linear import linearise, seen_components
 from .measures import RESTORE_STEPS
 from .points import (
@@ -75,20 +75,25 @@ def stationary(A, x, lin, proj):
 
 @linked("f2 b1 -> f2")
 def tangent_space(C0, seen):
-    """Columns spanning the null space of ``C0`` on the components ``seen``."""
+    """Orthonormal columns spanning the null space of ``C0`` on the components ``seen``
+    (zero on the others)."""
     n = seen.size
     idx = np.flatnonzero(seen)
-    E = np.zeros((n, idx.size))
-    for a in range(idx.size):
-        E[idx[a], a] = 1.0
     if C0.shape[0] == 0 or idx.size == 0:
+        E = np.zeros((n, idx.size))
+        for a in range(idx.size):
+            E[idx[a], a] = 1.0
         return E
-    _, S, Vt = np.linalg.svd(C0 @ E)
-    rank = 0
-    if S.size and S[0] > 0:
-        for a in range(S.size):
-            rank += 1 if S[a] > 1e-10 * S[0] else 0
-    return E @ np.ascontiguousarray(Vt[rank:].T)
+    B = np.empty((C0.shape[0], idx.size))  # C0's columns seen
+    for k in range(C0.shape[0]):
+        for a in range(idx.size):
+            B[k, a] = C0[k, idx[a]]
+    N = null_space(B, 1e-10)
+    Z = np.zeros((n, N.shape[1]))
+    for a in range(idx.size):
+        for c in range(N.shape[1]):
+            Z[idx[a], c] = N[a, c]
+    return Z
 
 
 @linked("Pt f2 -> f2")
