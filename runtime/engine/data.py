@@ -69,7 +69,8 @@ if NUMBA is not None and not jit.disabled:
 
     class _Proxy(structref.StructRefProxy):
         """The arrays of one problem for the kernels, passed by reference (a numba
-        structure); the Python side reads the same arrays from a record."""
+        structure); the Python side reads the same arrays as its attributes (each field
+        put there when made, :func:`Arrays`; else from its record)."""
 
         def __getattr__(self, name):
             try:
@@ -84,6 +85,7 @@ if NUMBA is not None and not jit.disabled:
         """The arrays of one problem (one model, its measures, its prior) for the kernels:
         ``values`` in :data:`_SCHEMA`'s order, each of its field's kind (:func:`_of_kind`)."""
         proxy = _Proxy(*values)
+        proxy.__dict__.update(zip(_FIELDS, values, strict=True))  # plain attributes for Python
         proxy.__dict__["_record"] = values
         return proxy
 else:  # interpreted: a plain record
