@@ -139,24 +139,41 @@ def sym_eigh(K):
 
 
 @jit
+def _rank(S, cut):
+    """The singular values ``S`` (any order) above ``cut`` times the largest."""
+    top = S.max() if S.size else 0.0
+    rank = 0
+    if top > 0:
+        for a in range(S.size):
+            rank += 1 if S[a] > cut * top else 0
+    return rank
+
+
+@jit
 def null_space(B, cut):
     """Orthonormal columns spanning the null space of ``B`` (r, s): the complement of the
     right singular vectors of the singular values above ``cut`` times the largest
-    (:func:`row_svd`'s, completed by Householder reflections of them). The same space as
-    ``np.linalg.svd``'s ``Vt[rank:].T``, in another basis; LAPACK's SVD where the rotations
-    do not converge."""
+    (:func:`row_svd`'s on ``B`` scaled by a power of two, completed by Householder
+    reflections of them). The same space as ``np.linalg.svd``'s ``Vt[rank:].T``, in another
+    basis; LAPACK's SVD where the rotations do not converge. Raises ``LinAlgError`` on
+    non-finite entries, as NumPy's does."""
     r, s = B.shape
+    largest = 0.0
+    for a in range(r):
+        for j in range(s):
+            if not np.isfinite(B[a, j]):
+                raise np.linalg.LinAlgError("Array must not contain infs or NaNs")
+            largest = max(largest, abs(B[a, j]))
+    # scaled by a power of two near 1 / max|B| (exactly: the rotations' numbers are those of
+    # B's, without their overflow above 1e77 or underflow below 1e-162)
+    scaled = B * 2.0 ** min(max(-np.floor(np.log2(largest)), -1000.0), 1000.0) \
+        if largest > 0 else B.copy()
     R, W, S = np.empty((r, s)), np.empty((r, r)), np.empty(r)
-    if r == 0:
-        top = 0.0
-    elif row_svd(B, R, W, S) < 0:
+    top = 0.0
+    if r and (row_svd(scaled, R, W, S) < 0 or _rank(S, cut) > min(r, s)):
         _, sv, Vt = np.linalg.svd(B)
-        rank = 0
-        if sv.size and sv[0] > 0:
-            for a in range(sv.size):
-                rank += 1 if sv[a] > cut * sv[0] else 0
-        return np.ascontiguousarray(Vt[rank:].T)
-    else:
+        return np.ascontiguousarray(Vt[_rank(sv, cut):].T)
+    if r:
         top = S.max()
     V = np.empty((s, r))  # the kept right singular vectors, as columns
     rank = 0
