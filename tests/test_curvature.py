@@ -245,32 +245,24 @@ def test_null_space_as_lapack(r, s, seed, kind):
         assert np.abs(B @ Z).max(initial=0.0) <= 1e-12 * max(np.abs(B).max(), 1e-300)
 
 
-@settings(max_examples=80, deadline=None)
-@given(st.integers(2, 9), st.integers(0, 3), st.integers(0, 2**32 - 1))
-def test_lost_direction_measure_against_dense(n, r, seed):
-    """The end's lost-direction measure (``verify.weakest``): the least eigenvalue of the
-    information scaled to a unit diagonal, on the constraints' tangent space in the scaled
-    components, over the largest — as SciPy's null space and NumPy's ``eigh`` give it
-    (a quantity of the space, not of the basis the engine picks), and its direction; with
-    no constraint, the information's rows and columns divided by the roots of their
-    diagonal."""
-    import scipy.linalg
-
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 9), st.integers(0, 2**32 - 1))
+def test_lost_direction_measure_without_constraints(n, seed):
+    """The end's lost-direction measure (``verify.weakest``) with no constraint: the least
+    eigenvalue of the information scaled to a unit diagonal over the largest, as NumPy's
+    ``eigh`` gives it, and its direction in the parameter's components."""
     from kanagen.runtime.engine.points import Pt
 
     rng = np.random.default_rng(seed)
-    r = min(r, n - 1)
     J = rng.standard_normal((n + 2, n)) * 10.0 ** rng.uniform(-3, 3, n)
     info = J.T @ J
-    C0 = rng.standard_normal((r, n)) * 10.0 ** rng.uniform(-3, 3, n)
-    x = Pt(np.ones(n), np.zeros((0, 1)), np.zeros(r), C0, np.zeros((0, 1)),
+    x = Pt(np.ones(n), np.zeros((0, 1)), np.zeros(0), np.zeros((0, n)), np.zeros((0, 1)),
            np.zeros((0, 1, n)), np.zeros((0, 1, 1)), 0.0, 0.0)
     ok, least, u = verify.weakest(info, x)
     d = np.sqrt(np.diag(info))
-    Z = scipy.linalg.null_space(C0 / d) if r else np.eye(n)
-    w, V = np.linalg.eigh(Z.T @ (info / np.outer(d, d)) @ Z)
+    w, V = np.linalg.eigh(info / np.outer(d, d))
     assert ok
     assert least == pytest.approx(w[0] / w[-1], rel=1e-7, abs=1e-13)
     if w.size == 1 or w[1] - w[0] > 1e-6 * w[-1]:  # a direction well defined: separated
-        ref = Z @ V[:, 0] / d
+        ref = V[:, 0] / d
         assert min(np.abs(u - ref).max(), np.abs(u + ref).max()) <= 1e-6 * np.abs(ref).max()

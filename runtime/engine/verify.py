@@ -137,36 +137,34 @@ def plateau_mask(x, info, info_start):
 
 @linked("f2 Pt -> b f f1")
 def weakest(info, x):
-    """The least eigenvalue of ``info`` scaled to a unit diagonal, on the constraints'
-    tangent space in those scaled components (any orthonormal basis of it gives the same),
-    relative to the largest, and its direction in the parameter's components (``ok`` False
-    without one). Components the information does not see are left out."""
+    """The least eigenvalue of ``info`` on the tangent space, scaled to a unit diagonal,
+    relative to the largest, and its direction (``ok`` False without one). The scaling is
+    in the coordinates of the tangent space's basis (:func:`tangent_space`'s): with
+    constraints the ratio depends on that basis, as it did on LAPACK's (a basis-free
+    scaling moved a two-view fit's path to another minimum: docs/performance.md)."""
     n = x.q.size
     seen = np.zeros(n, dtype=np.bool_)
-    d = np.ones(n)
     for a in range(n):
         seen[a] = info[a, a] > 0
-        if seen[a]:
-            d[a] = np.sqrt(info[a, a])
-    C0 = np.empty(x.C0.shape)  # the constraints in the scaled components
-    for k in range(C0.shape[0]):
-        for a in range(n):
-            C0[k, a] = x.C0[k, a] / d[a]
-    Z = tangent_space(C0, seen)
+    Z = tangent_space(x.C0, seen)
     if Z.shape[1] < 1:
         return False, 0.0, np.zeros(0)
-    scaled = np.empty((n, n))
-    for a in range(n):
-        for b in range(n):
-            scaled[a, b] = info[a, b] / (d[a] * d[b])
-    M = Z.T @ scaled @ Z
+    M = Z.T @ info @ Z
     M = 0.5 * (M + M.T)
-    if not np.all(np.isfinite(M)):
+    k = M.shape[0]
+    d = np.empty(k)
+    for a in range(k):
+        d[a] = np.sqrt(abs(M[a, a]))
+    if not np.all(np.isfinite(M)) or not np.all(d > 0):
         return False, 0.0, np.zeros(0)
-    w, U = sym_eigh(M)
+    scaled = np.empty((k, k))
+    for a in range(k):
+        for b in range(k):
+            scaled[a, b] = M[a, b] / (d[a] * d[b])
+    w, U = sym_eigh(scaled)
     if not w[-1] > 0:
         return False, 0.0, np.zeros(0)
-    return True, w[0] / w[-1], (Z @ np.ascontiguousarray(U[:, 0])) / d
+    return True, w[0] / w[-1], Z @ (U[:, 0] / d)
 
 
 @linked("A Pt Lin -> b f1")
