@@ -113,6 +113,9 @@ class ModelFamily:
                             np.array(r["t"], dtype=float))
             for name, r in meta.get("reductions", {}).items()}
         self._free: dict[tuple[str, bytes], int] = {}  # free_dof's, per model and constants
+        self._pinned = {name: {self.parameter_names[i]: float(r.t[i])
+                               for i in np.flatnonzero(~np.any(r.T != 0.0, axis=1))}
+                        for name, r in self._reductions.items()}  # pinned's, per model
 
     def __repr__(self) -> str:
         return (f"<ModelFamily {self.name!r}: parameter {list(self.parameter_names)}, "
@@ -276,12 +279,7 @@ class ModelFamily:
         """The components of q ``model``'s linear constraints fix to a value (a circle's
         ``B = 0``; the slacks of the other models' inequalities): not estimates, so results
         list them apart."""
-        r = self._reductions.get(model)
-        if r is None:
-            return {}
-        fixed = ~np.any(r.T != 0.0, axis=1)
-        return {name: float(r.t[i]) for i, name in enumerate(self.parameter_names)
-                if fixed[i]}
+        return dict(self._pinned.get(model, {}))
 
     def free_dof(self, model: str, constants=None) -> int:
         """``n − p``: the degrees of freedom ``model``'s constraints leave free, ``p`` their

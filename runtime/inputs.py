@@ -119,8 +119,24 @@ def information(value, k: int, M: int, what: str) -> np.ndarray:
                      f"or ({M}, {k}, {k})")
 
 
+_ROOTS: dict = {}  # inverse_root of a shared (k, k) information, by its bytes
+
+
 def inverse_root(Q: np.ndarray) -> np.ndarray:
-    """``G = L⁻¹`` for ``L`` the closest square root of ``Q`` (so ``Q⁺ = Gᵀ G``)."""
+    """``G = L⁻¹`` for ``L`` the closest square root of ``Q`` (so ``Q⁺ = Gᵀ G``); a shared
+    (k, k) information's once (a scalar information is the same matrix fit after fit)."""
+    if Q.ndim != 2:
+        return _inverse_root(Q)
+    key = (Q.shape, Q.dtype.str, Q.tobytes())
+    G = _ROOTS.get(key)
+    if G is None:
+        if len(_ROOTS) >= 256:
+            _ROOTS.clear()
+        G = _ROOTS[key] = _inverse_root(Q)
+    return G.copy()
+
+
+def _inverse_root(Q: np.ndarray) -> np.ndarray:
     L = closest_sqrt(Q)
     if Q.ndim == 2 and np.count_nonzero(L) == np.count_nonzero(np.diagonal(L)):  # diagonal:
         return np.diag(1.0 / np.diagonal(L))  # the solve's own divisions (the same numbers)
