@@ -67,14 +67,10 @@ class Influence:
                     out.append(value(*part))
         return tuple(out)
 
-    def joint(self, measures) -> float:
-        """The deletion drop of ``measures`` (``(channel, index)`` pairs) together, per
-        equation kept."""
-        return float(self.joints([measures])[0])
-
     def joints(self, groups) -> np.ndarray:
-        """:meth:`joint` of each group of ``groups`` (lists of ``(channel, index)``
-        pairs), groups of one shape (their measures' equations alike) in one stack."""
+        """The deletion drop of each group of ``groups`` (lists of ``(channel, index)``
+        pairs: the group's measures left out together), per equation kept — groups of one
+        shape (their measures' equations alike) in one stack."""
         out = np.full(len(groups), np.nan)
         if self.blind or not groups:
             return out

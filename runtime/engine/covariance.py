@@ -7,19 +7,16 @@ import numpy as np
 
 from kanagen.common.jit import jit
 
+from .jacobi import svd_null_space
+
 
 @jit
 def null_basis(C0, n):
     """An orthonormal basis of the null space of ``C0`` (rank: singular values above
-    1e-12 of the largest)."""
+    1e-12 of the largest), LAPACK's: a pinned component's variance exactly zero."""
     if C0.shape[0] == 0:
         return np.eye(n)
-    _, S, Vt = np.linalg.svd(C0)
-    rank = 0
-    if S.size and S[0] > 0:
-        for a in range(S.size):
-            rank += 1 if S[a] > 1e-12 * S[0] else 0
-    return np.ascontiguousarray(Vt[rank:].T)
+    return svd_null_space(C0, 1e-12)
 
 
 @jit

@@ -150,6 +150,14 @@ def _rank(S, cut):
 
 
 @jit
+def svd_null_space(B, cut):
+    """The null space of ``B`` (r ≥ 1 rows) as LAPACK's SVD gives it: ``Vt[rank:].T``, the
+    rank the singular values above ``cut`` times the largest."""
+    _, S, Vt = np.linalg.svd(B)
+    return np.ascontiguousarray(Vt[_rank(S, cut):].T)
+
+
+@jit
 def null_space(B, cut):
     """Orthonormal columns spanning the null space of ``B`` (r, s): the complement of the
     right singular vectors of the singular values above ``cut`` times the largest
@@ -169,12 +177,9 @@ def null_space(B, cut):
     scaled = B * 2.0 ** min(max(-np.floor(np.log2(largest)), -1000.0), 1000.0) \
         if largest > 0 else B.copy()
     R, W, S = np.empty((r, s)), np.empty((r, r)), np.empty(r)
-    top = 0.0
     if r and (row_svd(scaled, R, W, S) < 0 or _rank(S, cut) > min(r, s)):
-        _, sv, Vt = np.linalg.svd(B)
-        return np.ascontiguousarray(Vt[_rank(sv, cut):].T)
-    if r:
-        top = S.max()
+        return svd_null_space(B, cut)
+    top = S.max() if r else 0.0
     V = np.empty((s, r))  # the kept right singular vectors, as columns
     rank = 0
     for a in range(r):
