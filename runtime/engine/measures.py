@@ -58,9 +58,17 @@ def fields(A):
 def eval_measure(F, i, q, mt_i, c, C, D, x):
     """Write measure ``i``'s ``c (p)``, ``C (p, n)``, ``D (p, d)`` at ``(q, mt_i)`` (``F``:
     :func:`fields`; ``x``: a buffer of :func:`row_buffer`'s size)."""
-    chan, P, Dn, W, X, col, addr, k = F[0], F[1], F[2], F[3], F[4], F[5], F[6], F[7]
+    ch = F[0][i]
+    eval_shaped(F, i, q, mt_i, c, C, D, x, F[1][ch], F[2][ch])
+
+
+@jit(inline=True)
+def eval_shaped(F, i, q, mt_i, c, C, D, x, p, d):
+    """:func:`eval_measure` for a measure of ``p`` equations and ``d`` components (constants
+    at a call specialised to a shape: :func:`project_all`)."""
+    chan, W, X, col, addr, k = F[0], F[3], F[4], F[5], F[6], F[7]
     ch = chan[i]
-    p, d, n, w = P[ch], Dn[ch], q.size, W[ch]
+    n, w = q.size, W[ch]
     for j in range(w):
         x[j] = X[i, j]
     for j in range(d):
@@ -342,21 +350,21 @@ def all_finite(v):
 # -- eq. 22: the measures projected for a fixed q ---------------------------------------
 
 @jit(inline=True)
-def project_measure(A, F, i, q, m, iterations, tol, c, C, D, E, L, inv, kept, y, rbar, cbar,
-                    dm, step, cand, moved, x):
+def project_measure(args, p, d):
     """Project measure ``i`` onto ``c_i(q, ·) = 0`` from ``m`` (updated in place) in its
     ``Q_i`` metric (eq. 22 with eq. 18's halving; ``F``: :func:`fields`). ``iterations``
     counts projector steps plus one. Writes ``c, C, D`` at the returned point; returns
-    ``(violation, rank)``."""
-    ch = F[0][i]
-    p, d = F[1][ch], F[2][ch]
+    ``(violation, rank)``. ``args``: ``(F, i, q, m, iterations, tol, eps, c, C, D)`` and the
+    buffers of :func:`scratch`; ``p, d`` the measure's equations and components."""
+    F, i, q, m, iterations, tol, eps, c, C, D, E, L, inv, kept, y, rbar, cbar, dm, step, cand, \
+        moved, x = args
     G, Q, m_obs = F[8][i], F[9][i], F[10][i]
-    eval_measure(F, i, q, m, c, C, D, x)
+    eval_shaped(F, i, q, m, c, C, D, x, p, d)
     viol, rank = 0.0, 0
     active = True
     for it in range(iterations):
         residual_into(D, m, m_obs, c, p, d, y)
-        viol, rank = whitened(c, D, G, p, d, A.eps, E, L, inv, kept, cbar)
+        viol, rank = whitened(c, D, G, p, d, eps, E, L, inv, kept, cbar)
         whiten_column(L, inv, y, p, rbar)
         if it == iterations - 1 or not active:
             break
@@ -388,7 +396,7 @@ def halving(F, i, q, m, c, C, D, step, p, d, cand, moved, x):
             alpha = 0.0
         for j in range(d):
             cand[j] = m[j] + alpha * step[j]
-        eval_measure(F, i, q, cand, c, C, D, x)
+        eval_shaped(F, i, q, cand, c, C, D, x, p, d)
         new_worst = worst_abs(c, p) if p else worst
         if new_worst <= worst + 1e-9 * (1.0 + worst) or attempt == _PROJECT_HALVINGS:
             break
@@ -411,10 +419,22 @@ def project_all(A, q, mt, iterations, tol):
     E, L, inv, kept, y, rbar, cbar, dm, step, cand, moved, x = borrow(work)
     bq, bout, bc, bC, bD = borrow((q, out, c, C, D))
     F = fields(A)
+    eps = A.eps
     for i in range(M):
-        viol[i], rank[i] = project_measure(A, F, i, bq, bout[i], iterations, tol, bc[i],
-                                           bC[i], bD[i], E, L, inv, kept, y, rbar, cbar, dm,
-                                           step, cand, moved, x)
+        ch = F[0][i]
+        p, d = F[1][ch], F[2][ch]
+        args = (F, i, bq, bout[i], iterations, tol, eps, bc[i], bC[i], bD[i], E, L, inv, kept,
+                y, rbar, cbar, dm, step, cand, moved, x)
+        if p == 1 and d == 2:  # the shipped families' shapes: their loops unrolled
+            viol[i], rank[i] = project_measure(args, 1, 2)
+        elif p == 1 and d == 4:
+            viol[i], rank[i] = project_measure(args, 1, 4)
+        elif p == 3 and d == 4:
+            viol[i], rank[i] = project_measure(args, 3, 4)
+        elif p == 1 and d == 1:
+            viol[i], rank[i] = project_measure(args, 1, 1)
+        else:
+            viol[i], rank[i] = project_measure(args, p, d)
     alive((q, work))
     return out, viol, rank, c, C, D
 
@@ -562,13 +582,16 @@ def restore_all(A, q, mt, iterations):
     their observed values, the nearer kept: ``(m̃, violations, c, C, D)``."""
     q = np.ascontiguousarray(q)
     out, viol, rank, c, C, D = project_all(A, q, mt, iterations, RESTORE_TOL)
-    top = np.zeros((0, 0))
+    left_off = False
+    for i in range(A.chan.size):
+        left_off = left_off or not viol[i] <= UNREACHED
+    if not left_off:  # the usual case
+        return out, viol, c, C, D
+    top = top_variances(A)
     work = scratch(A, q.size)
     for i in range(A.chan.size):
         if viol[i] <= UNREACHED:
             continue
-        if top.shape[0] == 0:
-            top = top_variances(A)
         ch = A.chan[i]
         d = A.Dn[ch]
         Q, m_obs = A.Q[i], A.m[i, :d]
@@ -599,7 +622,13 @@ def violations_all(A, c, D):
     """Every measure's whitened violation ``‖c‖²_{(D Q⁺ Dᵀ)⁻}`` (cost units)."""
     out = np.zeros(A.chan.size)
     work = scratch(A, 0)
-    for i in range(A.chan.size):
-        ch = A.chan[i]
-        out[i] = violation(c[i], D[i], A.G[i], A.P[ch], A.Dn[ch], A.eps, work)[0]
+    F = fields(A)
+    chan, P, Dn, G = F[0], F[1], F[2], F[8]
+    bc, bD = borrow((c, D))
+    bwork = borrow(work)
+    eps = A.eps
+    for i in range(chan.size):
+        ch = chan[i]
+        out[i] = violation(bc[i], bD[i], G[i], P[ch], Dn[ch], eps, bwork)[0]
+    alive((c, D, work))
     return out
