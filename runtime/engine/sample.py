@@ -29,7 +29,7 @@ from kanagen.common.borrow import alive, borrow
 from kanagen.common.jit import NUMBA, jit
 
 from .jacobi import row_svd
-from .measures import c0_eval, eval_measure, fields, row_buffer, scratch, whitened
+from .measures import c0_eval, eval_measure, eval_shaped, fields, row_buffer, scratch, whitened
 
 #: Values per candidate of a closed-form initialiser, and candidates at most.
 WIDTH, CANDIDATES = 12, 4
@@ -275,15 +275,13 @@ def minimal_solve(A, rows, target, max_iter, xtol, eps):
 # -- eq. 24: every measure's error at a solution -----------------------------------------
 
 @jit(inline=True)
-def observed_error(A, F, i, q, c, C, D, E, L, inv, kept, w, x):
-    """Measure ``i`` at ``q`` where it was observed: its whitened violation
-    ``‖c‖²_{(D Q⁺ Dᵀ)⁻}`` and the equations kept (``F``: :func:`~.measures.fields`; the
-    rest: buffers of :func:`~.measures.scratch`, borrowed by the caller's loop:
-    kanagen.common.borrow)."""
-    ch = F[0][i]
-    p = F[1][ch]
-    eval_measure(F, i, q, F[10][i], c, C, D, x)
-    return whitened(c, D, F[8][i], p, F[2][ch], A.eps, E, L, inv, kept, w)
+def observed_error(F, i, q, eps, c, C, D, E, L, inv, kept, w, x, p, d):
+    """Measure ``i`` (``p`` equations, ``d`` components) at ``q`` where it was observed: its
+    whitened violation ``‖c‖²_{(D Q⁺ Dᵀ)⁻}`` and the equations kept (``F``:
+    :func:`~.measures.fields`; the rest: buffers of :func:`~.measures.scratch`, borrowed by
+    the caller's loop: kanagen.common.borrow)."""
+    eval_shaped(F, i, q, F[10][i], c, C, D, x, p, d)
+    return whitened(c, D, F[8][i], p, d, eps, E, L, inv, kept, w)
 
 
 @jit
@@ -304,10 +302,42 @@ def observed_all(A, q):
     c, C, D, E, L, inv, kept, w, x = borrow(buffers)
     viol, rank = np.empty(A.chan.size), np.empty(A.chan.size, dtype=np.int64)
     F = fields(A)
+    eps = A.eps
     for i in range(A.chan.size):
-        viol[i], rank[i] = observed_error(A, F, i, q, c, C, D, E, L, inv, kept, w, x)
+        ch = F[0][i]
+        p, d = F[1][ch], F[2][ch]
+        if p == 1 and d == 4:  # the shipped families' shapes: their loops unrolled
+            viol[i], rank[i] = observed_error(F, i, q, eps, c, C, D, E, L, inv, kept, w, x, 1, 4)
+        elif p == 3 and d == 4:
+            viol[i], rank[i] = observed_error(F, i, q, eps, c, C, D, E, L, inv, kept, w, x, 3, 4)
+        elif p == 1 and d == 2:
+            viol[i], rank[i] = observed_error(F, i, q, eps, c, C, D, E, L, inv, kept, w, x, 1, 2)
+        else:
+            viol[i], rank[i] = observed_error(F, i, q, eps, c, C, D, E, L, inv, kept, w, x, p, d)
     alive(buffers)
     return viol, rank
+
+
+@jit(inline=True)
+def channel_errors(args, ch, p, d, score, seen):
+    """:func:`errors_at` over the measures of channel ``ch`` (``p`` equations, ``d``
+    components): ``(complete, score, seen)``, not complete when the solution is abandoned."""
+    A, F, q, caps, scale, best, errors, c, C, D, E, L, inv, kept, w, x = args
+    total = A.chan.size
+    eps = A.eps
+    cap, start, size = caps[ch], A.start[ch], A.size[ch]
+    for i in range(start, start + size):
+        viol, rank = observed_error(F, i, q, eps, c, C, D, E, L, inv, kept, w, x, p, d)
+        err = viol / max(min(rank, cap), 1)
+        err = err if np.isfinite(err) else np.inf
+        errors[i] = err
+        if err < scale:
+            score += 1.0 - 2.0 * err / scale
+        seen += 1
+        if (i - start + 1) % CHUNK == 0 or i == start + size - 1:
+            if seen < total and (score + (total - seen)) / total < best - 1e-9 * abs(best):
+                return False, score, seen
+    return True, score, seen
 
 
 @jit
@@ -322,24 +352,23 @@ def errors_at(A, q, caps, scale, best, errors):
     buffers = _buffers(A, q.size)
     c, C, D, E, L, inv, kept, w, x = borrow(buffers)
     F = fields(A)
+    args = (A, F, q, caps, scale, best, errors, c, C, D, E, L, inv, kept, w, x)
     total = A.chan.size
     score = 0.0
     seen = 0
     for ch in range(A.size.size):
-        cap, start, size = caps[ch], A.start[ch], A.size[ch]
-        for i in range(start, start + size):
-            viol, rank = observed_error(A, F, i, q, c, C, D, E, L, inv, kept, w, x)
-            err = viol / max(min(rank, cap), 1)
-            err = err if np.isfinite(err) else np.inf
-            errors[i] = err
-            if err < scale:
-                score += 1.0 - 2.0 * err / scale
-            seen += 1
-            if (i - start + 1) % CHUNK == 0 or i == start + size - 1:
-                if seen < total and (score + (total - seen)) / total \
-                        < best - 1e-9 * abs(best):
-                    alive(buffers)
-                    return False, 0.0
+        p, d = A.P[ch], A.Dn[ch]
+        if p == 1 and d == 4:  # the shipped families' shapes: their loops unrolled
+            complete, score, seen = channel_errors(args, ch, 1, 4, score, seen)
+        elif p == 3 and d == 4:
+            complete, score, seen = channel_errors(args, ch, 3, 4, score, seen)
+        elif p == 1 and d == 2:
+            complete, score, seen = channel_errors(args, ch, 1, 2, score, seen)
+        else:
+            complete, score, seen = channel_errors(args, ch, p, d, score, seen)
+        if not complete:
+            alive(buffers)
+            return False, 0.0
     alive(buffers)
     return True, score / total if total else 0.0
 
