@@ -258,8 +258,6 @@ def profile_hessian(A, x, lin, W):
             ok = measure_hessian(args, 1, 4)
         elif p == 3 and d == 4:
             ok = measure_hessian(args, 3, 4)
-        elif p == 1 and d == 1:
-            ok = measure_hessian(args, 1, 1)
         else:
             ok = measure_hessian(args, p, d)
         if not ok:

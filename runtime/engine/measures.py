@@ -431,8 +431,6 @@ def project_all(A, q, mt, iterations, tol):
             viol[i], rank[i] = project_measure(args, 1, 4)
         elif p == 3 and d == 4:
             viol[i], rank[i] = project_measure(args, 3, 4)
-        elif p == 1 and d == 1:
-            viol[i], rank[i] = project_measure(args, 1, 1)
         else:
             viol[i], rank[i] = project_measure(args, p, d)
     alive((q, work))
