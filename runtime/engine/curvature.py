@@ -111,8 +111,8 @@ def measure_hessian(args, p, d):
     """Measure ``i``'s term of :func:`profile_hessian` added to ``K`` (``p`` equations, ``d``
     components); False where its KKT system is singular. ``args``: the kernel's arrays
     and buffers, borrowed."""
-    (i, n, k, F, bq, bqh, bmh, bc, bC, bD, bbuf, mt, Cx, W, bW, G, E, L, inv, rbar, lam, kept,
-     steps, grads, Pqm, Pmm, PqW, PmW, CW, S, R, mdot, K) = args
+    (i, n, k, F, q, qh, mh, c, C, D, buf, mt, Cx, W, G, E, L, inv, rbar, lam, kept, steps,
+     grads, Pqm, Pmm, PqW, PmW, CW, S, R, mdot, K) = args
     pk = multipliers_of(L, inv, rbar, p, lam, kept)
     if pk == 0:
         return True
@@ -135,11 +135,11 @@ def measure_hessian(args, p, d):
         for side in range(2):
             sign = h if side == 0 else -h
             for j in range(n):
-                bqh[j] = bq[j] + (sign * W[j, v - d] if v >= d else 0.0)
+                qh[j] = q[j] + (sign * W[j, v - d] if v >= d else 0.0)
             for u in range(d):
-                bmh[u] = mt[i, u] + (sign if u == v else 0.0)
-            eval_shaped(F, i, bqh, bmh, bc, bC, bD, bbuf, p, d)
-            weighted_gradient(lam, bc, bC, bD, p, n, d, grads, side)
+                mh[u] = mt[i, u] + (sign if u == v else 0.0)
+            eval_shaped(F, i, qh, mh, c, C, D, buf, p, d)
+            weighted_gradient(lam, c, C, D, p, n, d, grads, side)
         if v < d:
             for a in range(n):
                 Pqm[a, v] = (grads[0, a] - grads[1, a]) / (2.0 * h)
@@ -172,7 +172,7 @@ def measure_hessian(args, p, d):
         for e in range(pk):  # C w
             acc = 0.0
             for a in range(n):
-                acc += Cx[i, kept[e], a] * bW[a, j]
+                acc += Cx[i, kept[e], a] * W[a, j]
             CW[e, j] = acc
             R[d + e, j] = -acc
         for a in range(d):  # −G Φmq w
@@ -249,7 +249,7 @@ def profile_hessian(A, x, lin, W):
     for i in range(M):
         ch = chan[i]
         p, d = P[ch], Dn[ch]
-        args = (i, n, k, F, bq, bqh, bmh, bc, bC, bD, bbuf, mt, Cx, bW, bW, Gs[i], Es[i], Ls[i],
+        args = (i, n, k, F, bq, bqh, bmh, bc, bC, bD, bbuf, mt, Cx, bW, Gs[i], Es[i], Ls[i],
                 invs[i], rbars[i], blam, bkept, bsteps, bgrads, bPqm, bPmm, bPqW, bPmW, bCW, bS,
                 bR, bmdot, bK)
         if p == 1 and d == 2:  # the shipped families' shapes: their loops unrolled
