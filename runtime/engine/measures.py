@@ -64,8 +64,10 @@ def eval_measure(F, i, q, mt_i, c, C, D, x):
 
 @jit(inline=True)
 def eval_shaped(F, i, q, mt_i, c, C, D, x, p, d):
-    """:func:`eval_measure` for a measure of ``p`` equations and ``d`` components (constants
-    at a call specialised to a shape: :func:`project_all`)."""
+    """:func:`eval_measure` for a measure of ``p`` equations and ``d`` components: constants
+    in the loops specialised to the shipped shapes — (1, 2), (1, 4), (3, 4), in that order
+    in :func:`project_all`, ``curvature.profile_hessian``, ``sample.observed_all`` and
+    ``sample.errors_at`` (docs/engine.md) — the sizes read elsewhere."""
     chan, W, X, col, addr, k = F[0], F[3], F[4], F[5], F[6], F[7]
     ch = chan[i]
     n, w = q.size, W[ch]

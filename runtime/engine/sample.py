@@ -306,12 +306,12 @@ def observed_all(A, q):
     for i in range(A.chan.size):
         ch = F[0][i]
         p, d = F[1][ch], F[2][ch]
-        if p == 1 and d == 4:  # the shipped families' shapes: their loops unrolled
+        if p == 1 and d == 2:  # the shipped families' shapes: their loops unrolled
+            viol[i], rank[i] = observed_error(F, i, q, eps, c, C, D, E, L, inv, kept, w, x, 1, 2)
+        elif p == 1 and d == 4:
             viol[i], rank[i] = observed_error(F, i, q, eps, c, C, D, E, L, inv, kept, w, x, 1, 4)
         elif p == 3 and d == 4:
             viol[i], rank[i] = observed_error(F, i, q, eps, c, C, D, E, L, inv, kept, w, x, 3, 4)
-        elif p == 1 and d == 2:
-            viol[i], rank[i] = observed_error(F, i, q, eps, c, C, D, E, L, inv, kept, w, x, 1, 2)
         else:
             viol[i], rank[i] = observed_error(F, i, q, eps, c, C, D, E, L, inv, kept, w, x, p, d)
     alive(buffers)
@@ -358,12 +358,12 @@ def errors_at(A, q, caps, scale, best, errors):
     seen = 0
     for ch in range(A.size.size):
         p, d = A.P[ch], A.Dn[ch]
-        if p == 1 and d == 4:  # the shipped families' shapes: their loops unrolled
+        if p == 1 and d == 2:  # the shipped families' shapes: their loops unrolled
+            complete, score, seen = channel_errors(args, ch, 1, 2, score, seen)
+        elif p == 1 and d == 4:
             complete, score, seen = channel_errors(args, ch, 1, 4, score, seen)
         elif p == 3 and d == 4:
             complete, score, seen = channel_errors(args, ch, 3, 4, score, seen)
-        elif p == 1 and d == 2:
-            complete, score, seen = channel_errors(args, ch, 1, 2, score, seen)
         else:
             complete, score, seen = channel_errors(args, ch, p, d, score, seen)
         if not complete:
