@@ -9,6 +9,7 @@ import os
 import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from types import ModuleType
 
@@ -29,9 +30,18 @@ class ChannelInfo:
     exact: tuple[str, ...]
     corrected: tuple[str, ...]
 
-    @property
+    @cached_property
     def corrected_index(self) -> np.ndarray:
-        return np.array([self.components.index(c) for c in self.corrected], dtype=int)
+        """The columns of the corrected components (read-only: shared by the channel's
+        data)."""
+        index = np.array([self.components.index(c) for c in self.corrected], dtype=int)
+        index.flags.writeable = False
+        return index
+
+    @cached_property
+    def all_corrected(self) -> bool:
+        """Every component is corrected, in the data's order (no exact one)."""
+        return self.corrected == self.components
 
 
 @dataclass(frozen=True)
@@ -156,8 +166,11 @@ class ModelFamily:
 
     def params_dict(self, q: np.ndarray, slack: bool = False) -> dict[str, float]:
         """The parameter by component name; slack components only with ``slack=True``."""
+        if slack or not self.slack_names:
+            return dict(zip(self.parameter_names, np.asarray(q, dtype=float).tolist(),
+                            strict=True))
         return {n: float(v) for n, v in zip(self.parameter_names, q, strict=True)
-                if slack or n not in self.slack_names}
+                if n not in self.slack_names}
 
     def with_slacks(self, q, constants=None, model: str | None = None) -> np.ndarray:
         """``q`` with its slack components (appendix F) completed or refreshed.
@@ -217,6 +230,8 @@ class ModelFamily:
 
     def slack_dict(self, q: np.ndarray) -> dict[str, float]:
         """The slack components by name."""
+        if not self.slack_names:
+            return {}
         return {n: float(v) for n, v in zip(self.parameter_names, q, strict=True)
                 if n in self.slack_names}
 

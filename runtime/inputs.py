@@ -6,6 +6,7 @@ what is wrong. The estimator itself then never raises on bad numerics.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -39,8 +40,8 @@ class ChannelData:
         """Magnitude of the measures in their information metric (for rounding floors)."""
         if not self.m.size:
             return 0.0
-        q = np.abs(np.diagonal(self.Q, axis1=-2, axis2=-1)).max()
-        return float(np.abs(self.m).max() * np.sqrt(q))
+        top_q = float(abs(self.Q.diagonal(0, -2, -1)).max())
+        return float(abs(self.m).max()) * math.sqrt(top_q)
 
     def subset(self, rows: np.ndarray) -> ChannelData:
         """The same channel restricted to some measures (no validation again)."""
@@ -75,11 +76,11 @@ def real_array(value, what: str) -> np.ndarray:
 
 
 def _finite(a: np.ndarray, what: str) -> None:
-    bad = ~np.isfinite(a)
-    if bad.any():
-        where = np.argwhere(bad)[0]
-        raise ValueError(f"{what} contains NaN or infinite values (first at index "
-                         f"{tuple(int(i) for i in where)})")
+    if np.isfinite(a).all():
+        return
+    where = np.argwhere(~np.isfinite(a))[0]
+    raise ValueError(f"{what} contains NaN or infinite values (first at index "
+                     f"{tuple(int(i) for i in where)})")
 
 
 def _psd(Q: np.ndarray, what: str) -> None:
@@ -95,12 +96,24 @@ def _psd(Q: np.ndarray, what: str) -> None:
                          + (f", measure {where})" if Q.ndim == 3 else ")"))
 
 
+_EYES: dict = {}
+
+
+def _eye(k: int) -> np.ndarray:
+    """``np.eye(k)``, made once (read-only)."""
+    eye = _EYES.get(k)
+    if eye is None:
+        eye = _EYES[k] = np.eye(k)
+        eye.flags.writeable = False
+    return eye
+
+
 def information(value, k: int, M: int, what: str) -> np.ndarray:
     """Normalise an information specification to (k, k) or (M, k, k), validated."""
     if value is None:
         return np.eye(k)
     if (type(value) is float or type(value) is int) and 0 < value < np.inf:
-        return float(value) * np.eye(k)  # the common case (bad numbers: checked below)
+        return float(value) * _eye(k)  # the common case (bad numbers: checked below)
     Q = real_array(value, what)
     _finite(Q, what)
     if Q.ndim == 0:
@@ -196,7 +209,8 @@ def channel_data(fam: ModelFamily, data: Mapping, info: Mapping | None,
         if fixed is not None:
             Q = np.broadcast_to(Q, (X.shape[0],) + Q.shape[-2:]).copy()
             G = exact_root(Q, fixed)
-        out.append(ChannelData(name, X, idx, X[:, idx].copy(), Q, G, fixed))
+        m = X.copy() if ch.all_corrected else X[:, idx]  # a copy either way
+        out.append(ChannelData(name, X, idx, m, Q, G, fixed))
     return out
 
 

@@ -148,8 +148,7 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
     verdict = Verdict(bool(stationary), float(decrement), float(cost), float(curvature),
                       direction if direction.size else None,
                       plateau_text(int(plateau), vector, problem.names))
-    detail = {engine.NO_DETAIL: "", engine.AT_START: " at the starting point",
-              engine.IN_PROJECTOR: " in the projector"}.get(kind)
+    detail = _DETAILS.get(kind)
     if detail is None:
         detail = verdict.plateau if kind in (engine.LOST, engine.PLATEAU_DETAIL) else \
             verdict.describe()
@@ -161,6 +160,11 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
                           float(residual), covariance) if report and ok else None
     return Outcome(point, None, None, int(iterations), int(status), message,
                    float(delta0), verdict if checked else None, projected)
+
+
+#: The fixed details of a status's message, by the engine's code.
+_DETAILS = {engine.NO_DETAIL: "", engine.AT_START: " at the starting point",
+            engine.IN_PROJECTOR: " in the projector"}
 
 
 def _point(problem: Problem, A, fields) -> Point:

@@ -167,49 +167,106 @@ def arrays(problem) -> Arrays:
         out = _subset(*parent)
         object.__setattr__(problem, "_arrays", out)
         return out
-    rows: RowKernels = problem.rows
     channels = problem.channels
-    nch = len(channels)
+    shape = _shape(problem.rows, channels, problem.strict_slacks)
     sizes = [ch.X.shape[0] for ch in channels]
-    widths = [ch.X.shape[1] for ch in channels]
-    dims = [ch.index.size for ch in channels]
-    M, wmax, dmax = sum(sizes), max(widths, default=1), max(dims, default=1)
-    X = np.zeros((M, wmax))
-    m = np.zeros((M, dmax))
-    Q = np.zeros((M, dmax, dmax))
-    G = np.zeros((M, dmax, dmax))
-    col = np.full((nch, dmax), -1, dtype=np.int64)
-    P = np.zeros(nch, dtype=np.int64)
-    addr = np.zeros(nch, dtype=np.int64)
-    scale = np.zeros(nch)
-    start = np.zeros(nch, dtype=np.int64)
-    at = 0
-    for j, ch in enumerate(channels):
-        size, w, d = sizes[j], widths[j], dims[j]
-        start[j] = at
-        X[at:at + size, :w] = ch.X
-        m[at:at + size, :d] = ch.m
-        Q[at:at + size, :d, :d] = ch.Q
-        G[at:at + size, :d, :d] = ch.G
-        col[j, :d] = ch.index
-        addr[j], P[j] = rows.measures[ch.name]
-        scale[j] = ch.scale
-        at += size
-    strict = problem.strict_slacks
+    M, nch, wmax, dmax = sum(sizes), len(channels), shape.wmax, shape.dmax
+    if nch == 1 and channels[0].X.shape[1] == wmax:  # one channel: its arrays as they are
+        ch = channels[0]
+        X, m = _of_kind(ch.X, *_F2), _of_kind(ch.m, *_F2)
+        Q, G = _per_measure(ch.Q, M), _per_measure(ch.G, M)
+        chan, size, start = np.zeros(M, dtype=np.int64), np.array(sizes, dtype=np.int64), \
+            np.zeros(1, dtype=np.int64)
+    else:
+        X, m = np.zeros((M, wmax)), np.zeros((M, dmax))
+        Q, G = np.zeros((M, dmax, dmax)), np.zeros((M, dmax, dmax))
+        start = np.zeros(nch, dtype=np.int64)
+        at = 0
+        for j, ch in enumerate(channels):
+            size, w, d = sizes[j], ch.X.shape[1], ch.index.size
+            start[j] = at
+            X[at:at + size, :w] = ch.X
+            m[at:at + size, :d] = ch.m
+            Q[at:at + size, :d, :d] = ch.Q
+            G[at:at + size, :d, :d] = ch.G
+            at += size
+        chan = np.repeat(np.arange(nch, dtype=np.int64), sizes)
+        size = np.array(sizes, dtype=np.int64)
+    scale = np.array([ch.scale for ch in channels], dtype=float)
     out = Arrays(
         _of_kind(problem.q0, *_LAYOUT[_INDEX["q0"]]),
         _of_kind(problem.Q0, *_LAYOUT[_INDEX["Q0"]]),
         _of_kind(problem.k, *_LAYOUT[_INDEX["k"]]), float(problem.eps),
-        int(rows.c0), int(rows.r),
-        np.repeat(np.arange(nch, dtype=np.int64), sizes), X, m, Q, G,
-        col, P, np.array(dims, dtype=np.int64), np.array(widths, dtype=np.int64), addr,
-        scale, np.array(sizes, dtype=np.int64), start,
-        int(rows.slack), rows.kinds, rows.clauses, rows.T, rows.t,
-        np.array([i for i, _ in strict], dtype=np.int64),
-        np.array([p for _, p in strict], dtype=np.int64),
-    )  # the fields made here of their kinds (RowKernels' too: row_kernels makes them so)
+        shape.c0, shape.r, chan, X, m, Q, G,
+        shape.col, shape.P, shape.Dn, shape.W, shape.addr, scale, size, start,
+        shape.slack, shape.kinds, shape.clauses, shape.T, shape.t,
+        shape.strict_idx, shape.strict_pow,
+    )  # the fields made here of their kinds (_Shape's too: _shape makes them so)
     link(_ENGINE)
     object.__setattr__(problem, "_arrays", out)
+    return out
+
+
+_F2 = _LAYOUT[_INDEX["X"]]
+
+
+def _per_measure(Q: np.ndarray, M: int) -> np.ndarray:
+    """A channel's information (or its root) per measure: ``(M, d, d)``, C-ordered."""
+    if Q.ndim == 3:
+        return _of_kind(Q, *_LAYOUT[_INDEX["Q"]])
+    out = np.empty((M,) + Q.shape)
+    out[...] = Q
+    return out
+
+
+@dataclass(frozen=True)
+class _Shape:
+    """The fields of :class:`Arrays` fixed by a model's row kernels, its channels' layout
+    (names, data widths, corrected columns) and its strict slacks: made once per layout
+    (:func:`_shape`), shared by its problems (the kernels only read them)."""
+
+    c0: int
+    r: int
+    wmax: int
+    dmax: int
+    col: np.ndarray
+    P: np.ndarray
+    Dn: np.ndarray
+    W: np.ndarray
+    addr: np.ndarray
+    slack: int
+    kinds: np.ndarray
+    clauses: np.ndarray
+    T: np.ndarray
+    t: np.ndarray
+    strict_idx: np.ndarray
+    strict_pow: np.ndarray
+
+
+def _shape(rows: RowKernels, channels, strict) -> _Shape:
+    """:class:`_Shape` of a problem, cached on its :class:`RowKernels` (once per family,
+    model and form) by its channels' layout."""
+    key = (tuple((ch.name, ch.X.shape[1], ch.index.tobytes()) for ch in channels), strict)
+    cache = rows.__dict__.setdefault("_shapes", {})
+    out = cache.get(key)
+    if out is None:
+        if len(cache) >= 64:
+            cache.clear()
+        nch = len(channels)
+        widths = [ch.X.shape[1] for ch in channels]
+        dims = [ch.index.size for ch in channels]
+        dmax = max(dims, default=1)
+        col = np.full((nch, dmax), -1, dtype=np.int64)
+        P, addr = np.zeros(nch, dtype=np.int64), np.zeros(nch, dtype=np.int64)
+        for j, ch in enumerate(channels):
+            col[j, :dims[j]] = ch.index
+            addr[j], P[j] = rows.measures[ch.name]
+        out = cache[key] = _Shape(
+            int(rows.c0), int(rows.r), max(widths, default=1), dmax, col, P,
+            np.array(dims, dtype=np.int64), np.array(widths, dtype=np.int64), addr,
+            int(rows.slack), rows.kinds, rows.clauses, rows.T, rows.t,
+            np.array([i for i, _ in strict], dtype=np.int64),
+            np.array([p for _, p in strict], dtype=np.int64))
     return out
 
 
@@ -285,12 +342,16 @@ def pack_measures(A: Arrays, mt) -> np.ndarray:
 
 def unpack_measures(A: Arrays, padded: np.ndarray) -> tuple:
     """The padded per-measure layout cut back into per-channel arrays."""
+    if A.size.size == 1 and padded.shape[1] == A.Dn[0]:  # one channel, no padding
+        return (padded,)
     return tuple(padded[A.start[j]:A.start[j] + A.size[j], :A.Dn[j]]
                  for j in range(A.size.size))
 
 
 def per_channel(A: Arrays, values: np.ndarray) -> tuple:
     """A per-measure vector cut into per-channel vectors."""
+    if A.size.size == 1:
+        return (values,)
     return tuple(values[A.start[j]:A.start[j] + A.size[j]] for j in range(A.size.size))
 
 
@@ -313,6 +374,8 @@ def pack_evals(A: Arrays, evals, n: int):
 
 def unpack_evals(A: Arrays, c, C, D) -> tuple:
     """The padded equations cut back into per-channel ``(c, C, D)``."""
+    if A.size.size == 1 and c.shape[1] == A.P[0] and D.shape[2] == A.Dn[0]:  # no padding
+        return ((c, C, D),)
     out = []
     for j in range(A.size.size):
         rows = slice(A.start[j], A.start[j] + A.size[j])

@@ -63,9 +63,14 @@ _CRAWL = 3
 _GROWING = 1.0
 _JOINT_STEPS = 4
 
-#: An outcome: status, iterations, the point, which detail its message carries, a verdict.
-Out = namedtuple("Out", ["status", "iterations", "x", "detail", "verdict"])
-record_kind("Out", Out, "i i Pt i Verdict")
+#: What a fit reports from the projector at a point (:func:`projected_at`): ``have`` False
+#: when not taken (the rest empty); ``ok`` False where the projector fails there.
+Rep = namedtuple("Rep", ["have", "ok", "info", "ranks", "kept0", "rank0", "residual"])
+record_kind("Rep", Rep, "b b f2 i1 b1 i f")
+#: An outcome: status, iterations, the point, which detail its message carries, a verdict,
+#: the report at the point when the iteration linearised there (else ``have`` False).
+Out = namedtuple("Out", ["status", "iterations", "x", "detail", "verdict", "report"])
+record_kind("Out", Out, "i i Pt i Verdict Rep")
 
 
 @jit
@@ -73,9 +78,28 @@ def _none_verdict(cost):
     return Verdict(False, 0.0, cost, np.nan, np.zeros(0), 0, np.zeros(0))
 
 
+@jit
+def no_report():
+    return Rep(False, False, np.zeros((0, 0)), np.zeros(0, np.int64), np.zeros(0, np.bool_), 0,
+               np.nan)
+
+
+@jit
+def report_of(ok, lin, proj):
+    """The report at ``x`` from ``project_point(A, x, 0.0, np.zeros(0))``'s ``(ok, lin,
+    proj)``: what :func:`projected_at` computes there."""
+    return Rep(True, ok, lin.info, lin.ranks, proj.kept0, proj.rank0, proj.residual)
+
+
 @linked("Pt i i i Verdict -> Out")
 def outcome(x, it, status, detail, v):
-    return Out(status, it, x, detail, v)
+    return Out(status, it, x, detail, v, no_report())
+
+
+@linked("Pt i i i Verdict Rep -> Out")
+def reported(x, it, status, detail, v, rep):
+    """:func:`outcome` with the report at ``x``."""
+    return Out(status, it, x, detail, v, rep)
 
 
 @jit
@@ -237,35 +261,39 @@ def step(A, st, scale, x, violation, lin, proj):
     return False, x, 0.0
 
 
-@linked("A f1 f1 Pt b Lin Proj i b -> b Out Pt f")
-def end(A, st, info0, x, have_lin, lin, proj, it, verify_end):
+@linked("A f1 f1 Pt b Lin Proj Lin Proj i b -> b Out Pt f")
+def end(A, st, info0, x, have_lin, lin, proj, mlin, mproj, it, verify_end):
     """Verify ``x``: ``(done, outcome, next point, its violation)`` — not done after an
-    escape (the iteration goes on from the next point)."""
+    escape (the iteration goes on from the next point). ``have_lin``: ``lin, proj`` are the
+    projector's at ``x`` and ``mlin, mproj`` :func:`lagrangian`'s from them (else made
+    here)."""
     none = _none_verdict(x.cost)
     if not have_lin:
         ok, lin, proj = project_point(A, x, 0.0, np.zeros(0))
         if not ok:
             return True, outcome(x, it, FAILED, IN_PROJECTOR, none), x, 0.0
+    rep = report_of(True, lin, proj)  # lin, proj: the projector's at x, undamped
     if not verify_end:
-        return True, outcome(x, it, UNVERIFIED, NO_DETAIL, none), x, 0.0
+        return True, reported(x, it, UNVERIFIED, NO_DETAIL, none, rep), x, 0.0
     root = info_root(A, lin.info)
     _, violation = restored(A, x.q, x.mt, root, RESTORE_STEPS, True)
     if not feasible(violation, x.cost):
-        return True, outcome(x, it, INFEASIBLE, NO_DETAIL, none), x, 0.0
+        return True, reported(x, it, INFEASIBLE, NO_DETAIL, none, rep), x, 0.0
     if st[2] < _ESCAPES:
         found, moved, mv = nearer(A, x, root)
         if found:
             st[2] += 1
             return False, outcome(x, it, FAILED, NO_DETAIL, none), moved, mv
-    mlin, mproj = lagrangian(A, x, lin, proj)
+    if not have_lin:
+        mlin, mproj = lagrangian(A, x, lin, proj)
     start_info = info0 if st[5] != 0 else np.zeros(0)
     v = verify(A, x, lin, proj, start_info, at_rounding(x.q, mproj.q), mlin, mproj)
     if is_minimum(v):
-        return True, outcome(x, it, CONVERGED, NO_DETAIL, v), x, 0.0
+        return True, reported(x, it, CONVERGED, NO_DETAIL, v, rep), x, 0.0
     if v.plateau:
-        return True, outcome(x, it, PLATEAU, PLATEAU_DETAIL, v), x, 0.0
+        return True, reported(x, it, PLATEAU, PLATEAU_DETAIL, v, rep), x, 0.0
     if not v.stationary:
-        return True, outcome(x, it, STALLED, DESCRIBED, v), x, 0.0
+        return True, reported(x, it, STALLED, DESCRIBED, v, rep), x, 0.0
     if st[2] < _ESCAPES and v.direction.size:
         st[2] += 1
         found, moved, mv = escape(A, x, lin, v.direction)
@@ -273,7 +301,7 @@ def end(A, st, info0, x, have_lin, lin, proj, it, verify_end):
             d = moved.q - x.q
             st[0] = max(st[0], np.sqrt(d @ d))
             return False, outcome(x, it, FAILED, NO_DETAIL, none), moved, mv
-    return True, outcome(x, it, SADDLE, DESCRIBED, v), x, 0.0
+    return True, reported(x, it, SADDLE, DESCRIBED, v, rep), x, 0.0
 
 
 @linked("A f1 f1 f1 f1 Pt f i f b -> Out")
@@ -300,17 +328,19 @@ def descend(A, st, info0, scale, q_start, x, violation, max_iter, xtol, verify_e
         last_size = size
         if since_lost >= _LOST_ROUNDS:
             v = Verdict(True, 0.0, x.cost, np.nan, np.zeros(0), 2, u)
-            return outcome(x, it, PLATEAU, LOST, v)
+            return reported(x, it, PLATEAU, LOST, v, report_of(ok, lin, proj))
         mlin, mproj = lagrangian(A, x, lin, proj)
         if x_feasible and (stationary(A, x, mlin, mproj) or at_rounding(x.q, mproj.q)) \
                 and negligible(A, x.q, mproj.q, x.mt, mproj.mt, xtol):
-            done, out, x, violation = end(A, st, info0, x, True, lin, proj, it, verify_end)
+            done, out, x, violation = end(A, st, info0, x, True, lin, proj, mlin, mproj, it,
+                                          verify_end)
             if done:
                 return out
             continue
         found, trial, trial_violation = step(A, st, scale, x, violation, mlin, mproj)
         if not found:
-            done, out, x, violation = end(A, st, info0, x, True, lin, proj, it, verify_end)
+            done, out, x, violation = end(A, st, info0, x, True, lin, proj, mlin, mproj, it,
+                                          verify_end)
             if done:
                 return out
             continue
@@ -332,7 +362,8 @@ def descend(A, st, info0, scale, q_start, x, violation, max_iter, xtol, verify_e
                 x, violation = moved, mv
                 continue
         if since_progress >= _STAGNATION:
-            done, out, x, violation = end(A, st, info0, x, False, lin, proj, it, verify_end)
+            done, out, x, violation = end(A, st, info0, x, False, lin, proj, mlin, mproj, it,
+                                          verify_end)
             if done:
                 return out
             since_progress = 0
@@ -343,8 +374,9 @@ def descend(A, st, info0, scale, q_start, x, violation, max_iter, xtol, verify_e
         start_info = info0 if st[5] != 0 else np.zeros(0)
         v = verify(A, x, lin, proj, start_info, False, mlin, mproj)
         if is_minimum(v):
-            return outcome(x, max_iter, CONVERGED, NO_DETAIL, v)
-    return outcome(x, max_iter, MAX_ITER, NO_DETAIL, _none_verdict(x.cost))
+            return reported(x, max_iter, CONVERGED, NO_DETAIL, v, report_of(ok, lin, proj))
+    return reported(x, max_iter, MAX_ITER, NO_DETAIL, _none_verdict(x.cost),
+                    report_of(ok, lin, proj))
 
 
 @linked("A f1 f1 Pt f Proj f2 -> Pt f b")
@@ -355,7 +387,7 @@ def joint_start(A, st, scale, x, violation, proj0, root):
     best, best_violation, moved = x, violation, False
     proj = proj0
     w = weights(A, st, scale, x.q)
-    for _ in range(_JOINT_STEPS):
+    for k in range(_JOINT_STEPS):
         s = proj.q - x.q
         if not wnorm(s, w) <= _JOINT * st[0]:
             break
@@ -365,6 +397,8 @@ def joint_start(A, st, scale, x, violation, proj0, root):
                 not has_relations(A) or relations_hold(A, trial.q))):
             break
         best, best_violation, moved = trial, tv, True
+        if k == _JOINT_STEPS - 1:  # the last step: no projector's point is used after it
+            break
         ok, _, proj = project_point(A, evaluate(A, proj.q, proj.mt), 0.0, np.zeros(0))
         if not ok:
             break
@@ -431,7 +465,8 @@ def run(A, q_start, max_iter, xtol, verify_end):
         iterations += out.iterations
         if not have_best or out.status == CONVERGED or out.x.cost < best.x.cost:
             best, have_best = out, True
-    return Out(best.status, iterations, best.x, best.detail, best.verdict), st[4]
+    return Out(best.status, iterations, best.x, best.detail, best.verdict, best.report), \
+        st[4]
 
 
 
@@ -460,7 +495,12 @@ def run_flat(A, q_start, max_iter, xtol, verify_end, report):
     x, v = out.x, out.verdict
     covariance = np.zeros((0, 0))
     if report:
-        ok, info, ranks, kept0, rank0, residual = projected_at(A, x)
+        rep = out.report
+        if rep.have:  # the iteration's linearisation at x (the same numbers)
+            ok, info, ranks, kept0, rank0, residual = rep.ok, rep.info, rep.ranks, rep.kept0, \
+                rep.rank0, rep.residual
+        else:
+            ok, info, ranks, kept0, rank0, residual = projected_at(A, x)
         if ok:
             covariance = constrained_covariance(info, kept_rows(x.C0, kept0))
     else:

@@ -36,10 +36,10 @@ from .rows import call3
 Pt = namedtuple("Pt", ["q", "mt", "c0", "C0", "c", "C", "D", "delta", "cost"])
 #: The whitened linearisation at a point (eq. 38–43) and the projector's point (eq. 12).
 Lin = namedtuple("Lin", ["info", "H", "rhs", "gradient", "Cbar", "rbar", "E", "L", "inv",
-                         "residual"])
+                         "residual", "ranks"])
 Proj = namedtuple("Proj", ["q", "mt", "kept0", "rank0", "residual"])
 record_kind("Pt", Pt, "f1 f2 f1 f2 f2 f3 f3 f f")
-record_kind("Lin", Lin, "f2 f2 f1 f1 f3 f2 f3 f3 f2 f")
+record_kind("Lin", Lin, "f2 f2 f1 f1 f3 f2 f3 f3 f2 f i1")
 record_kind("Proj", Proj, "f1 f2 b1 i f")
 
 RETRACTION = 64  # Gauss–Newton steps onto c0 = 0, at most (a double root: linear)
@@ -73,7 +73,7 @@ def project_point(A, x, mu, weights):
     ``ok`` False where the projector fails (a zero pivot)."""
     info, H, rhs, gradient, Cbar, rbar, E, L, inv, kept, ranks, residual = linearise(
         A, x.q, x.mt, x.c, x.C, x.D, x.c0, x.C0)
-    lin = Lin(info, H, rhs, gradient, Cbar, rbar, E, L, inv, residual)
+    lin = Lin(info, H, rhs, gradient, Cbar, rbar, E, L, inv, residual, ranks)
     ok, proj = solve(A, x, lin, mu, weights)
     return ok, lin, proj
 
@@ -329,7 +329,7 @@ def lagrangian(A, x, lin, proj):
         return lin, proj
     K = (V * np.maximum(w, 0.0)) @ V.T
     model = Lin(lin.info + K, lin.H + K, lin.rhs, lin.gradient, lin.Cbar, lin.rbar, lin.E,
-                lin.L, lin.inv, lin.residual)
+                lin.L, lin.inv, lin.residual, lin.ranks)
     ok, proj_model = solve(A, x, model, 0.0, np.zeros(0))
     if not ok:
         return lin, proj
