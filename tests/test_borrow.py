@@ -106,3 +106,21 @@ def test_a_fit_reports_the_projector_at_its_point(case):
     np.testing.assert_array_equal(res.info, lin.info)
     np.testing.assert_array_equal(res.covariance, constrained_covariance(lin.info, proj.C0))
     assert iterate(problem, problem.q0).projected is None  # not asked for
+
+
+@pytest.mark.parametrize("case", range(3))
+@pytest.mark.parametrize(("verify", "max_iter"), [(False, 100), (True, 1), (True, 0)])
+def test_every_end_reports_the_projector_at_its_point(case, verify, max_iter):
+    """Whichever end made it — an unverified stop, the cap's check, no iteration at all —
+    the report at the returned point is the projector's there, bit for bit (the iteration's
+    own linearisation when it made one at that point, else made for the report)."""
+    fam, model, problem = _problems()[case]
+    out = iterate(problem, problem.q0, max_iter=max_iter, verify=verify, report=True)
+    lin, proj = project(problem, out.point)
+    got = out.projected
+    assert got is not None
+    np.testing.assert_array_equal(got.info, lin.info)
+    np.testing.assert_array_equal(got.C0, proj.C0)
+    assert (got.rank0, got.residual) == (proj.rank0, proj.residual)
+    for mine, theirs in zip(got.ranks, lin.ranks, strict=True):
+        np.testing.assert_array_equal(mine, theirs)
