@@ -38,11 +38,6 @@ class ChannelInfo:
         index.flags.writeable = False
         return index
 
-    @cached_property
-    def all_corrected(self) -> bool:
-        """Every component is corrected, in the data's order (no exact one)."""
-        return self.corrected == self.components
-
 
 @dataclass(frozen=True)
 class Reduction:

@@ -209,7 +209,7 @@ def channel_data(fam: ModelFamily, data: Mapping, info: Mapping | None,
         if fixed is not None:
             Q = np.broadcast_to(Q, (X.shape[0],) + Q.shape[-2:]).copy()
             G = exact_root(Q, fixed)
-        m = X.copy() if ch.all_corrected else X[:, idx]  # a copy either way
+        m = X.copy() if ch.corrected == ch.components else X[:, idx]  # a copy either way
         out.append(ChannelData(name, X, idx, m, Q, G, fixed))
     return out
 

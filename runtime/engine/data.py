@@ -167,11 +167,12 @@ def arrays(problem) -> Arrays:
         out = _subset(*parent)
         object.__setattr__(problem, "_arrays", out)
         return out
+    rows: RowKernels = problem.rows
     channels = problem.channels
-    shape = _shape(problem.rows, channels, problem.strict_slacks)
+    shape = _shape(rows, channels, problem.strict_slacks)
     sizes = [ch.X.shape[0] for ch in channels]
     M, nch, wmax, dmax = sum(sizes), len(channels), shape.wmax, shape.dmax
-    if nch == 1 and channels[0].X.shape[1] == wmax:  # one channel: its arrays as they are
+    if nch == 1:  # one channel: its arrays as they are
         ch = channels[0]
         X, m = _of_kind(ch.X, *_F2), _of_kind(ch.m, *_F2)
         Q, G = _per_measure(ch.Q, M), _per_measure(ch.G, M)
@@ -197,11 +198,11 @@ def arrays(problem) -> Arrays:
         _of_kind(problem.q0, *_LAYOUT[_INDEX["q0"]]),
         _of_kind(problem.Q0, *_LAYOUT[_INDEX["Q0"]]),
         _of_kind(problem.k, *_LAYOUT[_INDEX["k"]]), float(problem.eps),
-        shape.c0, shape.r, chan, X, m, Q, G,
+        int(rows.c0), int(rows.r), chan, X, m, Q, G,
         shape.col, shape.P, shape.Dn, shape.W, shape.addr, scale, size, start,
-        shape.slack, shape.kinds, shape.clauses, shape.T, shape.t,
+        int(rows.slack), rows.kinds, rows.clauses, rows.T, rows.t,
         shape.strict_idx, shape.strict_pow,
-    )  # the fields made here of their kinds (_Shape's too: _shape makes them so)
+    )  # the fields made here of their kinds (RowKernels' and _Shape's too: made so)
     link(_ENGINE)
     object.__setattr__(problem, "_arrays", out)
     return out
@@ -221,12 +222,10 @@ def _per_measure(Q: np.ndarray, M: int) -> np.ndarray:
 
 @dataclass(frozen=True)
 class _Shape:
-    """The fields of :class:`Arrays` fixed by a model's row kernels, its channels' layout
-    (names, data widths, corrected columns) and its strict slacks: made once per layout
-    (:func:`_shape`), shared by its problems (the kernels only read them)."""
+    """The fields of :class:`Arrays` fixed by a model's channels' layout (names, data
+    widths, corrected columns) and its strict slacks: made once per layout (:func:`_shape`),
+    shared by its problems (the kernels only read them)."""
 
-    c0: int
-    r: int
     wmax: int
     dmax: int
     col: np.ndarray
@@ -234,11 +233,6 @@ class _Shape:
     Dn: np.ndarray
     W: np.ndarray
     addr: np.ndarray
-    slack: int
-    kinds: np.ndarray
-    clauses: np.ndarray
-    T: np.ndarray
-    t: np.ndarray
     strict_idx: np.ndarray
     strict_pow: np.ndarray
 
@@ -262,9 +256,8 @@ def _shape(rows: RowKernels, channels, strict) -> _Shape:
             col[j, :dims[j]] = ch.index
             addr[j], P[j] = rows.measures[ch.name]
         out = cache[key] = _Shape(
-            int(rows.c0), int(rows.r), max(widths, default=1), dmax, col, P,
-            np.array(dims, dtype=np.int64), np.array(widths, dtype=np.int64), addr,
-            int(rows.slack), rows.kinds, rows.clauses, rows.T, rows.t,
+            max(widths, default=1), dmax, col, P, np.array(dims, dtype=np.int64),
+            np.array(widths, dtype=np.int64), addr,
             np.array([i for i, _ in strict], dtype=np.int64),
             np.array([p for _, p in strict], dtype=np.int64))
     return out
