@@ -24,8 +24,8 @@ from pathlib import Path
 
 _RUNTIME = Path(__file__).resolve().parent.parent / "runtime"
 #: The sources that define ``@jit`` kernels or shape their code (globs under the package).
-KERNEL_SOURCES = ("runtime/sqrt.py", "runtime/lapack.py", "runtime/engine/*.py",
-                  "common/jit.py", "common/link.py", "common/borrow.py",
+KERNEL_SOURCES = ("runtime/sqrt.py", "runtime/lapack.py", "runtime/linalg.py",
+                  "runtime/engine/*.py", "common/jit.py", "common/link.py", "common/borrow.py",
                   "runtime/numpy_rules.py", "runtime/two_view_kernels.py",
                   "runtime/two_view_twins.py")
 

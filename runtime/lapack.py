@@ -1,12 +1,12 @@
 """LAPACK called directly from the kernels, as NumPy calls it: the routines of numba's
-``np.linalg`` (SciPy's LAPACK, through numba's helpers ``numba_ez_gesdd`` ...) on copies laid
+``np.linalg`` (SciPy's LAPACK, through numba's helpers ``numba_ez_gelsd`` ...) on copies laid
 out by columns, without numba's ``np.linalg`` wrappers — seconds of compile each for their
-checks of every shape and layout (``lstsq`` 2.3 s, ``solve`` 3.3 s on this machine) — and
-two calls numba lacks.
+checks of every shape and layout (``lstsq`` 2.3 s on this machine) — and a call numba lacks
+(the eigenvalues of a real matrix that has complex ones).
 
 Each function is NumPy's own when run interpreted; compiled, the same LAPACK routine on the
-same numbers (the same results, bit for bit: tests/test_two_view_kernels.py,
-tests/test_lapack.py). A matrix that is not finite raises ``LinAlgError``.
+same numbers (the same results: tests/test_lapack.py; NumPy's own LAPACK build may differ
+in the last bits). A matrix that is not finite raises ``LinAlgError``.
 """
 
 from __future__ import annotations
@@ -16,26 +16,12 @@ import numpy as np
 from kanagen.common.jit import NUMBA, jit
 
 
-def singular_values(A: np.ndarray) -> np.ndarray:
-    """The singular values of ``A``, decreasing: ``np.linalg.svd(A, compute_uv=False)``
-    (LAPACK's gesdd without vectors, whose values may differ in the last bit from those
-    computed with them)."""
-    return np.linalg.svd(A, compute_uv=False)
-
-
 def eigenvalues(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The real and imaginary parts of the eigenvalues of the real square ``A``, in
     LAPACK's order: ``np.linalg.eigvals(A)`` (geev without vectors; numba's own refuses a
     real matrix with complex eigenvalues)."""
     w = np.linalg.eigvals(A)
     return np.ascontiguousarray(w.real), np.ascontiguousarray(w.imag)
-
-
-def gesv(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """``np.linalg.solve(A, B)`` for a square ``A`` and a matrix ``B`` (LAPACK's gesv, as
-    NumPy and numba call it; compiled, a direct call: numba's own ``solve`` is a few seconds
-    of compile for its checks of every shape and layout)."""
-    return np.linalg.solve(A, B)
 
 
 def least_squares(A: np.ndarray, b: np.ndarray, rcond: float) -> np.ndarray:
@@ -54,31 +40,9 @@ if NUMBA is not None:
     _P = types.CPointer(types.float64)
     # numba's LAPACK helpers (numba/_lapack.c, as numba.np.linalg declares them): a
     # workspace query, then the routine; the LAPACK is SciPy's, as for np.linalg in numba
-    _GESDD = types.ExternalFunction("numba_ez_gesdd", types.intc(
-        types.char, types.char, types.intp, types.intp, _P, types.intp, _P, _P, types.intp,
-        _P, types.intp))
     _GEEV = types.ExternalFunction("numba_ez_rgeev", types.intc(
         types.char, types.char, types.char, types.intp, _P, types.intp, _P, _P, _P,
         types.intp, _P, types.intp))
-
-    @overload(singular_values, jit_options={"cache": True})
-    def _singular_values(A):
-        def impl(A):
-            m, n = A.shape
-            if not finite(A):
-                raise np.linalg.LinAlgError("SVD did not converge")
-            a = column_major(A)
-            s, unused = np.empty(min(m, n)), np.empty(1)
-            info = _GESDD(_KIND, _NONE, m, n, a.ctypes, m, s.ctypes, unused.ctypes, 1,
-                          unused.ctypes, 1)
-            if info != 0 or a.size == 0 or unused.size == 0:  # the sizes keep them alive
-                raise np.linalg.LinAlgError("SVD did not converge")
-            return s
-        return impl
-
-    _GESV = types.ExternalFunction("numba_xgesv", types.intc(
-        types.char, types.intp, types.intp, _P, types.intp, types.CPointer(F_INT_nbtype), _P,
-        types.intp))
 
     _GELSD = types.ExternalFunction("numba_ez_gelsd", types.intc(
         types.char, types.intp, types.intp, types.intp, _P, types.intp, _P, types.intp, _P,
@@ -105,24 +69,6 @@ if NUMBA is not None:
             if info != 0 or a.size == 0 or s.size == 0 or rank.size == 0:  # kept alive
                 raise ValueError("Internal algorithm failed to converge.")
             return rhs[:n].copy()
-        return impl
-
-    @overload(gesv, jit_options={"cache": True})
-    def _gesv(A, B):
-        def impl(A, B):
-            n, nrhs = A.shape[0], B.shape[1]
-            if not (finite(A) and finite(B)):
-                raise np.linalg.LinAlgError("Array must not contain infs or NaNs")
-            a, b = column_major(A), column_major(B)
-            pivots = np.empty(n, dtype=F_INT_nptype)
-            info = _GESV(_KIND, n, nrhs, a.ctypes, n, pivots.ctypes, b.ctypes, n)
-            if info != 0 or a.size == 0 or pivots.size == 0:  # the sizes keep them alive
-                raise np.linalg.LinAlgError("Matrix is singular to machine precision.")
-            out = np.empty((n, nrhs))
-            for i in range(n):
-                for j in range(nrhs):
-                    out[i, j] = b[j, i]
-            return out
         return impl
 
     @overload(eigenvalues, jit_options={"cache": True})

@@ -1,25 +1,21 @@
-"""NumPy's linear algebra, sums and array operations as kernels that round as NumPy does.
+"""The two-view closed forms' small-matrix operations as kernels (for
+:mod:`~kanagen.runtime.two_view_kernels`), over :mod:`~kanagen.runtime.linalg`.
 
-A kernel that must give the results of NumPy code bit for bit — the two-view closed forms
-(:mod:`~kanagen.runtime.two_view_kernels`), whose outcome on a degenerate sample follows
-LAPACK's arbitrary basis of a null space — is written with these:
-
-* LAPACK as NumPy calls it: numba's ``np.linalg`` runs the same routines (SciPy's build of
-  LAPACK, NumPy has its own: the same results here, tests/test_two_view_kernels.py), its
-  factors laid out by rows as NumPy returns them (:func:`svd`); :mod:`.lapack`'s direct
-  calls for the two numba's lacks (``singular_values``, ``eigenvalues``) and for ``solve``
-  (``gesv``, whose numba wrapper is seconds of compile); ``np.linalg.inv`` solved as NumPy
-  solves it (:func:`inverse`); the shared parts linked kernels, compiled once;
-* products through BLAS where NumPy's went through it (``@``, ``np.dot``, :func:`norm`), the
-  operands in the same layouts (a transposed operand stays a transposed view: a copy can
-  change BLAS's order of sums);
-* sums in NumPy's order (:func:`vector_sum`), ``max`` as Python reads a NaN (:func:`floor0`);
-* loops instead of array expressions and slice assignments (:func:`divided`, :func:`put`,
+* The factorisations of :mod:`.linalg` — Jacobi rotations for the SVD and the symmetric
+  eigenproblem, a pivoted QR for a minimal system's null space, Gaussian elimination for a
+  solve — linked here (compiled once for their callers), a 3 × 3 determinant by cofactors:
+  LAPACK's fixed costs were most of a seven-point sample's time (a 3 × 3 SVD ~2 µs, 0.75 by
+  rotations), BLAS's of its products (a 3 × 3 product ~150 ns, ~20 by loops: :func:`matmul`).
+  They give NumPy's results to rounding, the singular vectors up to their signs and the
+  basis of a repeated or null singular value (tests/test_two_view_kernels.py holds the
+  closed forms to the NumPy ones, tests/reference_two_view.py). The eigenvalues of a
+  companion matrix stay LAPACK's (:mod:`.lapack`).
+* Sums in NumPy's order (:func:`vector_sum`), ``max`` as Python reads a NaN (:func:`floor0`).
+* Loops instead of array expressions and slice assignments (:func:`divided`, :func:`put`,
   ...): each of those compiles a loop nest with its shape checks and error message into the
   kernel (the two-view kernels' first compile: 42 s → 38 s).
 
-A matrix that is not finite makes the LAPACK calls raise ``LinAlgError`` (NumPy's SVD of an
-infinite matrix may not return).
+A matrix that is not finite makes the factorisations raise ``LinAlgError``.
 """
 
 from __future__ import annotations
@@ -29,12 +25,11 @@ import numpy as np
 from kanagen.common.jit import jit
 from kanagen.common.link import linked
 
-from .lapack import (  # noqa: F401 - eigenvalues, singular_values: for the two-view kernels
+from .lapack import (  # noqa: F401 - eigenvalues: for the two-view kernels
     eigenvalues,
     finite,
-    gesv,
-    singular_values,
 )
+from .linalg import dot, null_basis, right_singular, small_svd, solve_small
 
 # -- NumPy's rules ---------------------------------------------------------------------------
 
@@ -73,40 +68,51 @@ def floor0(x: float) -> float:
 
 @linked("f2 -> f2 f1 f2")
 def svd(A):
-    """``np.linalg.svd(A)`` (full matrices), its factors laid out by rows as NumPy's; a
-    matrix that is not finite raises, as NumPy's does with a NaN (with an infinity LAPACK
-    may not return)."""
-    if not finite(A):
-        raise np.linalg.LinAlgError("SVD did not converge")
-    U, S, Vt = np.linalg.svd(A)
-    return np.ascontiguousarray(U), S, np.ascontiguousarray(Vt)
+    """The full SVD of a small matrix, ``U, S, Vᵀ`` as ``np.linalg.svd(A)`` orders them
+    (:func:`~.linalg.small_svd`, compiled once for its callers)."""
+    return small_svd(A)
 
 
 @linked("f2 -> f1 f2")
 def null_space_svd(A):
-    """``np.linalg.svd(A)[1:]``, the singular values and ``Vᵀ`` (by rows), of a system whose
-    null vectors are wanted: without the left vectors of a tall ``A`` (LAPACK's gesdd
-    computes the same ``Vᵀ`` either way; the full ``U`` of 100 rows doubles its time)."""
-    if not finite(A):
-        raise np.linalg.LinAlgError("SVD did not converge")
-    if A.shape[0] >= A.shape[1]:
-        _, S, Vt = np.linalg.svd(A, full_matrices=False)
-    else:
-        _, S, Vt = np.linalg.svd(A)
-    return S, np.ascontiguousarray(Vt)
+    """The singular values and the full ``Vᵀ`` of a system whose null vectors are wanted,
+    ``np.linalg.svd(A)[1:]`` (:func:`~.linalg.right_singular`: no left vectors)."""
+    return right_singular(A)
+
+
+@linked("f2 f -> f2 b")
+def null_vectors(A, cut):
+    """The null space of a wide system that has exactly as many null vectors as columns
+    beyond its rows (a minimal sample's), as orthonormal columns, and whether it has (every
+    pivot above ``cut`` times the largest): :func:`~.linalg.null_basis`, a pivoted QR."""
+    return null_basis(A, cut)
 
 
 @linked("f2 f2 -> f2")
 def solved(A, B):
-    """``np.linalg.solve(A, B)`` laid out by rows (:func:`gesv`), compiled once for its
-    callers."""
-    return np.ascontiguousarray(gesv(A, B))
+    """``A⁻¹ B`` for a small square ``A`` (:func:`~.linalg.solve_small`: Gaussian
+    elimination with partial pivoting). Raises ``LinAlgError`` on a non-finite or a
+    singular ``A``."""
+    if not (finite(A) and finite(B)):
+        raise np.linalg.LinAlgError("Array must not contain infs or NaNs")
+    M, X = A.copy(), B.copy()
+    if not solve_small(M, X, A.shape[0], B.shape[1]):
+        raise np.linalg.LinAlgError("Singular matrix")
+    return X
 
 
 @jit
 def inverse(A):
-    """``np.linalg.inv``: NumPy solves ``A X = I`` (gesv), numba would factor and invert."""
+    """``np.linalg.inv`` of a small ``A`` (:func:`solved` on the identity)."""
     return solved(A, np.eye(A.shape[0]))
+
+
+@jit
+def det3(M) -> float:
+    """``np.linalg.det`` of a 3 × 3 ``M``, by cofactors of its first row."""
+    return (M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1])
+            - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
+            + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]))
 
 
 @jit
@@ -121,9 +127,9 @@ def cross(a, b):
 
 @jit
 def norm(v) -> float:
-    """``np.linalg.norm`` of a contiguous vector or matrix: ``√(v · v)`` by BLAS, as NumPy."""
+    """``np.linalg.norm`` of a contiguous vector or matrix (Frobenius)."""
     flat = v.reshape(v.size)
-    return np.sqrt(np.dot(flat, flat))
+    return np.sqrt(dot(flat, flat))
 
 
 @jit

@@ -6,13 +6,13 @@ Written in the subset of Python and NumPy that numba compiles (``@jit``;
 ``NUMBA_DISABLE_JIT=1`` runs the same source interpreted). Matches are the rows
 ``(x1, y1, x2, y2)`` of an (n, 4) array ``X``, pixels; rays are (n, 3) arrays.
 
-They run the arithmetic of the NumPy closed forms they replace step for step (the same
-LAPACK routines on the same arrays, the same BLAS products, sums in NumPy's order:
-:mod:`~kanagen.runtime.numpy_rules`): on a degenerate sample — a null space larger than the
-algorithm expects, whose basis LAPACK picks by rounding — they give what those gave
-(tests/reference_two_view.py), not merely another solution. The closed forms are
-``@linked`` (compiled once each and called through an address, not copied into every
-caller); the small helpers are ordinary kernels.
+Their linear algebra is that of small matrices (:mod:`~kanagen.runtime.numpy_rules`:
+Jacobi rotations, not LAPACK, whose fixed costs were most of a sample's time): on a sample
+they give the candidates of the NumPy closed forms they replaced
+(tests/reference_two_view.py) to rounding; on a degenerate one — a null space larger than
+the algorithm expects — another arbitrary basis of it, so other arbitrary candidates, or
+none. The closed forms are ``@linked`` (compiled once each and called through an address,
+not copied into every caller); the small helpers are ordinary kernels.
 """
 
 from __future__ import annotations
@@ -22,10 +22,12 @@ import numpy as np
 from kanagen.common.jit import jit
 from kanagen.common.link import linked
 
+from .linalg import dot, matmul, matvec, sym_eigh, vecmat
 from .numpy_rules import (
     argmax_abs,
     columns,
     cross,
+    det3,
     divided,
     eigenvalues,
     finite,
@@ -33,15 +35,18 @@ from .numpy_rules import (
     negated,
     norm,
     null_space_svd,
+    null_vectors,
     put,
     put_matrix,
-    singular_values,
     solved,
     svd,
     unit,
     vector_sum,
 )
 
+#: A singular value below this fraction of the largest is taken as zero: a sample whose
+#: system has more null vectors than its algorithm expects is degenerate.
+DEGENERATE = 1e-6
 _ALPHAS = np.array([0.0, 1.0, -1.0, 2.0])
 _CUBIC_FROM_VALUES = np.linalg.inv(np.vander(_ALPHAS, 4))  # values at _ALPHAS -> coefficients
 
@@ -76,7 +81,7 @@ def normalised(X, c: int, T):
     p = np.ones((n, 3))
     for i in range(n):
         p[i, 0], p[i, 1] = X[i, c], X[i, c + 1]
-    return p @ T.T
+    return matmul(p, T.T)
 
 
 @linked("f2 -> f2 f2 f2")
@@ -95,13 +100,27 @@ def epipolar_rows(X):
 
 @linked("f2 -> f2", python=True)
 def fundamental_8point(X):
-    """The normalised eight-point ``F`` of the matches ``X`` (n ≥ 8), rank 2, unit norm."""
+    """The normalised eight-point ``F`` of the matches ``X`` (n ≥ 8), rank 2, unit norm.
+    Raises ``LinAlgError`` on a degenerate sample (more than one null vector: points on a
+    line, repeated, a pure rotation or a plane seen without noise)."""
     A, T1, T2 = epipolar_rows(X)
-    F = null_space_svd(A)[1][-1].copy().reshape(3, 3)
+    S, Vt = null_space_svd(A)
+    _determined(S[7] > DEGENERATE * S[0])
+    F = Vt[-1].copy().reshape(3, 3)
     U, S, Vt = svd(F)
     D = np.zeros((3, 3))
     D[0, 0], D[1, 1] = S[0], S[1]  # rank 2: the closest in Frobenius norm
-    return unit(T2.T @ ((U @ D) @ Vt) @ T1)
+    return unit(matmul(matmul(T2.T, matmul(matmul(U, D), Vt)), T1))
+
+
+@jit
+def _determined(determined: bool) -> None:
+    """Raise ``LinAlgError`` on a degenerate sample: its system has more null vectors than
+    the closed form takes (a singular value, or a pivot, below :data:`DEGENERATE` of the
+    largest)."""
+    if not determined:
+        raise np.linalg.LinAlgError("a degenerate sample: its system has more null vectors "
+                                    "than the closed form expects")
 
 
 @jit
@@ -136,19 +155,21 @@ def polynomial_roots(p):
 def fundamental_7point(X):
     """The seven-point ``F`` of the 7 matches ``X``: the real roots ``α`` of
     ``det(α F1 + (1 − α) F2) = 0`` on the two-dimensional null space, unit norm each; as
-    ``(Fs (3, 3, 3), count)``."""
+    ``(Fs (3, 3, 3), count)``; none on a degenerate sample (more than two null vectors)."""
     A, T1, T2 = epipolar_rows(X)
-    Vt = null_space_svd(A)[1]
-    F1, F2 = Vt[-1].copy().reshape(3, 3), Vt[-2].copy().reshape(3, 3)
+    N, full = null_vectors(A, DEGENERATE)
+    Fs, count = np.empty((3, 3, 3)), 0
+    if not full:
+        return Fs, count
+    F1, F2 = N[:, 0].copy().reshape(3, 3), N[:, 1].copy().reshape(3, 3)
     dets = np.empty(4)  # det(a F1 + (1 − a) F2) is a cubic in a: four values fix it
     for i in range(4):
-        dets[i] = np.linalg.det(_pencil(_ALPHAS[i], F1, F2))
-    re, im = polynomial_roots(_CUBIC_FROM_VALUES @ dets)
-    Fs, count = np.empty((3, 3, 3)), 0
+        dets[i] = det3(_pencil(_ALPHAS[i], F1, F2))
+    re, im = polynomial_roots(matvec(_CUBIC_FROM_VALUES, dets))
     for i in range(re.shape[0]):
         if abs(im[i]) > 1e-8 * (1 + abs(re[i])):
             continue
-        put_matrix(Fs, count, unit(T2.T @ _pencil(re[i], F1, F2) @ T1))
+        put_matrix(Fs, count, unit(matmul(matmul(T2.T, _pencil(re[i], F1, F2)), T1)))
         count += 1
     return Fs, count
 
@@ -166,7 +187,8 @@ def _pencil(a: float, F1, F2):
 @linked("f2 -> f2", python=True)
 def homography_dlt(X):
     """The normalised DLT homography of the matches ``X`` (n ≥ 4), ``p2 ∝ H p1``, unit
-    norm."""
+    norm. Raises ``LinAlgError`` on a degenerate sample (more than one null vector: three
+    of the points on a line, or repeated)."""
     n = X.shape[0]
     T1, T2 = normalising_transform(X, 0), normalising_transform(X, 2)
     p1, p2 = normalised(X, 0, T1), normalised(X, 2, T2)
@@ -177,8 +199,15 @@ def homography_dlt(X):
             A[k, 6 + j] = p2[k, 1] * p1[k, j]
             A[n + k, j] = p2[k, 2] * p1[k, j]
             A[n + k, 6 + j] = -p2[k, 0] * p1[k, j]
-    H = null_space_svd(A)[1][-1].copy().reshape(3, 3)
-    return unit(solved(T2, H @ T1))  # by rows, as NumPy's
+    if n == 4:  # exactly one null vector, unless degenerate
+        N, full = null_vectors(A, DEGENERATE)
+        _determined(full)
+        H = N[:, 0].copy().reshape(3, 3)
+    else:
+        S, Vt = null_space_svd(A)
+        _determined(S[7] > DEGENERATE * S[0])
+        H = Vt[-1].copy().reshape(3, 3)
+    return unit(solved(T2, matmul(H, T1)))
 
 
 @jit
@@ -187,9 +216,9 @@ def _squared(G, e, p, p_other) -> float:
     ``−(p'ᵀ [e]× Ĩ G p pᵀ Gᵀ p') / (p'ᵀ [e]× Ĩ G Ĩ Gᵀ p')``, ``Ĩ = diag(1, 1, 0)``."""
     a = cross(p_other, e)  # p'ᵀ [e]× as a vector: (p' × e)
     a[2] = 0.0  # … Ĩ
-    aG, Gtp = a @ G, G.T @ p_other
+    aG, Gtp = vecmat(a, G), matvec(G.T, p_other)
     den = aG[0] * Gtp[0] + aG[1] * Gtp[1]
-    return -np.dot(aG, p) * np.dot(p, Gtp) / den if den != 0 else np.inf
+    return -dot(aG, p) * dot(p, Gtp) / den if den != 0 else np.inf
 
 
 @linked("f2 -> f1 f1", python=True)
@@ -215,15 +244,15 @@ def essential_poses(E):
     """The four ``(R, t)`` with ``E ∝ [t]× R``, ``t`` unit: ``(Rs (4, 3, 3), ts (4, 3))`` in
     the order ``(Ra, t), (Ra, −t), (Rb, t), (Rb, −t)``."""
     U, _, Vt = svd(E)
-    if np.linalg.det(U) < 0:
+    if det3(U) < 0:
         U = negated(U)
-    if np.linalg.det(Vt) < 0:
+    if det3(Vt) < 0:
         Vt = negated(Vt)
     W = np.zeros((3, 3))
     W[0, 1], W[1, 0], W[2, 2] = -1.0, 1.0, 1.0
     Rs, ts = np.empty((4, 3, 3)), np.empty((4, 3))
     for k in range(2):
-        R = (U @ (W if k == 0 else np.ascontiguousarray(W.T))) @ Vt
+        R = matmul(matmul(U, W if k == 0 else W.T), Vt)
         for s in range(2):
             put_matrix(Rs, 2 * k + s, R)
             for i in range(3):
@@ -237,15 +266,15 @@ def nearest_essential(E):
     U, _, Vt = svd(E)
     D = np.zeros((3, 3))
     D[0, 0], D[1, 1] = 1.0, 1.0
-    return (U @ D) @ Vt
+    return matmul(matmul(U, D), Vt)
 
 
 @linked("f2 f1 f2 f2 -> f1 f1", python=True)
 def depths(R, t, y1, y2):
     """Depths ``(λ1, λ2)`` of the points along the rays ``y1``, ``y2`` for ``X2 = R X1 + t``,
     by least squares on ``λ2 y2 ≈ λ1 R y1 + t`` (the 2 × 2 normal equations, per point)."""
-    a = y1 @ R.T
-    at, bt = a @ t, y2 @ t
+    a = matmul(y1, R.T)
+    at, bt = matvec(a, t), matvec(y2, t)
     n = y1.shape[0]
     lam1, lam2 = np.empty(n), np.empty(n)
     for i in range(n):
@@ -325,9 +354,10 @@ def homography_poses(H0, y1, y2, depths_sign: bool, in_front: bool):
     The sign of ``H0`` is the one that gives positive depths to the rays ``y1``, ``y2``
     (``depths_sign``; ``det(H0)`` when they do not decide, or without them); with
     ``in_front`` only the decompositions that see the plane in front of camera 1 for most of
-    ``y1`` are kept, when there are any. A pure rotation gives one pose, ``w = 0``.
+    ``y1`` are kept, when there are any; the smaller rotation first. A pure rotation gives
+    one pose, ``w = 0``.
     """
-    H = divided(H0, singular_values(H0)[1])
+    H = divided(H0, svd(H0)[1][1])
     if not finite(H):  # σ2 = 0 (NumPy's eigh then failed, or gave poses of NaN): no pose
         raise np.linalg.LinAlgError("a homography of rank one has no pose")
     if depths_sign:
@@ -339,21 +369,21 @@ def homography_poses(H0, y1, y2, depths_sign: bool, in_front: bool):
                     acc += y2[k, i] * H[i, j] * y1[k, j]
             products[k] = acc
         total = vector_sum(products)
-        flip = total < 0 or total == 0 and np.linalg.det(H) < 0
+        flip = total < 0 or total == 0 and det3(H) < 0
     else:
-        flip = np.linalg.det(H) < 0
+        flip = det3(H) < 0
     if flip:
         H = negated(H)
-    w2, V = np.linalg.eigh(H.T @ H)
+    w2, V = sym_eigh(matmul(H.T, H))
     V = np.ascontiguousarray(V[:, ::-1])  # decreasing
-    if np.linalg.det(V) < 0:
+    if det3(V) < 0:
         V = negated(V)
     s1, s3 = w2[2], w2[0]
     Rs, ts, ws = np.zeros((4, 3, 3)), np.zeros((4, 3)), np.zeros((4, 3))
     if s1 - s3 < 1e-12:  # a pure rotation, H ∝ R
         U, _, Vt = svd(H)
-        R = U @ Vt
-        sign = np.sign(np.linalg.det(R))
+        R = matmul(U, Vt)
+        sign = np.sign(det3(R))
         for i in range(3):
             for j in range(3):
                 Rs[0, i, j] = R[i, j] * sign
@@ -367,13 +397,13 @@ def homography_poses(H0, y1, y2, depths_sign: bool, in_front: bool):
         for i in range(3):
             u[i] = (a * v1[i] + (b if side == 0 else -b) * v3[i]) / root
         n = cross(v2, u)
-        Hv2, Hu = H @ v2, H @ u
-        R = columns(Hv2, Hu, cross(Hv2, Hu)) @ columns(v2, u, n).T
+        Hv2, Hu = matvec(H, v2), matvec(H, u)
+        R = matmul(columns(Hv2, Hu, cross(Hv2, Hu)), columns(v2, u, n).T)
         D = np.empty((3, 3))
         for i in range(3):
             for j in range(3):
                 D[i, j] = H[i, j] - R[i, j]
-        T = D @ n  # H = R + T nᵀ (d = 1)
+        T = matvec(D, n)  # H = R + T nᵀ (d = 1)
         for s in range(2):
             sign, scale, p = 1.0 if s == 0 else -1.0, norm(T), 2 * side + s
             put_matrix(Rs, p, R)
@@ -384,7 +414,7 @@ def homography_poses(H0, y1, y2, depths_sign: bool, in_front: bool):
         kept = 0
         for p in range(4):  # w is the plane's normal over its distance: λ wᵀ y1 = 1
             ahead = 0
-            for value in y1 @ ws[p]:
+            for value in matvec(y1, ws[p]):
                 ahead += value > 0
             if ahead / y1.shape[0] > 0.5:
                 put_matrix(Rs, kept, Rs[p])
@@ -392,7 +422,26 @@ def homography_poses(H0, y1, y2, depths_sign: bool, in_front: bool):
                 put(ws[kept], 0, ws[p])
                 kept += 1
         count = kept if kept > 0 else 4
+    _smaller_rotation_first(Rs, ts, ws, count)
     return Rs, ts, ws, count
+
+
+@jit
+def _smaller_rotation_first(Rs, ts, ws, count: int) -> None:
+    """Order the first ``count`` poses by decreasing trace of ``R`` (the smaller rotation
+    first; equal traces keep their order), in place: the decompositions of a homography
+    then come in an order its factorisation's signs do not decide, and a search that takes
+    the first of equivalent candidates takes the same one."""
+    for p in range(1, count):
+        k = p
+        while k > 0 and Rs[k, 0, 0] + Rs[k, 1, 1] + Rs[k, 2, 2] > \
+                Rs[k - 1, 0, 0] + Rs[k - 1, 1, 1] + Rs[k - 1, 2, 2]:
+            for i in range(3):
+                ts[k, i], ts[k - 1, i] = ts[k - 1, i], ts[k, i]
+                ws[k, i], ws[k - 1, i] = ws[k - 1, i], ws[k, i]
+                for j in range(3):
+                    Rs[k, i, j], Rs[k - 1, i, j] = Rs[k - 1, i, j], Rs[k, i, j]
+            k -= 1
 
 
 @linked("f1 f1 f1 f1 -> f2 b", python=True)
@@ -401,14 +450,14 @@ def rotation_from_pairs(a1, a2, b1, b2):
     ``R = B Aᵀ``), and whether it exists (no pair parallel)."""
     A, ok_a = _triad(a1, a2)
     B, ok_b = _triad(b1, b2)
-    return B @ A.T, ok_a and ok_b
+    return matmul(B, A.T), ok_a and ok_b
 
 
 @jit
 def _triad(u, v):
     """``[û, n̂, û × n̂]``, ``n = u × v``, and whether ``u`` and ``n`` are not null."""
     n = cross(u, v)
-    nu, nn = np.sqrt(np.dot(u, u)), np.sqrt(np.dot(n, n))
+    nu, nn = np.sqrt(dot(u, u)), np.sqrt(dot(n, n))
     if not (nu > 0 and nn > 0):
         return np.zeros((3, 3)), False
     e1, e2 = divided(u, nu), divided(n, nn)

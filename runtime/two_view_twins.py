@@ -26,9 +26,11 @@ import numpy as np
 from kanagen.common.jit import NUMBA, jit
 from kanagen.common.link import link, linked
 
+from .linalg import dot, matmul
 from .numpy_rules import (
     argmax_abs,
     cross,
+    det3,
     divided,
     fill,
     finite,
@@ -42,6 +44,7 @@ from .numpy_rules import (
     vector_sum,
 )
 from .two_view_kernels import (
+    DEGENERATE,
     best_pose,
     essential_poses,
     focal_lengths,
@@ -60,7 +63,6 @@ PARAMETERS = ("f1", "f2", "qw", "qx", "qy", "qz", "tx", "ty", "tz", "wx", "wy", 
 WIDTH = len(PARAMETERS)
 CANDIDATES = 4  # rows of ``out``: the most candidates a kernel gives
 FOCAL_RANGE = (0.1, 10.0)  # focal lengths (× f0) read off F outside this range are noise
-DEGENERATE = 1e-6  # a singular value below this fraction of the largest is taken as zero
 _LOW, _HIGH = FOCAL_RANGE
 
 
@@ -156,7 +158,7 @@ def _fundamental(X, k3, out) -> int:
         # F ∝ Tᵀ diag(1, 1, f2) E diag(1, 1, f1) T with T the pixel -> normalised map
         D1, D2 = np.eye(3), np.eye(3)
         D1[2, 2], D2[2, 2] = 1 / f1, 1 / f2
-        E = (((D2 @ Tinv.T) @ F) @ Tinv) @ D1
+        E = matmul(matmul(matmul(matmul(D2, Tinv.T), F), Tinv), D1)
         y1, y2 = rays(X, k3, f1, f2)
         Rs, ts = essential_poses(nearest_essential(E))
         best = best_pose(Rs, ts, y1, y2)
@@ -172,7 +174,7 @@ def _fundamental(X, k3, out) -> int:
 def calibrated_dlt(X, k3):
     """The DLT homography in the family's normalised coordinates, ``T H T⁻¹``."""
     T = _pixels_to_rays(k3)
-    return (T @ homography_dlt(X)) @ inverse(T)
+    return matmul(matmul(T, homography_dlt(X)), inverse(T))
 
 
 @linked("f2 f1 f2 -> i", python=True)
@@ -224,9 +226,9 @@ def rotation_twin(X, k3, out) -> int:
 def _rotation_pair(X, k3, out) -> int:
     """:func:`rotation_twin` on a usable sample of two matches: the cubic in ``F = f²``."""
     y1, y2 = rays(X, k3, 0.0, 0.0)  # the image vectors (x, y, 0)
-    p, q = np.dot(y1[0], y1[1]), np.dot(y2[0], y2[1])
-    s1, s2 = np.dot(y1[0], y1[0]), np.dot(y1[1], y1[1])
-    t1, t2 = np.dot(y2[0], y2[0]), np.dot(y2[1], y2[1])
+    p, q = dot(y1[0], y1[1]), dot(y2[0], y2[1])
+    s1, s2 = dot(y1[0], y1[0]), dot(y1[1], y1[1])
+    t1, t2 = dot(y2[0], y2[0]), dot(y2[1], y2[1])
     # (p + F)² (t1 + F)(t2 + F) − (q + F)² (s1 + F)(s2 + F), highest power first
     cubic = np.array([
         t1 + t2 + 2 * p - s1 - s2 - 2 * q,
@@ -258,7 +260,7 @@ def _rotation_many(X, k3, out) -> int:
     homography, ``R`` by Kabsch."""
     # Hn ∝ K R K⁻¹ (K = diag(f, f, 1)) scaled to det Hn = 1: Hn ω Hnᵀ = ω, ω = diag(F, F, 1)
     Hn = calibrated_dlt(X, k3)
-    d = np.linalg.det(Hn)
+    d = det3(Hn)
     if not d != 0:
         return 0
     Hn = divided(Hn, np.cbrt(d))
@@ -268,8 +270,8 @@ def _rotation_many(X, k3, out) -> int:
             a = Hn[i, 0] * Hn[j, 0] + Hn[i, 1] * Hn[j, 1] - (1.0 if i == j and i < 2 else 0.0)
             b = (1.0 if i == j and i == 2 else 0.0) - Hn[i, 2] * Hn[j, 2]
             AA[3 * i + j], AB[3 * i + j] = a * a, a * b
-    den = vector_sum(AA)
-    F = vector_sum(AB) / den if den > 0 else -1.0
+    den = vector_sum(AA)  # ~ the squared angle: below DEGENERATE² no rotation fixes F
+    F = vector_sum(AB) / den if den > DEGENERATE * DEGENERATE else -1.0
     if not _in_focal_range(F):
         return 0
     f = np.sqrt(F)
@@ -293,7 +295,7 @@ def kabsch(y1, y2):
         nb = np.sqrt(y2[i, 0] * y2[i, 0] + y2[i, 1] * y2[i, 1] + y2[i, 2] * y2[i, 2])
         for j in range(3):
             a[i, j], b[i, j] = y1[i, j] / na, y2[i, j] / nb
-    U, S, Vt = svd(b.T @ a)
+    U, S, Vt = svd(matmul(b.T, a))
     if not S[1] > DEGENERATE * S[0]:
         return np.zeros((3, 3)), False
     u1, u2, v1, v2 = U[:, 0].copy(), U[:, 1].copy(), Vt[0], Vt[1]
@@ -337,7 +339,7 @@ def _translation(X, k3, out) -> int:
         if not S[1] > DEGENERATE * S[0]:
             return 0
         t = Vt[2].copy()
-    size = np.sqrt(np.dot(t, t))
+    size = np.sqrt(dot(t, t))
     if not (size > 0 and np.isfinite(size)):
         return 0
     t = divided(t, size)

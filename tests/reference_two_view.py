@@ -4,8 +4,8 @@ reference the compiled kernels (runtime/two_view_kernels.py, runtime/two_view_tw
 held to in tests/test_two_view_kernels.py.
 
 Kept verbatim (the test-only reference, as tests/reference_kernels.py is the engine's): the
-same LAPACK calls on the same arrays, so that on a degenerate sample, whose outcome follows
-LAPACK's arbitrary basis of a null space, the kernels must reproduce it too.
+kernels give its candidates to rounding on every sample but the degenerate ones, where its
+candidates come from LAPACK's arbitrary basis of a null space and the kernels give none.
 """
 
 from __future__ import annotations

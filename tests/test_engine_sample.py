@@ -217,7 +217,7 @@ def test_jacobi_svd_as_lapack(m, extra, rank, seed, scale):
     orthogonal ``W`` and orthonormal rows of ``V``, LAPACK's singular values to 1e-12 of
     the largest, on matrices of every rank and shape (more rows than columns: the rows
     beyond the rank left at rounding level)."""
-    from kanagen.runtime.engine.jacobi import row_svd
+    from kanagen.runtime.linalg import row_svd
 
     rng = np.random.default_rng(seed)
     n = max(m + extra, 1)
@@ -234,6 +234,33 @@ def test_jacobi_svd_as_lapack(m, extra, rank, seed, scale):
     big = S > 1e-10 * top
     V = R[big] / S[big, None]
     np.testing.assert_allclose(V @ V.T, np.eye(big.sum()), atol=1e-12)
+
+
+@given(m=st.integers(1, 16), extra=st.integers(-6, 4), rank=st.integers(0, 12),
+       seed=st.integers(0, 2**32 - 1), scale=st.sampled_from([1e-8, 1.0, 1e6]))
+@settings(max_examples=80, deadline=None)
+def test_triangular_rows_keep_the_least_squares_problem(m, extra, rank, seed, scale):
+    """The minimal solves' reduction of a tall Jacobian (Householder ``J = Q [T; 0]``):
+    ``TᵀT = JᵀJ`` and ``Tᵀg = Jᵀc`` — the same normal equations, so the same singular
+    values and right singular vectors and the same least-squares steps — ``T`` upper
+    triangular; a Jacobian of no more rows than columns is kept as it is."""
+    from kanagen.runtime.linalg import triangular_rows
+
+    rng = np.random.default_rng(seed)
+    n = max(m + extra, 1)
+    k = min(rank, m, n)
+    J = scale * (rng.standard_normal((m, k)) @ rng.standard_normal((k, n)))
+    c = scale * rng.standard_normal(m)
+    rows = min(m, n)
+    T, g = np.full((rows, n), np.nan), np.full(rows, np.nan)
+    triangular_rows(J, c, np.empty((m, n)), np.empty(m), T, g)
+    top = scale * scale * max(1.0, np.abs(J).max() / scale) ** 2 * m
+    np.testing.assert_allclose(T.T @ T, J.T @ J, rtol=0, atol=1e-13 * top)
+    np.testing.assert_allclose(T.T @ g, J.T @ c, rtol=0, atol=1e-13 * top)
+    if m <= n:
+        assert np.array_equal(T, J) and np.array_equal(g, c)
+    else:
+        assert np.array_equal(np.tril(T, -1), np.zeros((n, n)))
 
 
 @pytest.mark.parametrize("picks", [

@@ -1,4 +1,4 @@
-"""LAPACK called directly from the kernels (runtime/lapack.py): NumPy's numbers, bit for bit."""
+"""LAPACK called directly from the kernels (runtime/lapack.py): NumPy's numbers."""
 
 from __future__ import annotations
 
@@ -9,12 +9,12 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from kanagen.common.jit import jit
-from kanagen.runtime.lapack import gesv, least_squares
+from kanagen.runtime.lapack import eigenvalues, least_squares
 
 
 @jit
-def _solve(A, B):
-    return gesv(A, B)
+def _eigenvalues(A):
+    return eigenvalues(A)
 
 
 @jit
@@ -26,17 +26,17 @@ _finite = st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False)
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.integers(1, 6), st.integers(1, 3), st.data())
-def test_solve_is_numpys(n, k, data):
+@given(st.integers(1, 6), st.data())
+def test_eigenvalues_are_numpys(n, data):
+    """NumPy's eigenvalues in NumPy's order, to rounding (numba's LAPACK is SciPy's build,
+    NumPy has its own: their balancing of entries near the underflow differs)."""
     A = data.draw(arrays(np.float64, (n, n), elements=_finite))
-    B = data.draw(arrays(np.float64, (n, k), elements=_finite))
-    try:
-        expected = np.linalg.solve(A, B)
-    except np.linalg.LinAlgError:
-        with pytest.raises(np.linalg.LinAlgError):
-            _solve(A, B)
-        return
-    np.testing.assert_array_equal(_solve(A, B), expected)
+    A[np.abs(A) < 1e-100] = 0.0
+    w = np.linalg.eigvals(A)
+    re, im = _eigenvalues(A)
+    scale = 1e-12 * max(np.abs(A).max(), 1e-300)
+    np.testing.assert_allclose(re, w.real, rtol=1e-12, atol=scale)
+    np.testing.assert_allclose(im, w.imag, rtol=1e-12, atol=scale)
 
 
 @settings(max_examples=60, deadline=None)
@@ -50,8 +50,6 @@ def test_least_squares_is_numpys(m, n, data):
 
 def test_bad_input_raises_as_numpy():
     with pytest.raises(np.linalg.LinAlgError, match="infs or NaNs"):
-        _solve(np.array([[np.nan]]), np.ones((1, 1)))
-    with pytest.raises(np.linalg.LinAlgError, match="singular"):
-        _solve(np.zeros((2, 2)), np.ones((2, 1)))
+        _eigenvalues(np.array([[np.nan]]))
     with pytest.raises(np.linalg.LinAlgError, match="infs or NaNs"):
         _lstsq(np.array([[np.inf, 1.0]]), np.ones(1), 1e-15)

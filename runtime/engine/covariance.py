@@ -7,7 +7,7 @@ import numpy as np
 
 from kanagen.common.jit import jit
 
-from .jacobi import svd_null_space
+from ..linalg import svd_null_space
 
 
 @jit

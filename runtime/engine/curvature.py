@@ -33,48 +33,11 @@ from kanagen.common.borrow import alive, borrow
 from kanagen.common.jit import jit
 from kanagen.common.link import linked
 
+from ..linalg import solve_small
 from .measures import eval_shaped, fields, row_buffer, unwhiten_column
 
 #: Relative step of the central differences of the equations' Jacobians.
 STEP = 1e-5
-
-
-@jit
-def solve_small(K, R, s, k):
-    """``K[:s, :s] X = R[:s, :k]`` in place by Gaussian elimination with partial pivoting
-    (``R`` receives ``X``); False when a pivot vanishes against the matrix's scale."""
-    scale = 0.0
-    for a in range(s):
-        for b in range(s):
-            scale = max(scale, abs(K[a, b]))
-    if not (scale > 0.0 and np.isfinite(scale)):
-        return False
-    for col in range(s):
-        best, at = abs(K[col, col]), col
-        for a in range(col + 1, s):
-            if abs(K[a, col]) > best:
-                best, at = abs(K[a, col]), a
-        if not best > 1e-13 * scale:
-            return False
-        if at != col:
-            for b in range(s):
-                K[col, b], K[at, b] = K[at, b], K[col, b]
-            for b in range(k):
-                R[col, b], R[at, b] = R[at, b], R[col, b]
-        for a in range(col + 1, s):
-            f = K[a, col] / K[col, col]
-            if f != 0.0:
-                for b in range(col, s):
-                    K[a, b] -= f * K[col, b]
-                for b in range(k):
-                    R[a, b] -= f * R[col, b]
-    for a in range(s - 1, -1, -1):
-        for b in range(k):
-            acc = R[a, b]
-            for u in range(a + 1, s):
-                acc -= K[a, u] * R[u, b]
-            R[a, b] = acc / K[a, a]
-    return True
 
 
 @jit(inline=True)

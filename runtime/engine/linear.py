@@ -12,6 +12,7 @@ from kanagen.common.borrow import alive, borrow
 from kanagen.common.jit import jit
 from kanagen.common.link import linked
 
+from ..linalg import matmul
 from ..sqrt import (
     REDUNDANT,
     closest_root,
@@ -83,13 +84,7 @@ def linearise(A, q, mt, c, C, D, c0, C0):
     H = info.copy()
     r0 = C0.shape[0]
     if r0:
-        gram = np.zeros((n, n))
-        for a in range(n):
-            for b in range(n):
-                acc = 0.0
-                for k in range(r0):
-                    acc += C0[k, a] * C0[k, b]
-                gram[a, b] = acc
+        gram = matmul(C0.T, C0)
         top, bottom = diagonal_max(info), diagonal_max(gram)
         rho = 0.0 if not bottom > 0.0 else (top if top > 0.0 else 1.0) / bottom
         H += rho * gram

@@ -14,8 +14,8 @@ from kanagen.common.jit import jit
 from kanagen.common.link import linked, record_kind
 
 from ..lapack import least_squares
+from ..linalg import row_svd, sym_eigh
 from ..sqrt import EPS, REDUNDANT, closest_root
-from .jacobi import row_svd, sym_eigh
 from .linear import corrected, linearise, parameter_block, retraction_step, whitened_violation
 from .measures import (
     RESTORE_STEPS,

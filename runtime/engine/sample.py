@@ -28,7 +28,7 @@ import numpy as np
 from kanagen.common.borrow import alive, borrow
 from kanagen.common.jit import NUMBA, jit
 
-from .jacobi import row_svd
+from ..linalg import row_svd, triangular_rows
 from .measures import c0_eval, eval_measure, eval_shaped, fields, row_buffer, scratch, whitened
 
 #: Values per candidate of a closed-form initialiser, and candidates at most.
@@ -161,10 +161,16 @@ def _equations(A, rows, q, w, c, J, x, cm, Cm, Dm):
             for j in range(n):
                 J[at + a, j] = Cm[a, j]
         at += p
+    return _scaled(c, J, w)
+
+
+@jit
+def _scaled(c, J, w):
+    """Each row of ``c``, ``J`` scaled by ``w``, in place: ``max |c|`` (NaN if any)."""
     worst = 0.0
     for a in range(c.size):
         c[a] *= w[a]
-        for j in range(n):
+        for j in range(J.shape[1]):
             J[a, j] *= w[a]
         v = abs(c[a])
         worst = v if v > worst or v != v else worst
@@ -182,11 +188,12 @@ def minimal_solve(A, rows, target, max_iter, xtol, eps):
     """The parameter closest to ``target`` on the equations of the sample ``rows`` (indices
     into ``A``'s measures, as observed) and the constraints (report eq. 21): Gauss–Newton
     steps to the nearest point of the linearised equations, from the SVD of their Jacobian
-    (:func:`~.jacobi.row_svd`; not ``J Jᵀ``, whose condition number is squared), each
-    equation in units of the
-    parameter (scaled by its gradient's norm at the start), with a watchdog (full steps
-    may raise the violation a few times: far from the solution a curved equation needs it)
-    and a line search after it. Returns ``(q, solved, rank, iterations, violation)``."""
+    (:func:`~kanagen.runtime.linalg.row_svd`, of its triangular factor when it has more
+    rows than columns: :func:`~kanagen.runtime.linalg.triangular_rows`; not ``J Jᵀ``,
+    whose condition number is squared), each equation in units of the parameter (scaled by
+    its gradient's norm at the start), with a watchdog (full steps may raise the violation
+    a few times: far from the solution a curved equation needs it) and a line search after
+    it. Returns ``(q, solved, rank, iterations, violation)``."""
     n = target.size
     rows_eq, pmax = A.r, 1
     for s in range(rows.size):
@@ -202,32 +209,36 @@ def minimal_solve(A, rows, target, max_iter, xtol, eps):
     for a in range(rows_eq):  # each equation in units of the parameter
         norm = np.sqrt(np.sum(J[a] ** 2))
         w[a] = 1.0 / norm if np.isfinite(norm) and norm > 0 else 1.0
-    delta = _equations(A, rows, q, w, c, J, x, cm, Cm, Dm)
+    delta = _scaled(c, J, w)
     best_delta, best_q, best_c, best_J = delta, q.copy(), c.copy(), J.copy()
     free, slow, rank = _FREE_STEPS, 0, 0
     c_new, J_new = np.zeros(rows_eq), np.zeros((rows_eq, n))
     trial, step = np.zeros(n), np.zeros(n)
-    R, W, S = np.empty((rows_eq, n)), np.empty((rows_eq, rows_eq)), np.empty(rows_eq)
+    k = min(rows_eq, n)  # rows of the decomposed J (triangular_rows)
+    R, W, S = np.empty((k, n)), np.empty((k, k)), np.empty(k)
+    T, g, work, cw = np.empty((k, n)), np.empty(k), np.empty((rows_eq, n)), np.empty(rows_eq)
     for it in range(1, max_iter + 1):
-        if rows_eq == 0 or not (np.all(np.isfinite(J)) and np.all(np.isfinite(c))) or \
-                row_svd(J, R, W, S) < 0:
+        if rows_eq == 0 or not (np.all(np.isfinite(J)) and np.all(np.isfinite(c))):
             return q, False, rank, it, delta
-        # J = Wᵀ diag(S) V with V's rows R's divided by S: step = r − V_k (V_kᵀ r +
-        # S_k⁻¹ W_k c) over the kept singular values
+        triangular_rows(J, c, work, cw, T, g)
+        if row_svd(T, R, W, S) < 0:
+            return q, False, rank, it, delta
+        # J = Qₖ Wᵀ diag(S) V with V's rows R's divided by S and g = Qₖᵀ c: step = r −
+        # V_k (V_kᵀ r + S_k⁻¹ W_k g) over the kept singular values
         top = np.max(S)
         rank = 0
         for j in range(n):
             step[j] = target[j] - q[j]
         r = step.copy()
-        for u in range(rows_eq):
+        for u in range(k):
             if not (top > 0 and S[u] > np.sqrt(eps) * top):
                 continue
             rank += 1
             along = 0.0
             for j in range(n):
                 along += R[u, j] * r[j]
-            for a in range(rows_eq):
-                along += W[u, a] * c[a]
+            for a in range(k):
+                along += W[u, a] * g[a]
             along /= S[u] * S[u]
             for j in range(n):
                 step[j] -= R[u, j] * along

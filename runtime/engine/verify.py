@@ -17,9 +17,9 @@ import numpy as np
 from kanagen.common.jit import jit
 from kanagen.common.link import linked, record_kind
 
+from ..linalg import null_space, sym_eigh
 from ..sqrt import put_column
 from .curvature import profile_hessian
-from .jacobi import null_space, sym_eigh
 from .linear import linearise, seen_components
 from .measures import RESTORE_STEPS
 from .points import (

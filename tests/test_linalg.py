@@ -1,0 +1,86 @@
+"""The small-matrix factorisations of runtime/linalg.py that the two-view closed forms use
+(the SVD of any shape, its right vectors alone, a minimal system's null space) against
+NumPy's LAPACK: the same singular values, orthogonal factors that reproduce the matrix, the
+same subspaces; matrices of every shape and rank, at scales near over- and underflow."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from kanagen.runtime.linalg import null_basis, right_singular, small_svd
+
+_SHAPES = dict(m=st.integers(1, 9), n=st.integers(1, 9), rank=st.integers(0, 9),
+               seed=st.integers(0, 2**32 - 1), scale=st.sampled_from([1e-150, 1.0, 1e150]))
+
+
+def _matrix(m, n, rank, seed, scale):
+    rng = np.random.default_rng(seed)
+    k = min(rank, m, n)
+    return scale * (rng.standard_normal((m, k)) @ rng.standard_normal((k, n))), k
+
+
+@given(**_SHAPES)
+@settings(max_examples=150, deadline=None)
+def test_small_svd_as_lapack(m, n, rank, seed, scale):
+    """``U diag(S) Vᵀ = A`` with orthogonal ``U`` (m, m) and ``Vᵀ`` (n, n), LAPACK's
+    singular values in LAPACK's (decreasing) order, to 1e-13 of the largest; the right
+    vectors of the zero singular values span ``A``'s null space."""
+    A, k = _matrix(m, n, rank, seed, scale)
+    U, S, Vt = small_svd(A)
+    top = max(np.linalg.svd(A, compute_uv=False).max(initial=0.0), 1e-300 * scale)
+    np.testing.assert_allclose(S, np.linalg.svd(A, compute_uv=False), rtol=0, atol=1e-13 * top)
+    assert np.all(np.diff(S) <= 0)
+    np.testing.assert_allclose(U @ U.T, np.eye(m), atol=1e-13)
+    np.testing.assert_allclose(Vt @ Vt.T, np.eye(n), atol=1e-13)
+    D = np.zeros((m, n))
+    D[:S.size, :S.size] = np.diag(S)
+    np.testing.assert_allclose(U @ D @ Vt, A, rtol=0, atol=1e-13 * top)
+    np.testing.assert_allclose(A @ Vt[k:].T, 0.0, atol=1e-12 * top)
+
+
+@given(**_SHAPES)
+@settings(max_examples=150, deadline=None)
+def test_right_singular_as_lapack(m, n, rank, seed, scale):
+    """The singular values and the full ``Vᵀ`` of :func:`small_svd` without the left
+    vectors (a tall matrix through its triangular factor): the same values, ``Vᵀ``
+    orthogonal, its last rows spanning the null space."""
+    A, k = _matrix(m, n, rank, seed, scale)
+    S, Vt = right_singular(A)
+    top = max(np.linalg.svd(A, compute_uv=False).max(initial=0.0), 1e-300 * scale)
+    np.testing.assert_allclose(S, np.linalg.svd(A, compute_uv=False), rtol=0, atol=1e-13 * top)
+    np.testing.assert_allclose(Vt @ Vt.T, np.eye(n), atol=1e-13)
+    np.testing.assert_allclose(A @ Vt[k:].T, 0.0, atol=1e-12 * top)
+
+
+@given(m=st.integers(1, 8), extra=st.integers(1, 4), deficient=st.integers(0, 2),
+       seed=st.integers(0, 2**32 - 1), scale=st.sampled_from([1e-150, 1.0, 1e150]))
+@settings(max_examples=150, deadline=None)
+def test_null_basis_of_a_minimal_system(m, extra, deficient, seed, scale):
+    """A wide system of full row rank: orthonormal columns spanning its null space (the
+    complement of the rows, as LAPACK's), ``full`` True; of deficient rank: ``full``
+    False."""
+    n = m + extra
+    rank = m - min(deficient, m - 1) if deficient else m
+    A, k = _matrix(m, n, rank, seed, scale)
+    Z, full = null_basis(A, 1e-6)
+    assert full == (k == m)
+    assert Z.shape == (n, n - m)
+    np.testing.assert_allclose(Z.T @ Z, np.eye(n - m), atol=1e-13)
+    if full:
+        top = np.linalg.svd(A, compute_uv=False)[0]
+        np.testing.assert_allclose(A @ Z, 0.0, atol=1e-12 * top)
+        lapack = np.linalg.svd(A)[2][m:].T  # the same space: projectors equal
+        np.testing.assert_allclose(Z @ Z.T, lapack @ lapack.T, atol=1e-10)
+
+
+@pytest.mark.parametrize("factor", [small_svd, right_singular,
+                                    lambda A: null_basis(A, 1e-6)])
+def test_non_finite_matrices_raise(factor):
+    for bad in (np.nan, np.inf):
+        A = np.ones((2, 3))
+        A[1, 2] = bad
+        with pytest.raises(np.linalg.LinAlgError):
+            factor(A)
