@@ -23,8 +23,11 @@ alike, and the motion ``X2 = R X1 + t`` (``‖t‖ = 1``) satisfies ``r2ᵀ [t]�
 
 Importing this module registers them; the registry imports it the first time one of their
 names is looked up (:data:`~kanagen.runtime.initializers.PROVIDERS`). They have no compiled
-:class:`~kanagen.runtime.initializers.Kernel`: a search's samples with them go solve by
-solve from Python (the minimal solves and errors in the engine).
+:class:`~kanagen.runtime.initializers.Kernel` (the intrinsics are eight constants, the
+kernels' contract three): a search's samples with them go solve by solve from Python (the
+minimal solves and errors in the engine). The retinal motions' closed forms, the sign by
+cheirality and the least-squares null vector are the two-view family's kernels
+(:mod:`~kanagen.runtime.two_view_kernels`), on these rays.
 """
 
 from __future__ import annotations
@@ -35,11 +38,12 @@ from collections.abc import Mapping
 import numpy as np
 
 from . import geometry as g
+from . import two_view_kernels as kernels
 from .initializers import Candidates, Initializer, register
 
 _Q = ("qw", "qx", "qy", "qz", "tx", "ty", "tz", "wx", "wy", "wz")
 _K = ("fx1", "fy1", "cx1", "cy1", "fx2", "fy2", "cx2", "cy2")
-_DEGENERATE = 1e-9  # a singular value below this fraction of the largest is taken as zero
+_DEGENERATE = kernels.CALIBRATED_DEGENERATE  # a singular value below it (relative): zero
 _ERRORS = (np.linalg.LinAlgError, ValueError, ZeroDivisionError, FloatingPointError)
 
 
@@ -232,21 +236,20 @@ def calibrated_rotation(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
 
 def _signed(R: np.ndarray, t: np.ndarray, y1: np.ndarray, y2: np.ndarray) -> np.ndarray:
     """``t`` or ``−t`` (unit), whichever puts more points in front of both cameras (the
-    sign that makes the largest component positive on a tie)."""
-    t = t / np.linalg.norm(t)
-    if t[int(np.argmax(np.abs(t)))] < 0:
-        t = -t
-    return g.best_pose([(R, t), (R, -t)], y1, y2)[1]
+    sign that makes the largest component positive on a tie):
+    :func:`~kanagen.runtime.two_view_kernels.signed_translation`."""
+    return kernels.signed_translation(_matrix(R), _matrix(t), _matrix(y1), _matrix(y2))
 
 
 def _least_singular(A: np.ndarray) -> np.ndarray | None:
-    """The unit null vector of ``A`` in least squares; None when it is not unique."""
-    if len(A) < A.shape[1]:
-        A = np.r_[A, np.zeros((A.shape[1] - len(A), A.shape[1]))]
-    _, S, Vt = np.linalg.svd(A)
-    if not S[-2] > _DEGENERATE * S[0]:
-        return None
-    return Vt[-1]
+    """The unit null vector of ``A`` in least squares; None when it is not unique
+    (:func:`~kanagen.runtime.two_view_kernels.least_singular`)."""
+    v, unique = kernels.least_singular(_matrix(A), _DEGENERATE)
+    return v if unique else None
+
+
+def _matrix(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=float)
 
 
 def calibrated_translation(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
@@ -271,88 +274,33 @@ def calibrated_translation(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
 def calibrated_retinal_translation(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
     """A translation parallel to the retinal plane (``R = I``, ``tz = 0``: rectified
     stereo): ``t · n = 0`` with ``n = r1 × r2`` gives ``t ∝ (n_y, −n_x, 0)`` from one match,
-    the least-squares direction in the plane from more; the sign by cheirality."""
+    the least-squares direction in the plane from more; the sign by cheirality
+    (:func:`~kanagen.runtime.two_view_kernels.retinal_translation`)."""
     X = np.asarray(X, dtype=float)
     if len(X) < 1 or not np.all(np.isfinite(X)):
         return []
     try:
         y1, y2 = rays(X, k)
-        n = np.cross(y1, y2)[:, :2]
-        if len(X) == 1:
-            d = np.array([n[0, 1], -n[0, 0]])
-        else:
-            d = _least_singular(n)
-            if d is None:
-                return []
-        t = np.array([d[0], d[1], 0.0])
-        if not np.linalg.norm(t) > 0:
-            return []
-        t = _signed(np.eye(3), t, y1, y2)
-        return [{"tx": t[0], "ty": t[1], "tz": 0.0}]
+        t, found = kernels.retinal_translation(y1, y2, _DEGENERATE)
+        return [{"tx": t[0], "ty": t[1], "tz": 0.0}] if found else []
     except _ERRORS:
         return []
 
 
-def _rz(theta: float) -> np.ndarray:
-    c, s = np.cos(theta), np.sin(theta)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def _cross2(a, b) -> float:
-    return float(a[0] * b[1] - a[1] * b[0])
-
-
-def _displacement_pair(y1: np.ndarray, y2: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The (at most two) ``(Rz(θ), t)`` through two matches. With ``a = (x1, y1)``,
-    ``b = J a`` (a turned by 90°), ``e = (x2, y2)``, the displacement ``dᵢ = c aᵢ + s bᵢ − eᵢ``
-    (``c, s = cos θ, sin θ``) is parallel to ``t``: ``dₗ × d₂ = 0``, whose ``c²``, ``s²`` and
-    ``cs`` terms reduce to the constant ``a1 × a2`` — one equation ``P c + Q s = K``."""
-    a1, a2, e1, e2 = y1[0, :2], y1[1, :2], y2[0, :2], y2[1, :2]
-    b1, b2 = np.array([-a1[1], a1[0]]), np.array([-a2[1], a2[0]])
-    P = -(_cross2(a1, e2) + _cross2(e1, a2))
-    Q = -(_cross2(b1, e2) + _cross2(e1, b2))
-    K = -(_cross2(a1, a2) + _cross2(e1, e2))
-    r = np.hypot(P, Q)
-    if not r > 0 or abs(K) > r:
-        return []
-    phi, delta = np.arctan2(Q, P), np.arccos(np.clip(K / r, -1.0, 1.0))
-    out = []
-    for theta in dict.fromkeys((phi + delta, phi - delta)):
-        c, s = np.cos(theta), np.sin(theta)
-        d = [c * a + s * b - e for a, b, e in ((a1, b1, e1), (a2, b2, e2))]
-        d = max(d, key=lambda v: float(v @ v))
-        if not d @ d > 0:
-            continue
-        R = _rz(theta)
-        out.append((R, _signed(R, np.array([d[0], d[1], 0.0]), y1, y2)))
-    return out
-
-
 def calibrated_retinal_displacement(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
     """A displacement that keeps the retinal plane: ``R = Rz(θ)`` about the optical axis and
-    ``t = (tx, ty, 0)``. Two matches: the two ``θ`` of :func:`_displacement_pair`, each with
-    ``t`` along the displacement. Three or more: the equation
-    ``tx (s x + c y − y2) − ty (c x − s y − x2) = 0`` is linear in
-    ``(P, Q, tx, ty) = (c tx + s ty, s tx − c ty, tx, ty)`` (row ``(y, x, −y2, x2)``): the
-    least-squares null vector gives ``t``, then ``c ∝ tx P − ty Q``, ``s ∝ ty P + tx Q``."""
+    ``t = (tx, ty, 0)``. Two matches: the two ``θ`` of one equation linear in ``(cos θ,
+    sin θ)``, each with ``t`` along the displacement; three or more: a least-squares null
+    vector linear in ``t`` and ``(cos θ, sin θ) t``
+    (:func:`~kanagen.runtime.two_view_kernels.retinal_displacement`)."""
     X = np.asarray(X, dtype=float)
     if len(X) < 2 or not np.all(np.isfinite(X)):
         return []
     try:
         y1, y2 = rays(X, k)
-        if len(X) == 2:
-            poses = _displacement_pair(y1, y2)
-        else:
-            x, y, x2, yy2 = y1[:, 0], y1[:, 1], y2[:, 0], y2[:, 1]
-            z = _least_singular(np.column_stack([y, x, -yy2, x2]))
-            if z is None:
-                return []
-            P, Q, tx, ty = z
-            if not tx * tx + ty * ty > 0:
-                return []
-            R = _rz(np.arctan2(ty * P + tx * Q, tx * P - ty * Q))
-            poses = [(R, _signed(R, np.array([tx, ty, 0.0]), y1, y2))]
-        return [{**pose_params(R, t), "qx": 0.0, "qy": 0.0, "tz": 0.0} for R, t in poses]
+        Rs, ts, count = kernels.retinal_displacement(y1, y2, _DEGENERATE)
+        return [{**pose_params(Rs[i], ts[i]), "qx": 0.0, "qy": 0.0, "tz": 0.0}
+                for i in range(count)]
     except _ERRORS:
         return []
 

@@ -47,6 +47,9 @@ from .numpy_rules import (
 #: A singular value below this fraction of the largest is taken as zero: a sample whose
 #: system has more null vectors than its algorithm expects is degenerate.
 DEGENERATE = 1e-6
+#: ... the calibrated closed forms' least-squares null vectors (runtime/calibrated_starts.py,
+#: the retinal motions here): the second least singular value above this fraction.
+CALIBRATED_DEGENERATE = 1e-9
 _ALPHAS = np.array([0.0, 1.0, -1.0, 2.0])
 _CUBIC_FROM_VALUES = np.linalg.inv(np.vander(_ALPHAS, 4))  # values at _ALPHAS -> coefficients
 
@@ -486,3 +489,137 @@ def quaternion_from_rotation(R):
                       (R[1, 2] + R[2, 1]) / (4 * r), r])
     q = divided(q, norm(q))
     return q if q[0] >= 0 else negated(q)
+
+
+# -- the calibrated closed forms of the retinal motions (on rays) --------------------------
+
+@linked("f2 f -> f1 b", python=True)
+def least_singular(A, cut: float):
+    """The unit null vector of ``A`` (m, n) in least squares — the right singular vector of
+    its least singular value, rows of zeros added to a system of fewer rows than columns —
+    and whether it is unique (the second least above ``cut`` times the largest)."""
+    m, n = A.shape
+    B = np.zeros((max(m, n), n))
+    for i in range(m):
+        for j in range(n):
+            B[i, j] = A[i, j]
+    S, Vt = null_space_svd(B)
+    return Vt[n - 1].copy(), S[n - 2] > cut * S[0]
+
+
+@linked("f2 f1 f2 f2 -> f1", python=True)
+def signed_translation(R, t, y1, y2):
+    """``t`` or ``−t`` (unit), whichever puts more of the rays ``y1``, ``y2`` in front of
+    both cameras for ``X2 = R X1 + t`` (:func:`best_pose`); on a tie the one whose largest
+    component is positive."""
+    t = divided(t, norm(t))
+    if t[argmax_abs(t)] < 0:
+        t = negated(t)
+    Rs, ts = np.empty((2, 3, 3)), np.empty((2, 3))
+    put_matrix(Rs, 0, R)
+    put_matrix(Rs, 1, R)
+    for i in range(3):
+        ts[0, i], ts[1, i] = t[i], -t[i]
+    return ts[best_pose(Rs, ts, y1, y2)].copy()
+
+
+@linked("f2 f2 f -> f1 b", python=True)
+def retinal_translation(y1, y2, cut: float):
+    """A translation parallel to the retinal plane (``R = I``, ``tz = 0``: rectified
+    stereo) through the rays: ``t · n = 0``, ``n = r1 × r2``, gives ``t ∝ (n_y, −n_x, 0)``
+    from one match, the least-squares direction in the plane from more (none when it is
+    not unique: :func:`least_singular` with ``cut``); the sign by cheirality. ``(t,
+    found)``."""
+    m = y1.shape[0]
+    normals = np.empty((m, 2))
+    for i in range(m):
+        n = cross(y1[i], y2[i])
+        normals[i, 0], normals[i, 1] = n[0], n[1]
+    t = np.zeros(3)
+    if m == 1:
+        t[0], t[1] = normals[0, 1], -normals[0, 0]
+    else:
+        d, unique = least_singular(normals, cut)
+        if not unique:
+            return t, False
+        t[0], t[1] = d[0], d[1]
+    if not norm(t) > 0:
+        return t, False
+    return signed_translation(np.eye(3), t, y1, y2), True
+
+
+@jit
+def _about_the_axis(theta: float):
+    """``Rz(θ)``."""
+    c, s = np.cos(theta), np.sin(theta)
+    R = np.zeros((3, 3))
+    R[0, 0], R[0, 1], R[1, 0], R[1, 1], R[2, 2] = c, -s, s, c, 1.0
+    return R
+
+
+@jit
+def _cross2(a0: float, a1: float, b0: float, b1: float) -> float:
+    return a0 * b1 - a1 * b0
+
+
+@linked("f2 f2 f -> f3 f2 i", python=True)
+def retinal_displacement(y1, y2, cut: float):
+    """A displacement that keeps the retinal plane, ``R = Rz(θ)`` about the optical axis and
+    ``t = (tx, ty, 0)``, through the rays: ``(Rs (2, 3, 3), ts (2, 3), count)``.
+
+    Two matches: with ``a = (x1, y1)``, ``b = J a`` (a turned by 90°), ``e = (x2, y2)``, the
+    displacement ``dᵢ = c aᵢ + s bᵢ − eᵢ`` (``c, s = cos θ, sin θ``) is parallel to ``t``:
+    ``d₁ × d₂ = 0``, whose ``c²``, ``s²`` and ``cs`` terms reduce to the constant
+    ``a1 × a2`` — one equation ``P c + Q s = K``, two ``θ`` (one when they coincide), each
+    with ``t`` along the longer displacement, its sign by cheirality. Three or more: the
+    equation ``tx (s x + c y − y2) − ty (c x − s y − x2) = 0`` is linear in ``(P, Q, tx,
+    ty) = (c tx + s ty, s tx − c ty, tx, ty)`` (row ``(y, x, −y2, x2)``): the least-squares
+    null vector (:func:`least_singular` with ``cut``) gives ``t``, then
+    ``c ∝ tx P − ty Q``, ``s ∝ ty P + tx Q``."""
+    Rs, ts = np.zeros((2, 3, 3)), np.zeros((2, 3))
+    m = y1.shape[0]
+    if m == 2:
+        a1x, a1y, a2x, a2y = y1[0, 0], y1[0, 1], y1[1, 0], y1[1, 1]
+        e1x, e1y, e2x, e2y = y2[0, 0], y2[0, 1], y2[1, 0], y2[1, 1]
+        b1x, b1y, b2x, b2y = -a1y, a1x, -a2y, a2x
+        P = -(_cross2(a1x, a1y, e2x, e2y) + _cross2(e1x, e1y, a2x, a2y))
+        Q = -(_cross2(b1x, b1y, e2x, e2y) + _cross2(e1x, e1y, b2x, b2y))
+        K = -(_cross2(a1x, a1y, a2x, a2y) + _cross2(e1x, e1y, e2x, e2y))
+        r = np.hypot(P, Q)
+        if not r > 0 or abs(K) > r:
+            return Rs, ts, 0
+        phi, delta = np.arctan2(Q, P), np.arccos(min(max(K / r, -1.0), 1.0))
+        count = 0
+        for side in range(2):
+            theta = phi + delta if side == 0 else phi - delta
+            if side == 1 and theta == phi + delta:
+                break
+            c, s = np.cos(theta), np.sin(theta)
+            d1x, d1y = c * a1x + s * b1x - e1x, c * a1y + s * b1y - e1y
+            d2x, d2y = c * a2x + s * b2x - e2x, c * a2y + s * b2y - e2y
+            longer = d2x * d2x + d2y * d2y > d1x * d1x + d1y * d1y
+            dx, dy = (d2x, d2y) if longer else (d1x, d1y)
+            if not dx * dx + dy * dy > 0:
+                continue
+            R = _about_the_axis(theta)
+            t = np.zeros(3)
+            t[0], t[1] = dx, dy
+            put_matrix(Rs, count, R)
+            put(ts[count], 0, signed_translation(R, t, y1, y2))
+            count += 1
+        return Rs, ts, count
+    A = np.empty((m, 4))
+    for i in range(m):
+        A[i, 0], A[i, 1], A[i, 2], A[i, 3] = y1[i, 1], y1[i, 0], -y2[i, 1], y2[i, 0]
+    z, unique = least_singular(A, cut)
+    if not unique:
+        return Rs, ts, 0
+    P, Q, tx, ty = z[0], z[1], z[2], z[3]
+    if not tx * tx + ty * ty > 0:
+        return Rs, ts, 0
+    R = _about_the_axis(np.arctan2(ty * P + tx * Q, tx * P - ty * Q))
+    t = np.zeros(3)
+    t[0], t[1] = tx, ty
+    put_matrix(Rs, 0, R)
+    put(ts[0], 0, signed_translation(R, t, y1, y2))
+    return Rs, ts, 1

@@ -3,10 +3,11 @@
 
 ``two_view_fundamental`` (seven- or eight-point ``F``, focal lengths, pose),
 ``two_view_homography`` (DLT ``H``, its two poses), ``two_view_rotation``,
-``two_view_translation`` and ``two_view_zoom``. The first four are compiled kernels
+``two_view_translation``, ``two_view_zoom``, ``two_view_retinal_translation`` and
+``two_view_retinal_displacement``: compiled kernels
 (:mod:`~kanagen.runtime.two_view_twins`, on the closed forms of
-:mod:`~kanagen.runtime.two_view_kernels`): the functions here wrap them, and a compiled
-the robust search's samples call the same kernels by address (their registry entries'
+:mod:`~kanagen.runtime.two_view_kernels`). The functions here wrap them, and the robust
+search's samples call the same kernels by address (their registry entries'
 :class:`~kanagen.runtime.initializers.Kernel`:
 :func:`~kanagen.runtime.two_view_twins.twin_address`). Importing this module registers
 them (:func:`~kanagen.runtime.initializers.register`); the registry imports it the first
@@ -25,7 +26,6 @@ from . import two_view_twins as twins
 from .initializers import Candidates, Initializer, Kernel, register
 
 _TWO_VIEW_Q = twins.PARAMETERS
-_FOCAL_RANGE = twins.FOCAL_RANGE
 
 
 def _rows(X) -> np.ndarray:
@@ -36,11 +36,6 @@ def _rows(X) -> np.ndarray:
 
 def _constants(k: Mapping[str, float]) -> np.ndarray:
     return np.array([k["cx"], k["cy"], k["f0"]], dtype=float)
-
-
-def _rays(X: np.ndarray, k: Mapping[str, float]):
-    """Pixel matches → rays (x, y, 1) in the normalised coordinates of the family."""
-    return twins.rays(_rows(X), _constants(k), 1.0, 1.0)
 
 
 def _candidates(name: str, X: np.ndarray, k: Mapping[str, float]) -> Candidates:
@@ -105,42 +100,23 @@ def two_view_zoom(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
     (``x2 = f2 x1`` in the normalised coordinates), so ``f2`` is the least-squares ratio
     ``Σ x1·x2 / Σ x1·x1`` over the matches; none when the matches sit on the principal
     point or the ratio is out of the focal range. One candidate."""
-    X = np.asarray(X, dtype=float)
-    if len(X) < 1 or not np.all(np.isfinite(X)):
-        return []
-    y1, y2 = _rays(X, k)
-    norm = float(np.sum(y1[:, :2] * y1[:, :2]))
-    if not norm > 0.0:
-        return []
-    f2 = float(np.sum(y1[:, :2] * y2[:, :2])) / norm
-    return [{"f2": f2}] if _FOCAL_RANGE[0] < f2 < _FOCAL_RANGE[1] else []
-
-
-def _as_calibrated(k: Mapping[str, float]) -> dict[str, float]:
-    """The nominal camera of the family (focal length ``f0``, principal point ``(cx, cy)``)
-    as the calibrated closed forms read intrinsics: under the retinal motions the focal
-    length is pinned at ``f0``, so the rays are the calibrated ones."""
-    f0, cx, cy = k["f0"], k["cx"], k["cy"]
-    return {"fx1": f0, "fy1": f0, "cx1": cx, "cy1": cy,
-            "fx2": f0, "fy2": f0, "cx2": cx, "cy2": cy}
+    return _candidates("two_view_zoom", X, k)
 
 
 def two_view_retinal_translation(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
     """A translation parallel to the retinal plane (``R = I``, ``tz = 0``, focal lengths
     pinned): the calibrated closed form of the nominal camera
-    (:func:`~kanagen.runtime.calibrated_starts.calibrated_retinal_translation`)."""
-    from .calibrated_starts import calibrated_retinal_translation
-
-    return calibrated_retinal_translation(X, _as_calibrated(k))
+    (:func:`~kanagen.runtime.two_view_kernels.retinal_translation`, as
+    ``calibrated_retinal_translation``)."""
+    return _candidates("two_view_retinal_translation", X, k)
 
 
 def two_view_retinal_displacement(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
     """A rotation about the optical axis with a translation parallel to the retinal plane
     (focal lengths pinned): the calibrated closed form of the nominal camera
-    (:func:`~kanagen.runtime.calibrated_starts.calibrated_retinal_displacement`)."""
-    from .calibrated_starts import calibrated_retinal_displacement
-
-    return calibrated_retinal_displacement(X, _as_calibrated(k))
+    (:func:`~kanagen.runtime.two_view_kernels.retinal_displacement`, as
+    ``calibrated_retinal_displacement``)."""
+    return _candidates("two_view_retinal_displacement", X, k)
 
 
 _CONSTANTS = ("cx", "cy", "f0")  # what the kernels read, in their order
@@ -153,11 +129,13 @@ def _kernel(name: str) -> Kernel:
 
 for _entry in (
         Initializer("two_view_retinal_translation", two_view_retinal_translation,
-                    _TWO_VIEW_Q, ("cx", "cy", "f0"), 4,
-                    two_view_retinal_translation.__doc__.splitlines()[0]),
+                    _TWO_VIEW_Q, _CONSTANTS, 4,
+                    two_view_retinal_translation.__doc__.splitlines()[0],
+                    kernel=_kernel("two_view_retinal_translation")),
         Initializer("two_view_retinal_displacement", two_view_retinal_displacement,
-                    _TWO_VIEW_Q, ("cx", "cy", "f0"), 4,
-                    two_view_retinal_displacement.__doc__.splitlines()[0]),
+                    _TWO_VIEW_Q, _CONSTANTS, 4,
+                    two_view_retinal_displacement.__doc__.splitlines()[0],
+                    kernel=_kernel("two_view_retinal_displacement")),
         Initializer("two_view_fundamental", two_view_fundamental, _TWO_VIEW_Q,
                     _CONSTANTS, 4, two_view_fundamental.__doc__.splitlines()[0],
                     kernel=_kernel("two_view_fundamental")),
@@ -170,7 +148,7 @@ for _entry in (
         Initializer("two_view_translation", two_view_translation, _TWO_VIEW_Q,
                     _CONSTANTS, 4, two_view_translation.__doc__.splitlines()[0],
                     kernel=_kernel("two_view_translation")),
-        Initializer("two_view_zoom", two_view_zoom, _TWO_VIEW_Q, ("cx", "cy", "f0"), 4,
-                    two_view_zoom.__doc__.splitlines()[0])):
+        Initializer("two_view_zoom", two_view_zoom, _TWO_VIEW_Q, _CONSTANTS, 4,
+                    two_view_zoom.__doc__.splitlines()[0], kernel=_kernel("two_view_zoom"))):
     register(_entry)
 del _entry

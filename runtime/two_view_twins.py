@@ -2,7 +2,8 @@
 convention, and their C-callable addresses.
 
 One kernel per initialiser (``two_view_fundamental``, ``two_view_homography``,
-``two_view_rotation``, ``two_view_translation``: :data:`KERNELS`), each
+``two_view_rotation``, ``two_view_translation``, ``two_view_zoom``,
+``two_view_retinal_translation``, ``two_view_retinal_displacement``: :data:`KERNELS`), each
 ``kernel(X, k3, out) -> count``: ``X`` the sample's matches, an (n, 4) C-contiguous float
 array of rows ``(x1, y1, x2, y2)``; ``k3`` the constants ``(cx, cy, f0)``; ``out`` a
 (4, 12) array that receives up to four candidates, one a row, in the order of
@@ -44,6 +45,7 @@ from .numpy_rules import (
     vector_sum,
 )
 from .two_view_kernels import (
+    CALIBRATED_DEGENERATE,
     DEGENERATE,
     best_pose,
     essential_poses,
@@ -55,6 +57,8 @@ from .two_view_kernels import (
     nearest_essential,
     polynomial_roots,
     quaternion_from_rotation,
+    retinal_displacement,
+    retinal_translation,
     rotation_from_pairs,
 )
 
@@ -76,6 +80,9 @@ NAMES: dict[str, tuple[tuple[int, str], ...]] = {
     "two_view_homography": _named(*PARAMETERS),
     "two_view_rotation": _named(*PARAMETERS[:6]),
     "two_view_translation": _named("tx", "ty", "tz"),
+    "two_view_zoom": _named("f2"),
+    "two_view_retinal_translation": _named("tx", "ty", "tz"),
+    "two_view_retinal_displacement": _named("qw", "qx", "qy", "qz", "tx", "ty", "tz"),
 }
 
 
@@ -352,9 +359,76 @@ def _translation(X, k3, out) -> int:
     return 1
 
 
+# -- two_view_zoom, two_view_retinal_translation, two_view_retinal_displacement ------------
+
+@linked("f2 f1 f2 -> i", python=True)
+def zoom_twin(X, k3, out) -> int:
+    """A zoom about the principal point (``R = I``, ``f1 = 1``, no translation): each
+    match's rays are parallel, ``x2 = f2 x1`` in the normalised coordinates, so ``f2`` is
+    the least-squares ratio ``Σ x1·x2 / Σ x1·x1``; none when the matches sit on the
+    principal point or the ratio is out of the focal range. One candidate (``f2``)."""
+    fill(out, np.nan)
+    if not _usable(X, k3, 1):
+        return 0
+    y1, y2 = rays(X, k3, 1.0, 1.0)
+    across, along = 0.0, 0.0
+    for i in range(X.shape[0]):
+        for j in range(2):
+            across += y1[i, j] * y1[i, j]
+            along += y1[i, j] * y2[i, j]
+    if not across > 0.0:
+        return 0
+    f2 = along / across
+    if not _LOW < f2 < _HIGH:
+        return 0
+    out[0, 1] = f2
+    return 1
+
+
+@linked("f2 f1 f2 -> i", python=True)
+def retinal_translation_twin(X, k3, out) -> int:
+    """A translation parallel to the retinal plane at the nominal focal length
+    (:func:`~.two_view_kernels.retinal_translation` on the nominal camera's rays). One
+    candidate (``t``)."""
+    fill(out, np.nan)
+    if not _usable(X, k3, 1):
+        return 0
+    y1, y2 = rays(X, k3, 1.0, 1.0)
+    try:
+        t, found = retinal_translation(y1, y2, CALIBRATED_DEGENERATE)
+    except Exception:
+        return 0
+    if not found:
+        return 0
+    out[0, 6], out[0, 7], out[0, 8] = t[0], t[1], 0.0
+    return 1
+
+
+@linked("f2 f1 f2 -> i", python=True)
+def retinal_displacement_twin(X, k3, out) -> int:
+    """A rotation about the optical axis with a translation parallel to the retinal plane at
+    the nominal focal length (:func:`~.two_view_kernels.retinal_displacement` on the
+    nominal camera's rays). Up to two candidates (``q``, ``t``)."""
+    fill(out, np.nan)
+    if not _usable(X, k3, 2):
+        return 0
+    y1, y2 = rays(X, k3, 1.0, 1.0)
+    try:
+        Rs, ts, count = retinal_displacement(y1, y2, CALIBRATED_DEGENERATE)
+    except Exception:
+        return 0
+    for c in range(count):
+        _pose_into(out[c], Rs[c], ts[c])
+        out[c, 3], out[c, 4], out[c, 8] = 0.0, 0.0, 0.0  # exactly the model's zeros
+    return count
+
+
 #: The kernels by the name of the initialiser they are.
 KERNELS = {"two_view_fundamental": fundamental_twin, "two_view_homography": homography_twin,
-           "two_view_rotation": rotation_twin, "two_view_translation": translation_twin}
+           "two_view_rotation": rotation_twin, "two_view_translation": translation_twin,
+           "two_view_zoom": zoom_twin,
+           "two_view_retinal_translation": retinal_translation_twin,
+           "two_view_retinal_displacement": retinal_displacement_twin}
 
 
 # -- the C functions -------------------------------------------------------------------------
@@ -435,5 +509,19 @@ if NUMBA is not None:
         return translation_twin(carray(X, (n, 4)), carray(k3, (3,)),
                                 carray(out, (CANDIDATES, WIDTH)))
 
+    def _zoom_c(n, X, k3, out):
+        return zoom_twin(carray(X, (n, 4)), carray(k3, (3,)), carray(out, (CANDIDATES, WIDTH)))
+
+    def _retinal_translation_c(n, X, k3, out):
+        return retinal_translation_twin(carray(X, (n, 4)), carray(k3, (3,)),
+                                        carray(out, (CANDIDATES, WIDTH)))
+
+    def _retinal_displacement_c(n, X, k3, out):
+        return retinal_displacement_twin(carray(X, (n, 4)), carray(k3, (3,)),
+                                         carray(out, (CANDIDATES, WIDTH)))
+
     _C_ENTRIES = {"two_view_fundamental": _fundamental_c, "two_view_homography": _homography_c,
-                  "two_view_rotation": _rotation_c, "two_view_translation": _translation_c}
+                  "two_view_rotation": _rotation_c, "two_view_translation": _translation_c,
+                  "two_view_zoom": _zoom_c,
+                  "two_view_retinal_translation": _retinal_translation_c,
+                  "two_view_retinal_displacement": _retinal_displacement_c}

@@ -487,3 +487,165 @@ def two_view_translation(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
     t = best_pose([(np.eye(3), t), (np.eye(3), -t)], y1, y2)[1]
     return [{"tx": t[0], "ty": t[1], "tz": t[2]}]
 
+
+# -- compiled on 2026-11-28: the zoom and the retinal motions' closed forms as they were in
+# NumPy (runtime/two_view_starts.py: two_view_zoom; runtime/calibrated_starts.py at commit
+# d107b8e: the retinal ones, which two_view_retinal_translation and
+# two_view_retinal_displacement called with the nominal camera) ------------------------------
+
+_DEGENERATE_CALIBRATED = 1e-9
+
+
+def _calibrated_rays(X: np.ndarray, k: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+    X = np.asarray(X, dtype=float)
+    y1, y2 = np.ones((len(X), 3)), np.ones((len(X), 3))
+    y1[:, 0], y1[:, 1] = (X[:, 0] - k["cx1"]) / k["fx1"], (X[:, 1] - k["cy1"]) / k["fy1"]
+    y2[:, 0], y2[:, 1] = (X[:, 2] - k["cx2"]) / k["fx2"], (X[:, 3] - k["cy2"]) / k["fy2"]
+    return y1, y2
+
+
+def _calibrated_pose_params(R: np.ndarray, t: np.ndarray) -> dict[str, float]:
+    q = quaternion_from_rotation(R)
+    t = np.asarray(t, dtype=float) / np.linalg.norm(t)
+    return {"qw": q[0], "qx": q[1], "qy": q[2], "qz": q[3],
+            "tx": t[0], "ty": t[1], "tz": t[2]}
+
+
+def _as_calibrated(k: Mapping[str, float]) -> dict[str, float]:
+    f0, cx, cy = k["f0"], k["cx"], k["cy"]
+    return {"fx1": f0, "fy1": f0, "cx1": cx, "cy1": cy,
+            "fx2": f0, "fy2": f0, "cx2": cx, "cy2": cy}
+
+
+def _signed(R: np.ndarray, t: np.ndarray, y1: np.ndarray, y2: np.ndarray) -> np.ndarray:
+    """``t`` or ``−t`` (unit), whichever puts more points in front of both cameras (the
+    sign that makes the largest component positive on a tie)."""
+    t = t / np.linalg.norm(t)
+    if t[int(np.argmax(np.abs(t)))] < 0:
+        t = -t
+    return best_pose([(R, t), (R, -t)], y1, y2)[1]
+
+
+def _least_singular(A: np.ndarray) -> np.ndarray | None:
+    """The unit null vector of ``A`` in least squares; None when it is not unique."""
+    if len(A) < A.shape[1]:
+        A = np.r_[A, np.zeros((A.shape[1] - len(A), A.shape[1]))]
+    _, S, Vt = np.linalg.svd(A)
+    if not S[-2] > _DEGENERATE_CALIBRATED * S[0]:
+        return None
+    return Vt[-1]
+
+
+def _rz(theta: float) -> np.ndarray:
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _cross2(a, b) -> float:
+    return float(a[0] * b[1] - a[1] * b[0])
+
+
+def _displacement_pair(y1: np.ndarray, y2: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The (at most two) ``(Rz(θ), t)`` through two matches. With ``a = (x1, y1)``,
+    ``b = J a`` (a turned by 90°), ``e = (x2, y2)``, the displacement ``dᵢ = c aᵢ + s bᵢ − eᵢ``
+    (``c, s = cos θ, sin θ``) is parallel to ``t``: ``dₗ × d₂ = 0``, whose ``c²``, ``s²`` and
+    ``cs`` terms reduce to the constant ``a1 × a2`` — one equation ``P c + Q s = K``."""
+    a1, a2, e1, e2 = y1[0, :2], y1[1, :2], y2[0, :2], y2[1, :2]
+    b1, b2 = np.array([-a1[1], a1[0]]), np.array([-a2[1], a2[0]])
+    P = -(_cross2(a1, e2) + _cross2(e1, a2))
+    Q = -(_cross2(b1, e2) + _cross2(e1, b2))
+    K = -(_cross2(a1, a2) + _cross2(e1, e2))
+    r = np.hypot(P, Q)
+    if not r > 0 or abs(K) > r:
+        return []
+    phi, delta = np.arctan2(Q, P), np.arccos(np.clip(K / r, -1.0, 1.0))
+    out = []
+    for theta in dict.fromkeys((phi + delta, phi - delta)):
+        c, s = np.cos(theta), np.sin(theta)
+        d = [c * a + s * b - e for a, b, e in ((a1, b1, e1), (a2, b2, e2))]
+        d = max(d, key=lambda v: float(v @ v))
+        if not d @ d > 0:
+            continue
+        R = _rz(theta)
+        out.append((R, _signed(R, np.array([d[0], d[1], 0.0]), y1, y2)))
+    return out
+
+
+def calibrated_retinal_translation(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
+    """A translation parallel to the retinal plane (``R = I``, ``tz = 0``: rectified
+    stereo): ``t · n = 0`` with ``n = r1 × r2`` gives ``t ∝ (n_y, −n_x, 0)`` from one match,
+    the least-squares direction in the plane from more; the sign by cheirality."""
+    X = np.asarray(X, dtype=float)
+    if len(X) < 1 or not np.all(np.isfinite(X)):
+        return []
+    try:
+        y1, y2 = _calibrated_rays(X, k)
+        n = np.cross(y1, y2)[:, :2]
+        if len(X) == 1:
+            d = np.array([n[0, 1], -n[0, 0]])
+        else:
+            d = _least_singular(n)
+            if d is None:
+                return []
+        t = np.array([d[0], d[1], 0.0])
+        if not np.linalg.norm(t) > 0:
+            return []
+        t = _signed(np.eye(3), t, y1, y2)
+        return [{"tx": t[0], "ty": t[1], "tz": 0.0}]
+    except (np.linalg.LinAlgError, ValueError, ZeroDivisionError, FloatingPointError):
+        return []
+
+
+def calibrated_retinal_displacement(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
+    """A displacement that keeps the retinal plane: ``R = Rz(θ)`` about the optical axis and
+    ``t = (tx, ty, 0)``. Two matches: the two ``θ`` of :func:`_displacement_pair`, each with
+    ``t`` along the displacement. Three or more: the equation
+    ``tx (s x + c y − y2) − ty (c x − s y − x2) = 0`` is linear in
+    ``(P, Q, tx, ty) = (c tx + s ty, s tx − c ty, tx, ty)`` (row ``(y, x, −y2, x2)``): the
+    least-squares null vector gives ``t``, then ``c ∝ tx P − ty Q``, ``s ∝ ty P + tx Q``."""
+    X = np.asarray(X, dtype=float)
+    if len(X) < 2 or not np.all(np.isfinite(X)):
+        return []
+    try:
+        y1, y2 = _calibrated_rays(X, k)
+        if len(X) == 2:
+            poses = _displacement_pair(y1, y2)
+        else:
+            x, y, x2, yy2 = y1[:, 0], y1[:, 1], y2[:, 0], y2[:, 1]
+            z = _least_singular(np.column_stack([y, x, -yy2, x2]))
+            if z is None:
+                return []
+            P, Q, tx, ty = z
+            if not tx * tx + ty * ty > 0:
+                return []
+            R = _rz(np.arctan2(ty * P + tx * Q, tx * P - ty * Q))
+            poses = [(R, _signed(R, np.array([tx, ty, 0.0]), y1, y2))]
+        return [{**_calibrated_pose_params(R, t), "qx": 0.0, "qy": 0.0, "tz": 0.0}
+                for R, t in poses]
+    except (np.linalg.LinAlgError, ValueError, ZeroDivisionError, FloatingPointError):
+        return []
+
+
+def two_view_zoom(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
+    """A zoom about the principal point (the zoom model: ``R = I``, ``f1 = 1``, no
+    translation): each match's rays are parallel, ``r2 = f2 r1`` in the image plane
+    (``x2 = f2 x1`` in the normalised coordinates), so ``f2`` is the least-squares ratio
+    ``Σ x1·x2 / Σ x1·x1`` over the matches; none when the matches sit on the principal
+    point or the ratio is out of the focal range. One candidate."""
+    X = np.asarray(X, dtype=float)
+    if len(X) < 1 or not np.all(np.isfinite(X)):
+        return []
+    y1, y2 = _rays(X, k)
+    norm = float(np.sum(y1[:, :2] * y1[:, :2]))
+    if not norm > 0.0:
+        return []
+    f2 = float(np.sum(y1[:, :2] * y2[:, :2])) / norm
+    return [{"f2": f2}] if _FOCAL_RANGE[0] < f2 < _FOCAL_RANGE[1] else []
+
+
+def two_view_retinal_translation(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
+    return calibrated_retinal_translation(X, _as_calibrated(k))
+
+
+def two_view_retinal_displacement(X: np.ndarray, k: Mapping[str, float]) -> Candidates:
+    return calibrated_retinal_displacement(X, _as_calibrated(k))

@@ -35,17 +35,13 @@ from kanagen.scenes import MOTIONS, two_view_scene
 K = {"cx": 320.0, "cy": 240.0, "f0": 640.0}
 K3 = np.array([K["cx"], K["cy"], K["f0"]])
 NAMES = tuple(twins.KERNELS)
-REFERENCE = {"two_view_fundamental": ref.two_view_fundamental,
-             "two_view_homography": ref.two_view_homography,
-             "two_view_rotation": ref.two_view_rotation,
-             "two_view_translation": ref.two_view_translation}
-REGISTERED = {"two_view_fundamental": starts.two_view_fundamental,
-              "two_view_homography": starts.two_view_homography,
-              "two_view_rotation": starts.two_view_rotation,
-              "two_view_translation": starts.two_view_translation}
+REFERENCE = {name: getattr(ref, name) for name in NAMES}
+REGISTERED = {name: getattr(starts, name) for name in NAMES}
 #: The sample sizes of each initialiser: minimal, and a few over-determined
 SIZES = {"two_view_fundamental": (7, 8, 9, 12, 20), "two_view_homography": (4, 5, 8, 20),
-         "two_view_rotation": (2, 4, 5, 12), "two_view_translation": (2, 3, 5, 20)}
+         "two_view_rotation": (2, 4, 5, 12), "two_view_translation": (2, 3, 5, 20),
+         "two_view_zoom": (1, 2, 5, 20), "two_view_retinal_translation": (1, 2, 3, 20),
+         "two_view_retinal_displacement": (2, 3, 4, 20)}
 
 
 def close(a: float, b: float, rtol: float = 1e-10) -> bool:
