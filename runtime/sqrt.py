@@ -218,19 +218,41 @@ def solve_lower(L, b, transpose):
     for i in range(n):
         if L[i, i] == 0.0:
             return np.empty(0)
-    return solve_kept(L, np.ones(n, dtype=np.bool_), b, transpose)
+    y = np.zeros((n, 1))
+    _lower_into(L, np.ascontiguousarray(b).reshape(n, 1), 0, transpose, y, 0)
+    return y.reshape(n)
 
 
 @jit
 def solve_lower_columns(L, B, transpose):
     """:func:`solve_lower` for each column of ``B``; an empty array on a zero pivot."""
-    X = np.empty(B.shape)
-    for c in range(B.shape[1]):
-        x = solve_lower(L, np.ascontiguousarray(B[:, c]), transpose)
-        if x.size != B.shape[0]:
+    n = B.shape[0]
+    for i in range(n):
+        if L[i, i] == 0.0:
             return np.empty((0, 0))
-        put_column(X, c, x)
+    X = np.zeros(B.shape)
+    for c in range(B.shape[1]):
+        _lower_into(L, B, c, transpose, X, c)
     return X
+
+
+@jit(inline=True)
+def _lower_into(L, B, c, transpose, X, k):
+    """Column ``c`` of ``B`` solved with ``L`` (``Lᵀ``) into column ``k`` of ``X`` (zeros on
+    entry): :func:`solve_kept`'s operations, every index kept, without its copies."""
+    n = B.shape[0]
+    if transpose:
+        for i in range(n - 1, -1, -1):
+            acc = B[i, c]
+            for j in range(i + 1, n):
+                acc -= L[j, i] * X[j, k]
+            X[i, k] = acc / L[i, i]
+    else:
+        for i in range(n):
+            acc = B[i, c]
+            for j in range(i):
+                acc -= L[i, j] * X[j, k]
+            X[i, k] = acc / L[i, i]
 
 
 @jit
