@@ -41,7 +41,7 @@ class Influence:
     def drops(self) -> tuple[np.ndarray, ...]:
         """Per channel, ``Δᵢ / pᵢ`` of each measure (see :func:`deletion_drops`)."""
         def drop(Cbar, rbar, rank):  # (M, p, n), (M, p), (M,)
-            K = np.eye(Cbar.shape[1]) - np.einsum("mpi,ij,mqj->mpq", Cbar, self.S, Cbar)
+            K = np.eye(Cbar.shape[1]) - _sandwich(Cbar, self.S)
             return _quadratic_or_inf(K, rbar) / rank
 
         return self._per_measure(drop)
@@ -51,7 +51,7 @@ class Influence:
         share of its own fitted value it holds; they sum to the parameter's degrees of
         freedom. ``nan`` where the fit has no covariance."""
         return self._per_measure(
-            lambda Cbar, _, rank: np.einsum("mpi,ij,mpj->m", Cbar, self.S, Cbar) / rank)
+            lambda Cbar, _, rank: np.trace(_sandwich(Cbar, self.S), axis1=1, axis2=2) / rank)
 
     def _per_measure(self, value) -> tuple[np.ndarray, ...]:
         """Per channel, ``value(C̄, r̄, p)`` of its measures: 0 for a channel with no
@@ -84,11 +84,17 @@ class Influence:
             A = np.stack([m[1] for m in members])  # (G, P, n)
             r = np.stack([m[2] for m in members])
             with np.errstate(all="ignore"):
-                K = np.eye(P) - np.einsum("gpi,ij,gqj->gpq", A, self.S, A)
+                K = np.eye(P) - _sandwich(A, self.S)
                 drops = _quadratic_or_inf(K, r)
             for (g, _, _, p), drop in zip(members, drops, strict=True):
                 out[g] = drop / p
         return out
+
+
+def _sandwich(A: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """``A_m S A_mᵀ`` for each matrix of the stack ``A`` (m, p, n): two matrix products
+    (an ``einsum`` of the three operands sums over both indices at once, ~10× slower)."""
+    return (A @ S) @ A.transpose(0, 2, 1)
 
 
 def _quadratic_or_inf(K: np.ndarray, r: np.ndarray) -> np.ndarray:
