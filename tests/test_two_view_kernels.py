@@ -215,7 +215,11 @@ def test_the_interpreted_source_gives_the_same_candidates():
         "out = []\n"
         "for name, m in (('two_view_fundamental', 7), ('two_view_fundamental', 9),\n"
         "                ('two_view_homography', 5), ('two_view_rotation', 2),\n"
-        "                ('two_view_rotation', 6), ('two_view_translation', 4)):\n"
+        "                ('two_view_rotation', 6), ('two_view_translation', 4),\n"
+        "                ('two_view_zoom', 3), ('two_view_retinal_translation', 1),\n"
+        "                ('two_view_retinal_translation', 5),\n"
+        "                ('two_view_retinal_displacement', 2),\n"
+        "                ('two_view_retinal_displacement', 6)):\n"
         "    rows, res = np.ascontiguousarray(X[:m]), np.empty((4, 12))\n"
         "    f = ctypes.CFUNCTYPE(ctypes.c_int64, ctypes.c_int64, *[ctypes.c_void_p] * 3)(\n"
         "        tw.twin_address(name))\n"
@@ -232,7 +236,10 @@ def test_the_interpreted_source_gives_the_same_candidates():
     at = 0
     for name, m in (("two_view_fundamental", 7), ("two_view_fundamental", 9),
                     ("two_view_homography", 5), ("two_view_rotation", 2),
-                    ("two_view_rotation", 6), ("two_view_translation", 4)):
+                    ("two_view_rotation", 6), ("two_view_translation", 4),
+                    ("two_view_zoom", 3), ("two_view_retinal_translation", 1),
+                    ("two_view_retinal_translation", 5), ("two_view_retinal_displacement", 2),
+                    ("two_view_retinal_displacement", 6)):
         out = np.empty((4, 12))
         count = twins.KERNELS[name](np.ascontiguousarray(X[:m]), K3, out)
         assert count == len(interpreted[at]) > 0
