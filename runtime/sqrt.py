@@ -214,13 +214,8 @@ def reduced_root(S, eps):
 @jit
 def solve_lower(L, b, transpose):
     """``L⁻¹ b`` (``L⁻ᵀ b``) for one vector; an empty array when ``L`` has a zero pivot."""
-    n = b.shape[0]
-    for i in range(n):
-        if L[i, i] == 0.0:
-            return np.empty(0)
-    y = np.zeros((n, 1))
-    _lower_into(L, np.ascontiguousarray(b).reshape(n, 1), 0, transpose, y, 0)
-    return y.reshape(n)
+    X = solve_lower_columns(L, np.ascontiguousarray(b).reshape(b.shape[0], 1), transpose)
+    return X.reshape(X.size)
 
 
 @jit

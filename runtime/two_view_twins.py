@@ -29,7 +29,6 @@ from kanagen.common.link import link, linked
 
 from .linalg import dot, matmul
 from .numpy_rules import (
-    argmax_abs,
     cross,
     det3,
     divided,
@@ -37,8 +36,6 @@ from .numpy_rules import (
     finite,
     floor0,
     inverse,
-    negated,
-    null_space_svd,
     put,
     put_matrix,
     svd,
@@ -54,12 +51,14 @@ from .two_view_kernels import (
     fundamental_8point,
     homography_dlt,
     homography_poses,
+    least_singular,
     nearest_essential,
     polynomial_roots,
     quaternion_from_rotation,
     retinal_displacement,
     retinal_translation,
     rotation_from_pairs,
+    signed_translation,
 )
 
 #: The parameter of the two-view family, in the order of a candidate's row.
@@ -342,20 +341,13 @@ def _translation(X, k3, out) -> int:
     if m == 2:
         t = cross(normals[0], normals[1])
     else:
-        S, Vt = null_space_svd(normals)
-        if not S[1] > DEGENERATE * S[0]:
+        t, unique = least_singular(normals, DEGENERATE)
+        if not unique:
             return 0
-        t = Vt[2].copy()
     size = np.sqrt(dot(t, t))
     if not (size > 0 and np.isfinite(size)):
         return 0
-    t = divided(t, size)
-    if t[argmax_abs(t)] < 0:
-        t = negated(t)
-    Rs, ts = np.zeros((2, 3, 3)), np.empty((2, 3))
-    for i in range(3):
-        Rs[0, i, i], Rs[1, i, i], ts[0, i], ts[1, i] = 1.0, 1.0, t[i], -t[i]
-    put(out[0], 6, ts[best_pose(Rs, ts, y1, y2)])
+    put(out[0], 6, signed_translation(np.eye(3), t, y1, y2))
     return 1
 
 
