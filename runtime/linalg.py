@@ -91,14 +91,15 @@ def row_svd(J, R, W, S):
 
 
 @jit
-def triangular_rows(J, c, work, cw, T, g):
+def triangular_rows(J, c, work, U, T, g):
     """The rows ``T`` (k, n) and the vector ``g`` (k) of a least-squares problem ``J x ≈
     −c`` (``J``: m × n) with ``J``'s singular values and right singular vectors: ``J`` and
     ``c`` themselves when ``m <= n`` (k = m); else, ``k = n``, the triangular factor of the
-    Householder ``J = Q [T; 0]`` and the first ``n`` entries of ``Qᵀ c`` (``work`` m × n
-    and ``cw`` m are scratch). :func:`row_svd` of ``T`` then rotates n rows instead of m
-    (the m − n rows beyond ``J``'s rank are those the rotations converge on slowest), and
-    ``J``'s left singular vectors are ``Q``'s first n columns times ``T``'s."""
+    Householder ``J = Q [T; 0]`` (:func:`reflector`) and the first ``n`` entries of ``Qᵀ c``
+    (``work`` m × (n + 1) and ``U`` m × n are scratch). :func:`row_svd` of ``T`` then
+    rotates n rows instead of m (the m − n rows beyond ``J``'s rank are those the rotations
+    converge on slowest), and ``J``'s left singular vectors are ``Q``'s first n columns
+    times ``T``'s."""
     m, n = J.shape
     if m <= n:
         for a in range(m):
@@ -106,39 +107,17 @@ def triangular_rows(J, c, work, cw, T, g):
             for j in range(n):
                 T[a, j] = J[a, j]
         return
-    for a in range(m):
-        cw[a] = c[a]
+    for a in range(m):  # [J | c], reflected together
         for j in range(n):
             work[a, j] = J[a, j]
+        work[a, n] = c[a]
     for k in range(n):
-        below = 0.0
-        for a in range(k + 1, m):
-            below += work[a, k] * work[a, k]
-        x0 = work[k, k]
-        norm = np.sqrt(x0 * x0 + below)
-        if norm == 0.0:
-            continue
-        alpha = -norm if x0 >= 0 else norm  # v = x − alpha e_k, no cancellation
-        v0 = x0 - alpha
-        scale = 2.0 / (v0 * v0 + below)
-        for j in range(k + 1, n):  # H = I − scale v vᵀ on the columns right of k
-            dot = v0 * work[k, j]
-            for a in range(k + 1, m):
-                dot += work[a, k] * work[a, j]
-            dot *= scale
-            work[k, j] -= dot * v0
-            for a in range(k + 1, m):
-                work[a, j] -= dot * work[a, k]
-        dot = v0 * cw[k]
-        for a in range(k + 1, m):
-            dot += work[a, k] * cw[a]
-        dot *= scale
-        cw[k] -= dot * v0
-        for a in range(k + 1, m):
-            cw[a] -= dot * work[a, k]
+        alpha = reflector(work, k, U)
+        for j in range(k + 1, n + 1):
+            reflect(U, k, work, j)
         work[k, k] = alpha
     for a in range(n):
-        g[a] = cw[a]
+        g[a] = work[a, n]
         for j in range(n):
             T[a, j] = work[a, j] if j >= a else 0.0
 
@@ -272,7 +251,7 @@ def complement(V, rank):
 def reflector(B, k, U):
     """The unit Householder vector ``u`` with ``(I − 2 u uᵀ)`` mapping the column ``k`` of
     ``B`` below row ``k`` onto a multiple of ``e_k`` (no cancellation), into ``U[:, k]``
-    (zero above row ``k``); returns that column's norm."""
+    (zero above row ``k``); returns the multiple, ``∓`` that column's norm."""
     s = B.shape[0]
     norm = 0.0
     for j in range(k, s):
@@ -287,7 +266,7 @@ def reflector(B, k, U):
     if size > 0:
         for j in range(k, s):
             U[j, k] /= size
-    return length
+    return alpha
 
 
 @jit(inline=True)
@@ -398,7 +377,7 @@ def right_singular(A):
         _, S, Vt = _wide_svd(A, False)
         return S, Vt
     T, g = np.empty((n, n)), np.empty(n)
-    triangular_rows(A, np.zeros(m), np.empty((m, n)), np.empty(m), T, g)
+    triangular_rows(A, np.zeros(m), np.empty((m, n + 1)), np.empty((m, n)), T, g)
     _, S, Vt = _wide_svd(T, False)
     return S, Vt
 
@@ -432,7 +411,7 @@ def null_basis(A, cut):
             for j in range(n):
                 B[j, k], B[j, pivot] = B[j, pivot], B[j, k]
             norms[k], norms[pivot] = norms[pivot], norms[k]
-        length = reflector(B, k, U)
+        length = abs(reflector(B, k, U))
         top = length if k == 0 else top
         full = full and length > cut * top
         for c in range(k + 1, m):

@@ -253,7 +253,7 @@ def test_triangular_rows_keep_the_least_squares_problem(m, extra, rank, seed, sc
     c = scale * rng.standard_normal(m)
     rows = min(m, n)
     T, g = np.full((rows, n), np.nan), np.full(rows, np.nan)
-    triangular_rows(J, c, np.empty((m, n)), np.empty(m), T, g)
+    triangular_rows(J, c, np.empty((m, n + 1)), np.empty((m, n)), T, g)
     top = scale * scale * max(1.0, np.abs(J).max() / scale) ** 2 * m
     np.testing.assert_allclose(T.T @ T, J.T @ J, rtol=0, atol=1e-13 * top)
     np.testing.assert_allclose(T.T @ g, J.T @ c, rtol=0, atol=1e-13 * top)

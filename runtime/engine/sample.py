@@ -216,11 +216,12 @@ def minimal_solve(A, rows, target, max_iter, xtol, eps):
     trial, step = np.zeros(n), np.zeros(n)
     k = min(rows_eq, n)  # rows of the decomposed J (triangular_rows)
     R, W, S = np.empty((k, n)), np.empty((k, k)), np.empty(k)
-    T, g, work, cw = np.empty((k, n)), np.empty(k), np.empty((rows_eq, n)), np.empty(rows_eq)
+    T, g = np.empty((k, n)), np.empty(k)
+    work, U = np.empty((rows_eq, n + 1)), np.empty((rows_eq, n))  # triangular_rows' scratch
     for it in range(1, max_iter + 1):
         if rows_eq == 0 or not (np.all(np.isfinite(J)) and np.all(np.isfinite(c))):
             return q, False, rank, it, delta
-        triangular_rows(J, c, work, cw, T, g)
+        triangular_rows(J, c, work, U, T, g)
         if row_svd(T, R, W, S) < 0:
             return q, False, rank, it, delta
         # J = Qₖ Wᵀ diag(S) V with V's rows R's divided by S and g = Qₖᵀ c: step = r −
