@@ -235,6 +235,6 @@ def _feasible(x, start_violation: float, residual: float, ranks) -> bool:
     orders of magnitude from the start."""
     if x.delta == 0.0:
         return True
-    if all(r.all() for r in ranks):  # every measure keeps an equation (ranks >= 0)
+    if all(np.count_nonzero(r) == r.size for r in ranks):  # every measure keeps one
         return bool(np.isfinite(residual) and residual <= 1e-10 * max(1.0, x.cost))
     return x.delta <= 1e-6 * start_violation

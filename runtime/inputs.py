@@ -76,7 +76,9 @@ def real_array(value, what: str) -> np.ndarray:
 
 
 def _finite(a: np.ndarray, what: str) -> None:
-    if np.isfinite(a).all():
+    if math.isfinite(np.add.reduce(a, axis=None)):  # a finite sum: every entry finite
+        return
+    if np.isfinite(a).all():  # finite entries whose sum overflows
         return
     where = np.argwhere(~np.isfinite(a))[0]
     raise ValueError(f"{what} contains NaN or infinite values (first at index "

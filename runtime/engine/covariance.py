@@ -7,7 +7,7 @@ import numpy as np
 
 from kanagen.common.jit import jit
 
-from ..linalg import svd_null_space
+from ..linalg import matmul, svd_null_space, sym_eigh
 
 
 @jit
@@ -31,7 +31,7 @@ def constrained_covariance(info, C0):
     k = Z.shape[1]
     if k == 0:
         return np.zeros((n, n))
-    H = Z.T @ info @ Z
+    H = matmul(matmul(Z.T, info), Z)
     H = 0.5 * (H + H.T)
     top = 0.0
     for a in range(k):
@@ -44,7 +44,7 @@ def constrained_covariance(info, C0):
     for a in range(k):
         for b in range(k):
             scaled[a, b] = H[a, b] / (d[a] * d[b])
-    w, V = np.linalg.eigh(scaled)
+    w, V = sym_eigh(scaled)
     scale = 0.0
     for a in range(k):
         scale = max(scale, abs(w[a]))
@@ -57,10 +57,10 @@ def constrained_covariance(info, C0):
     for a in range(k):
         for b in range(k):
             VD[a, b] = V[a, b] / d[a]
-    ZV = Z @ VD
-    cov = (ZV * inv_w) @ ZV.T
+    ZV = matmul(Z, VD)
+    cov = matmul(ZV * inv_w, ZV.T)
     cov = 0.5 * (cov + cov.T)
-    ZN = Z @ V
+    ZN = matmul(Z, V)
     for i in range(n):
         free = False
         for b in range(k):

@@ -33,7 +33,7 @@ from kanagen.common.borrow import alive, borrow
 from kanagen.common.jit import jit
 from kanagen.common.link import linked
 
-from ..linalg import solve_small
+from ..linalg import matmul, solve_small
 from .measures import eval_shaped, fields, row_buffer, unwhiten_column
 
 #: Relative step of the central differences of the equations' Jacobians.
@@ -176,7 +176,7 @@ def profile_hessian(A, x, lin, W):
     n, k = q.size, W.shape[1]
     M = A.chan.size
     pmax, dmax = x.c.shape[1], A.m.shape[1]
-    K = W.T @ A.Q0 @ W
+    K = matmul(matmul(W.T, A.Q0), W)
     s_max = dmax + pmax
     lam = np.zeros(pmax)
     kept = np.zeros(pmax, np.int64)

@@ -15,6 +15,7 @@ import numpy as np
 from kanagen.common.jit import jit
 from kanagen.common.link import linked, record_kind
 
+from ..linalg import dot, matvec
 from .covariance import constrained_covariance
 from .linear import linearise, parameter_block
 from .measures import RESTORE_STEPS, ROUNDING
@@ -115,7 +116,10 @@ def weights(A, st, scale, q):
 
 @jit
 def wnorm(s, w):
-    return np.sqrt(s @ (w * s))
+    total = 0.0
+    for a in range(s.size):
+        total += s[a] * (w[a] * s[a])
+    return np.sqrt(total)
 
 
 @jit
@@ -141,9 +145,9 @@ def damped(A, x, lin, radius, w):
 
 @jit(inline=True)
 def predicted_fall(A, x, lin, s, target_q, lam0):
-    fall = -(lin.gradient @ s + 0.5 * (s @ (lin.info @ s)))
+    fall = -(dot(lin.gradient, s) + 0.5 * dot(s, matvec(lin.info, s)))
     if lam0.size:
-        fall -= lam0 @ c0_eval(A, target_q)[0] - lam0 @ x.c0
+        fall -= dot(lam0, c0_eval(A, target_q)[0]) - dot(lam0, x.c0)
     return fall
 
 
@@ -256,17 +260,17 @@ def step(A, st, scale, x, violation, lin, proj):
         if beyond or line:
             continue
         st[0] = _SHRINK * (min(st[0], size) if np.isfinite(size) else st[0])
-        if not st[0] > 1e-15 * (1.0 + np.sqrt(x.q @ x.q)):
+        if not st[0] > 1e-15 * (1.0 + np.sqrt(dot(x.q, x.q))):
             return False, x, 0.0
     return False, x, 0.0
 
 
-@linked("A f1 f1 Pt b Lin Proj Lin Proj i b -> b Out Pt f")
-def end(A, st, info0, x, have_lin, lin, proj, mlin, mproj, it, verify_end):
-    """Verify ``x``: ``(done, outcome, next point, its violation)`` — not done after an
-    escape (the iteration goes on from the next point). ``have_lin``: ``lin, proj`` are the
-    projector's at ``x`` and ``mlin, mproj`` :func:`lagrangian`'s from them (else made
-    here)."""
+@linked("A f1 f1 Pt f b Lin Proj Lin Proj i b -> b Out Pt f")
+def end(A, st, info0, x, violation, have_lin, lin, proj, mlin, mproj, it, verify_end):
+    """Verify ``x`` (its violation ``violation``, from the restoration that made it):
+    ``(done, outcome, next point, its violation)`` — not done after an escape (the
+    iteration goes on from the next point). ``have_lin``: ``lin, proj`` are the projector's
+    at ``x`` and ``mlin, mproj`` :func:`lagrangian`'s from them (else made here)."""
     none = _none_verdict(x.cost)
     if not have_lin:
         ok, lin, proj = project_point(A, x, 0.0, np.zeros(0))
@@ -275,10 +279,9 @@ def end(A, st, info0, x, have_lin, lin, proj, mlin, mproj, it, verify_end):
     rep = report_of(True, lin, proj)  # lin, proj: the projector's at x, undamped
     if not verify_end:
         return True, reported(x, it, UNVERIFIED, NO_DETAIL, none, rep), x, 0.0
-    root = info_root(A, lin.info)
-    _, violation = restored(A, x.q, x.mt, root, RESTORE_STEPS, True)
     if not feasible(violation, x.cost):
         return True, reported(x, it, INFEASIBLE, NO_DETAIL, none, rep), x, 0.0
+    root = info_root(A, lin.info)
     if st[2] < _ESCAPES:
         found, moved, mv = nearer(A, x, root)
         if found:
@@ -299,7 +302,7 @@ def end(A, st, info0, x, have_lin, lin, proj, mlin, mproj, it, verify_end):
         found, moved, mv = escape(A, x, lin, v.direction)
         if found:
             d = moved.q - x.q
-            st[0] = max(st[0], np.sqrt(d @ d))
+            st[0] = max(st[0], np.sqrt(dot(d, d)))
             return False, outcome(x, it, FAILED, NO_DETAIL, none), moved, mv
     return True, reported(x, it, SADDLE, DESCRIBED, v, rep), x, 0.0
 
@@ -319,7 +322,10 @@ def descend(A, st, info0, scale, q_start, x, violation, max_iter, xtol, verify_e
                 info0[a] = abs(lin.info[a, a])
             st[5] = 1
         x_feasible = feasible(violation, x.cost)
-        size = np.sqrt((scale * x.q) @ (scale * x.q))
+        size = 0.0
+        for a in range(x.q.size):
+            size += (scale[a] * x.q[a]) * (scale[a] * x.q[a])
+        size = np.sqrt(size)
         lost = False
         u = np.zeros(0)
         if x_feasible and verify_end and size > _GROWING * last_size:
@@ -332,15 +338,15 @@ def descend(A, st, info0, scale, q_start, x, violation, max_iter, xtol, verify_e
         mlin, mproj = lagrangian(A, x, lin, proj)
         if x_feasible and (stationary(A, x, mlin, mproj) or at_rounding(x.q, mproj.q)) \
                 and negligible(A, x.q, mproj.q, x.mt, mproj.mt, xtol):
-            done, out, x, violation = end(A, st, info0, x, True, lin, proj, mlin, mproj, it,
-                                          verify_end)
+            done, out, x, violation = end(A, st, info0, x, violation, True, lin, proj, mlin,
+                                          mproj, it, verify_end)
             if done:
                 return out
             continue
         found, trial, trial_violation = step(A, st, scale, x, violation, mlin, mproj)
         if not found:
-            done, out, x, violation = end(A, st, info0, x, True, lin, proj, mlin, mproj, it,
-                                          verify_end)
+            done, out, x, violation = end(A, st, info0, x, violation, True, lin, proj, mlin,
+                                          mproj, it, verify_end)
             if done:
                 return out
             continue
@@ -362,8 +368,8 @@ def descend(A, st, info0, scale, q_start, x, violation, max_iter, xtol, verify_e
                 x, violation = moved, mv
                 continue
         if since_progress >= _STAGNATION:
-            done, out, x, violation = end(A, st, info0, x, False, lin, proj, mlin, mproj, it,
-                                          verify_end)
+            done, out, x, violation = end(A, st, info0, x, violation, False, lin, proj, mlin,
+                                          mproj, it, verify_end)
             if done:
                 return out
             since_progress = 0
@@ -421,7 +427,7 @@ def run(A, q_start, max_iter, xtol, verify_end):
     x, violation = restored(A, q_start, raw.mt, root, RESTORE_STEPS, True)
     if not (finite(x) and on_constraints(x, violation)):
         x, violation = restored(A, q_start, raw.mt, np.zeros((0, 0)), RESTORE_STEPS, False)
-    size0 = np.sqrt(q_start @ q_start)
+    size0 = np.sqrt(dot(q_start, q_start))
     size0 = size0 if size0 != 0 else 1.0
     st[0] = st[1] = size0
     typical = np.sqrt(np.mean(q_start ** 2))

@@ -14,7 +14,7 @@ from kanagen.common.jit import jit
 from kanagen.common.link import linked, record_kind
 
 from ..lapack import least_squares
-from ..linalg import row_svd, sym_eigh
+from ..linalg import matmul, row_svd, sym_eigh
 from ..sqrt import EPS, REDUNDANT, closest_root
 from .linear import corrected, linearise, parameter_block, retraction_step, whitened_violation
 from .measures import (
@@ -327,7 +327,7 @@ def lagrangian(A, x, lin, proj):
         top = max(top, abs(lin.H[a, a]))
     if not np.all(np.isfinite(w)) or not max(w.max(), 0.0) > 1e-14 * top:
         return lin, proj
-    K = (V * np.maximum(w, 0.0)) @ V.T
+    K = matmul(V * np.maximum(w, 0.0), V.T)
     model = Lin(lin.info + K, lin.H + K, lin.rhs, lin.gradient, lin.Cbar, lin.rbar, lin.E,
                 lin.L, lin.inv, lin.residual, lin.ranks)
     ok, proj_model = solve(A, x, model, 0.0, np.zeros(0))

@@ -17,7 +17,7 @@ import numpy as np
 from kanagen.common.jit import jit
 from kanagen.common.link import linked, record_kind
 
-from ..linalg import null_space, sym_eigh
+from ..linalg import dot, matmul, matvec, null_space, sym_eigh
 from ..sqrt import put_column
 from .curvature import profile_hessian
 from .linear import linearise, seen_components
@@ -65,7 +65,7 @@ def decrement(x, lin, proj):
     """``½ sᵀ H s`` of the tangential part of the projector's step."""
     s = proj.q - x.q
     normal = proj.residual - lin.residual
-    return max(0.5 * (s @ (lin.H @ s)) - 0.5 * normal, 0.0)
+    return max(0.5 * dot(s, matvec(lin.H, s)) - 0.5 * normal, 0.0)
 
 
 @jit(inline=True)
@@ -103,14 +103,14 @@ def tangent_basis(x, info):
     Z = tangent_space(x.C0, seen_components(info, x.C0, x.q))
     if Z.shape[1] == 0:
         return Z
-    G = Z.T @ info @ Z
+    G = matmul(matmul(Z.T, info), Z)
     G = 0.5 * (G + G.T)
     w, U = sym_eigh(G)
     top = max(w.max(), np.finfo(np.float64).tiny) if w.size else np.finfo(np.float64).tiny
     keep = np.flatnonzero(w > 1e-14 * max(top, np.finfo(np.float64).tiny))
     out = np.zeros((Z.shape[0], keep.size))
     for a in range(keep.size):
-        put_column(out, a, Z @ (np.ascontiguousarray(U[:, keep[a]]) / np.sqrt(w[keep[a]])))
+        put_column(out, a, matvec(Z, U[:, keep[a]] / np.sqrt(w[keep[a]])))
     return out
 
 
@@ -149,7 +149,7 @@ def weakest(info, x):
     Z = tangent_space(x.C0, seen)
     if Z.shape[1] < 1:
         return False, 0.0, np.zeros(0)
-    M = Z.T @ info @ Z
+    M = matmul(matmul(Z.T, info), Z)
     M = 0.5 * (M + M.T)
     k = M.shape[0]
     d = np.empty(k)
@@ -164,7 +164,7 @@ def weakest(info, x):
     w, U = sym_eigh(scaled)
     if not w[-1] > 0:
         return False, 0.0, np.zeros(0)
-    return True, w[0] / w[-1], Z @ (U[:, 0] / d)
+    return True, w[0] / w[-1], matvec(Z, U[:, 0] / d)
 
 
 @linked("A Pt Lin -> b f1")
@@ -174,7 +174,7 @@ def lost_direction(A, x, lin):
     ok, least, u = weakest(lin.info, x)
     if not ok or least > LOST:
         return False, np.zeros(0)
-    slope = lin.gradient @ u
+    slope = dot(lin.gradient, u)
     terms = 0.0
     M, pmax, n = lin.Cbar.shape
     au = np.abs(u)
@@ -210,7 +210,7 @@ def lagrangian_gradient(A, x, q, lam0, exact_at_x, gradient_x):
     if not ok:
         return False, g
     if lam0.size:
-        g = g + c0_eval(A, q)[1].T @ lam0
+        g = g + matvec(c0_eval(A, q)[1].T, lam0)
     return True, g
 
 
@@ -222,7 +222,7 @@ def least_eigen(K, W):
     if not np.all(np.isfinite(K)):
         return False, 0.0, np.zeros(0)
     w, U = sym_eigh(K)
-    return True, w[0], W @ np.ascontiguousarray(U[:, 0])
+    return True, w[0], matvec(W, U[:, 0])
 
 
 @linked("A Pt Lin f2 f1 -> b f f1")
@@ -233,7 +233,7 @@ def exact_curvature(A, x, lin, W, lam0):
     if not ok:
         return False, 0.0, np.zeros(0)
     if lam0.size:
-        K += W.T @ constraint_curvature(A, x.q, lam0) @ W
+        K += matmul(matmul(W.T, constraint_curvature(A, x.q, lam0)), W)
     return least_eigen(K, W)
 
 
@@ -261,7 +261,7 @@ def least_curvature(A, x, W, lam0, step, plus, have_plus, gradient_x):
     ok, minus = sided_gradients(A, x, W, lam0, -step, gradient_x)
     if not ok:
         return False, 0.0, np.zeros(0)
-    K = W.T @ (plus - minus) / (2 * step)
+    K = matmul(W.T, plus - minus) / (2 * step)
     return least_eigen(np.ascontiguousarray(K.T), W)
 
 
@@ -293,7 +293,7 @@ def verify(A, x, lin, proj, info_start, at_rounding, model_lin, model_proj):
         return verdict(True, dec, x.cost, np.nan, np.zeros(0))
     K = np.zeros((W.shape[1], W.shape[1]))
     for j in range(W.shape[1]):
-        put_column(K, j, W.T @ (plus[:, j] - here) / STEP)
+        put_column(K, j, matvec(W.T, plus[:, j] - here) / STEP)
     ok, screen, direction = least_eigen(np.ascontiguousarray(K.T), W)
     if ok and screen >= SCREEN:
         return verdict(True, dec, x.cost, screen, direction)
