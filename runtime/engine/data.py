@@ -176,7 +176,8 @@ def arrays(problem) -> Arrays:
         ch = channels[0]
         X, m = _of_kind(ch.X, *_F2), _of_kind(ch.m, *_F2)
         Q, G = _per_measure(ch.Q, M), _per_measure(ch.G, M)
-        chan, size, start = _one_channel(M)
+        chan, size, start = np.zeros(M, dtype=np.int64), np.array(sizes, dtype=np.int64), \
+            np.zeros(1, dtype=np.int64)
     else:
         X, m = np.zeros((M, wmax)), np.zeros((M, dmax))
         Q, G = np.zeros((M, dmax, dmax)), np.zeros((M, dmax, dmax))
@@ -208,19 +209,6 @@ def arrays(problem) -> Arrays:
 
 
 _F2 = _LAYOUT[_INDEX["X"]]
-_ONE_CHANNEL: dict = {}  # M -> the index arrays of M measures of one channel
-
-
-def _one_channel(M: int) -> tuple:
-    """``chan, size, start`` of one channel of ``M`` measures, made once per ``M`` (the
-    kernels only read them)."""
-    out = _ONE_CHANNEL.get(M)
-    if out is None:
-        if len(_ONE_CHANNEL) >= 256:
-            _ONE_CHANNEL.clear()
-        out = _ONE_CHANNEL[M] = (np.zeros(M, dtype=np.int64), np.array([M], dtype=np.int64),
-                                 np.zeros(1, dtype=np.int64))
-    return out
 
 
 def _per_measure(Q: np.ndarray, M: int) -> np.ndarray:

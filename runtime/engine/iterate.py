@@ -322,10 +322,8 @@ def descend(A, st, info0, scale, q_start, x, violation, max_iter, xtol, verify_e
                 info0[a] = abs(lin.info[a, a])
             st[5] = 1
         x_feasible = feasible(violation, x.cost)
-        size = 0.0
-        for a in range(x.q.size):
-            size += (scale[a] * x.q[a]) * (scale[a] * x.q[a])
-        size = np.sqrt(size)
+        scaled = scale * x.q
+        size = np.sqrt(dot(scaled, scaled))
         lost = False
         u = np.zeros(0)
         if x_feasible and verify_end and size > _GROWING * last_size:
