@@ -71,11 +71,11 @@ def multipliers_of(L, inv, rbar, p, lam, kept):
 
 @jit(inline=True)
 def measure_hessian(args, p, d):
-    """Measure ``i``'s term of :func:`profile_hessian` added to ``K`` (``p`` equations, ``d``
+    """Measure ``i``'s term of :func:`profile_hessian` added to ``T`` (``p`` equations, ``d``
     components); False where its KKT system is singular. ``args``: the kernel's arrays
     and buffers, borrowed."""
     (i, n, k, F, q, qh, mh, c, C, D, buf, mt, Cx, W, G, E, L, inv, rbar, lam, kept, steps,
-     grads, Pqm, Pmm, PqW, PmW, CW, S, R, mdot, K) = args
+     grads, Pqm, Pmm, PqW, PmW, S, R, mdot, T) = args
     pk = multipliers_of(L, inv, rbar, p, lam, kept)
     if pk == 0:
         return True
@@ -136,7 +136,6 @@ def measure_hessian(args, p, d):
             acc = 0.0
             for a in range(n):
                 acc += Cx[i, kept[e], a] * W[a, j]
-            CW[e, j] = acc
             R[d + e, j] = -acc
         for a in range(d):  # −G Φmq w
             acc = 0.0
@@ -151,19 +150,14 @@ def measure_hessian(args, p, d):
             for a in range(d):
                 acc += G[a, u] * R[a, j]
             mdot[u, j] = acc
-    for j in range(k):
-        for b in range(n):  # (Φqq w_j + Φqm ṁ_j)_b
+    for j in range(k):  # T += Φqq w_j + Φqm ṁ_j + Cᵀ λ̇_j (K = Wᵀ Σ T, once at the end)
+        for b in range(n):
             acc = PqW[b, j]
             for u in range(d):
                 acc += Pqm[b, u] * mdot[u, j]
-            grads[0, b] = acc
-        for a in range(k):
-            acc = 0.0
-            for b in range(n):
-                acc += W[b, a] * grads[0, b]
             for e in range(pk):
-                acc += CW[e, a] * R[d + e, j]
-            K[a, j] += acc
+                acc += Cx[i, kept[e], b] * R[d + e, j]
+            T[b, j] += acc
     return True
 
 
@@ -176,7 +170,7 @@ def profile_hessian(A, x, lin, W):
     n, k = q.size, W.shape[1]
     M = A.chan.size
     pmax, dmax = x.c.shape[1], A.m.shape[1]
-    K = matmul(matmul(W.T, A.Q0), W)
+    T = np.zeros((n, k))  # Σ over the measures of ∇²F's columns along W
     s_max = dmax + pmax
     lam = np.zeros(pmax)
     kept = np.zeros(pmax, np.int64)
@@ -185,7 +179,6 @@ def profile_hessian(A, x, lin, W):
     Pmm = np.zeros((dmax, dmax))  # Φmm
     PqW = np.zeros((n, k))  # Φqq W
     PmW = np.zeros((dmax, k))  # Φmq W
-    CW = np.zeros((pmax, k))  # C W
     S = np.zeros((s_max, s_max))
     R = np.zeros((s_max, k))
     mdot = np.zeros((dmax, k))
@@ -207,14 +200,13 @@ def profile_hessian(A, x, lin, W):
     chan, P, Dn, Gs = F[0], F[1], F[2], F[8]
     Es, Ls, invs, rbars = borrow((lin.E, lin.L, lin.inv, lin.rbar))
     blam, bkept, bsteps, bgrads = borrow((lam, kept, steps, grads))
-    bPqm, bPmm, bPqW, bPmW, bCW, bS, bR, bmdot, bK = borrow((Pqm, Pmm, PqW, PmW, CW, S, R,
-                                                             mdot, K))
+    bPqm, bPmm, bPqW, bPmW, bS, bR, bmdot, bT = borrow((Pqm, Pmm, PqW, PmW, S, R, mdot, T))
     for i in range(M):
         ch = chan[i]
         p, d = P[ch], Dn[ch]
         args = (i, n, k, F, bq, bqh, bmh, bc, bC, bD, bbuf, mt, Cx, bW, Gs[i], Es[i], Ls[i],
-                invs[i], rbars[i], blam, bkept, bsteps, bgrads, bPqm, bPmm, bPqW, bPmW, bCW, bS,
-                bR, bmdot, bK)
+                invs[i], rbars[i], blam, bkept, bsteps, bgrads, bPqm, bPmm, bPqW, bPmW, bS, bR,
+                bmdot, bT)
         if p == 1 and d == 2:  # the shipped families' shapes: their loops unrolled
             ok = measure_hessian(args, 1, 2)
         elif p == 1 and d == 4:
@@ -224,9 +216,10 @@ def profile_hessian(A, x, lin, W):
         else:
             ok = measure_hessian(args, p, d)
         if not ok:
-            return False, K
-    alive((q, qh, mh, c, C, D, buf, x, W, lin, lam, kept, steps, grads, Pqm, Pmm, PqW, PmW, CW,
-           S, R, mdot, K))
+            return False, np.zeros((k, k))
+    alive((q, qh, mh, c, C, D, buf, x, W, lin, lam, kept, steps, grads, Pqm, Pmm, PqW, PmW, S,
+           R, mdot, T))
+    K = matmul(W.T, matmul(A.Q0, W) + T)
     for a in range(k):
         for b in range(a):
             mean = 0.5 * (K[a, b] + K[b, a])
