@@ -35,14 +35,6 @@ class ChannelData:
     def size(self) -> int:
         return self.X.shape[0]
 
-    @property
-    def scale(self) -> float:
-        """Magnitude of the measures in their information metric (for rounding floors)."""
-        if not self.m.size:
-            return 0.0
-        top_q = float(abs(self.Q.diagonal(0, -2, -1)).max())
-        return float(abs(self.m).max()) * math.sqrt(top_q)
-
     def subset(self, rows: np.ndarray) -> ChannelData:
         """The same channel restricted to some measures (no validation again)."""
         per_measure = self.Q.ndim == 3

@@ -193,7 +193,7 @@ def arrays(problem) -> Arrays:
             at += size
         chan = np.repeat(np.arange(nch, dtype=np.int64), sizes)
         size = np.array(sizes, dtype=np.int64)
-    scale = np.array([ch.scale for ch in channels], dtype=float)
+    scale = channel_scales(m, Q, start, size, shape.Dn)
     out = Arrays(
         _of_kind(problem.q0, *_LAYOUT[_INDEX["q0"]]),
         _of_kind(problem.Q0, *_LAYOUT[_INDEX["Q0"]]),
@@ -272,22 +272,18 @@ def _gathered(A, rows, counts):
     """The per-measure arrays of ``A``'s measures ``rows`` (each channel's indices among
     its measures, ``counts[j]`` of channel ``j``, channel after channel; negative ones from
     its end), each channel's size and start among them and its scale
-    (:attr:`~kanagen.runtime.inputs.ChannelData.scale` of the channel's subset: the
-    largest corrected value times the root of the largest information on the diagonal, 0
-    for no measure), in :data:`_GATHERED`'s order."""
+    (:func:`channel_scales`), in :data:`_GATHERED`'s order."""
     M, nch = rows.size, A.P.size
     chan = np.empty(M, dtype=np.int64)
     X, m = np.zeros((M, A.X.shape[1])), np.zeros((M, A.m.shape[1]))
     Q, G = np.zeros((M,) + A.Q.shape[1:]), np.zeros((M,) + A.G.shape[1:])
     start = np.zeros(nch, dtype=np.int64)
-    scale = np.zeros(nch)
     # the loop's arrays borrowed (kanagen.common.borrow): no reference counts per row
     X0, m0, Q0, G0, at0, size0, Dn = borrow((A.X, A.m, A.Q, A.G, A.start, A.size, A.Dn))
     bX, bm, bQ, bG = borrow((X, m, Q, G))
     s = 0
     for ch in range(nch):
         start[ch] = s
-        top_m, top_q = 0.0, 0.0
         for _ in range(counts[ch]):
             r = rows[s]
             i = at0[ch] + (r + size0[ch] if r < 0 else r)
@@ -299,13 +295,27 @@ def _gathered(A, rows, counts):
                 for v in range(m0.shape[1]):
                     bQ[s, u, v] = Q0[i, u, v]
                     bG[s, u, v] = G0[i, u, v]
-            for u in range(Dn[ch]):
-                top_m = max(top_m, abs(m0[i, u]))
-                top_q = max(top_q, abs(Q0[i, u, u]))
             s += 1
-        scale[ch] = top_m * np.sqrt(top_q) if counts[ch] else 0.0
     alive((X, m, Q, G))
-    return chan, X, m, Q, G, counts.copy(), start, scale
+    return chan, X, m, Q, G, counts.copy(), start, channel_scales(m, Q, start, counts, Dn)
+
+
+@jit
+def channel_scales(m, Q, start, size, Dn):
+    """Per channel, the magnitude of its measures in their information metric (the
+    rounding floors of the cost and of the measures' moves): the largest corrected value
+    times the root of the largest information on the diagonal, 0 for no measure. ``m``,
+    ``Q``: the per-measure arrays (channel ``j``'s ``size[j]`` rows from ``start[j]``, its
+    first ``Dn[j]`` components)."""
+    scale = np.zeros(size.size)
+    for ch in range(size.size):
+        top_m, top_q = 0.0, 0.0
+        for i in range(start[ch], start[ch] + size[ch]):
+            for u in range(Dn[ch]):
+                top_m = max(top_m, abs(m[i, u]))
+                top_q = max(top_q, abs(Q[i, u, u]))
+        scale[ch] = top_m * np.sqrt(top_q) if size[ch] else 0.0
+    return scale
 
 
 def _subset(A: Arrays, rows: tuple) -> Arrays:
