@@ -484,6 +484,14 @@ def matmul(A, B):
 
 
 @jit
+def projected(Z, M):
+    """``ZᵀMZ`` symmetrised, ``½ (ZᵀMZ + (ZᵀMZ)ᵀ)``: a symmetric matrix on the columns of a
+    basis ``Z`` (the information on a tangent space, a null space)."""
+    P = matmul(matmul(Z.T, M), Z)
+    return 0.5 * (P + P.T)
+
+
+@jit
 def matvec(A, x):
     """``A @ x`` of a small matrix and a vector (:func:`matmul`)."""
     y = np.empty(A.shape[0])

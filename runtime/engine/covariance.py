@@ -7,7 +7,7 @@ import numpy as np
 
 from kanagen.common.jit import jit
 
-from ..linalg import matmul, svd_null_space, sym_eigh
+from ..linalg import matmul, projected, svd_null_space, sym_eigh
 
 
 @jit
@@ -31,8 +31,7 @@ def constrained_covariance(info, C0):
     k = Z.shape[1]
     if k == 0:
         return np.zeros((n, n))
-    H = matmul(matmul(Z.T, info), Z)
-    H = 0.5 * (H + H.T)
+    H = projected(Z, info)
     top = 0.0
     for a in range(k):
         top = max(top, abs(H[a, a]))

@@ -17,7 +17,7 @@ import numpy as np
 from kanagen.common.jit import jit
 from kanagen.common.link import linked, record_kind
 
-from ..linalg import dot, matmul, matvec, null_space, sym_eigh
+from ..linalg import dot, matmul, matvec, null_space, projected, sym_eigh
 from ..sqrt import put_column
 from .curvature import profile_hessian
 from .linear import linearise, seen_components
@@ -103,8 +103,7 @@ def tangent_basis(x, info):
     Z = tangent_space(x.C0, seen_components(info, x.C0, x.q))
     if Z.shape[1] == 0:
         return Z
-    G = matmul(matmul(Z.T, info), Z)
-    G = 0.5 * (G + G.T)
+    G = projected(Z, info)
     w, U = sym_eigh(G)
     top = max(w.max(), np.finfo(np.float64).tiny) if w.size else np.finfo(np.float64).tiny
     keep = np.flatnonzero(w > 1e-14 * max(top, np.finfo(np.float64).tiny))
@@ -149,8 +148,7 @@ def weakest(info, x):
     Z = tangent_space(x.C0, seen)
     if Z.shape[1] < 1:
         return False, 0.0, np.zeros(0)
-    M = matmul(matmul(Z.T, info), Z)
-    M = 0.5 * (M + M.T)
+    M = projected(Z, info)
     k = M.shape[0]
     d = np.empty(k)
     for a in range(k):
