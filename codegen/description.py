@@ -76,6 +76,18 @@ class Function:
         return [(inp, i, s) for inp in self.inputs for i, s in enumerate(inp.symbols)
                 if s in used]
 
+    def free_of(self, output: str, input_name: str) -> bool:
+        """No entry of ``output`` depends on the symbols of the input ``input_name``, through
+        the temporaries either (a measurement function's ``C`` free of ``q``: its equations
+        are linear in the parameter)."""
+        of_input = set(next(i for i in self.inputs if i.name == input_name).symbols)
+        reach: dict[sp.Symbol, frozenset] = {}
+        for t, e in self.temps:
+            reach[t] = frozenset().union(*(reach.get(s, {s}) for s in e.free_symbols))
+        out = next(o for o in self.outputs if o.name == output)
+        return not any(reach.get(s, {s}) & of_input
+                       for _, e in out.entries for s in e.free_symbols)
+
     def names(self) -> dict[sp.Symbol, str]:
         """Local name of every symbol in generated code."""
         out = {s: inp.prefix + s.name for inp in self.inputs for s in inp.symbols}

@@ -89,6 +89,7 @@ def function_context(f: Function) -> dict:
                     for o, entries in zip(f.outputs, outputs, strict=True)],
         "returns": _returns(f),
         "row": row_context(f, temps, outputs) if f.kind in ("c0", "measure", "slack") else None,
+        "linear": f.kind == "measure" and f.free_of("C", f.inputs[0].name),
     }
 
 

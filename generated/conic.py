@@ -485,3 +485,10 @@ ROWS = {
     "measure_point__circle__reduced": row_measure_point__circle__reduced,
     "c0_conic": row_c0_conic,
 }
+#: The measurement functions whose equations are linear in the parameter (their Jacobian
+#: ``C`` free of it): the profile's exact Hessian takes no differences along the parameter
+#: there (runtime/engine/curvature.py).
+LINEAR = (
+    "measure_point",
+    "measure_point__circle__reduced",
+)

@@ -1220,3 +1220,13 @@ ROWS = {
     "measure_point__conic__reduced": row_measure_point__conic__reduced,
     "slack_measures": row_slack_measures,
 }
+#: The measurement functions whose equations are linear in the parameter (their Jacobian
+#: ``C`` free of it): the profile's exact Hessian takes no differences along the parameter
+#: there (runtime/engine/curvature.py).
+LINEAR = (
+    "measure_point",
+    "measure_point__line__reduced",
+    "measure_point__circle__reduced",
+    "measure_point__ellipse__reduced",
+    "measure_point__conic__reduced",
+)

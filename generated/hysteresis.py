@@ -633,3 +633,9 @@ ROWS = {
     "measure_reading": row_measure_reading,
     "slack_measures": row_slack_measures,
 }
+#: The measurement functions whose equations are linear in the parameter (their Jacobian
+#: ``C`` free of it): the profile's exact Hessian takes no differences along the parameter
+#: there (runtime/engine/curvature.py).
+LINEAR = (
+    "measure_reading",
+)

@@ -173,3 +173,10 @@ ROWS = {
     "measure_point__horizontal__reduced": row_measure_point__horizontal__reduced,
     "c0_line": row_c0_line,
 }
+#: The measurement functions whose equations are linear in the parameter (their Jacobian
+#: ``C`` free of it): the profile's exact Hessian takes no differences along the parameter
+#: there (runtime/engine/curvature.py).
+LINEAR = (
+    "measure_point",
+    "measure_point__horizontal__reduced",
+)

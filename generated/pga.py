@@ -126,3 +126,9 @@ ROWS = {
     "measure_reading": row_measure_reading,
     "c0_linear": row_c0_linear,
 }
+#: The measurement functions whose equations are linear in the parameter (their Jacobian
+#: ``C`` free of it): the profile's exact Hessian takes no differences along the parameter
+#: there (runtime/engine/curvature.py).
+LINEAR = (
+    "measure_reading",
+)

@@ -3628,3 +3628,7 @@ ROWS = {
     "c0_general__reduced": row_c0_general__reduced,
     "measure_match__general__reduced": row_measure_match__general__reduced,
 }
+#: The measurement functions whose equations are linear in the parameter (their Jacobian
+#: ``C`` free of it): the profile's exact Hessian takes no differences along the parameter
+#: there (runtime/engine/curvature.py).
+LINEAR = ()

@@ -22,7 +22,9 @@ Only ``Wᵀ ∇²F W`` is formed, for the ``k`` directions the check needs (the 
 ``W``): per measure ``2 (k + d)`` evaluations of its equations — along each direction
 (``Φqq w``, ``Φmq w``) and each corrected component (``Φqm``, ``Φmm``) — in one pass over
 the measures, against the ``2 k`` restorations of every measure that central differences
-of ``∇F`` cost.
+of ``∇F`` cost. Equations linear in ``q`` (``C`` free of it, as the generator finds them:
+``Arrays.linear``; the report's ``θ · ξ(m) = 0``) take only the ``2 d``: there ``Φqq = 0``
+and ``Φmq w = Φqmᵀ w``.
 """
 
 from __future__ import annotations
@@ -75,7 +77,7 @@ def measure_hessian(args, p, d):
     components); False where its KKT system is singular. ``args``: the kernel's arrays
     and buffers, borrowed."""
     (i, n, k, F, q, qh, mh, c, C, D, buf, mt, Cx, W, G, E, L, inv, rbar, lam, kept, steps,
-     grads, Pqm, Pmm, PqW, PmW, S, R, mdot, T) = args
+     grads, Pqm, Pmm, PqW, PmW, S, R, mdot, T, linear) = args
     pk = multipliers_of(L, inv, rbar, p, lam, kept)
     if pk == 0:
         return True
@@ -83,8 +85,8 @@ def measure_hessian(args, p, d):
     for u in range(d):
         scale_m = max(scale_m, abs(mt[i, u]))
     # central differences of (Cᵀλ, Dᵀλ): along each corrected component, then along
-    # each direction of W
-    for v in range(d + k):
+    # each direction of W — but for equations linear in q: Φqq = 0 and Φmq W = Φqmᵀ W
+    for v in range(d if linear else d + k):
         if v < d:
             h = STEP * max(abs(mt[i, v]), 1e-3 * scale_m, 1e-8)
         else:
@@ -113,6 +115,15 @@ def measure_hessian(args, p, d):
                 PqW[a, v - d] = (grads[0, a] - grads[1, a]) / (2.0 * h)
             for u in range(d):
                 PmW[u, v - d] = (grads[0, n + u] - grads[1, n + u]) / (2.0 * h)
+    if linear:
+        for j in range(k):
+            for a in range(n):
+                PqW[a, j] = 0.0
+            for u in range(d):
+                acc = 0.0
+                for a in range(n):
+                    acc += Pqm[a, u] * W[a, j]
+                PmW[u, j] = acc
     # the KKT system in (ż, λ̇) for the k directions
     size = d + pk
     for a in range(size):
@@ -198,6 +209,7 @@ def profile_hessian(A, x, lin, W):
     mt, Cx, bW = borrow((x.mt, x.C, W))
     F = fields(A)
     chan, P, Dn, Gs = F[0], F[1], F[2], F[8]
+    linear = borrow(A.linear)
     Es, Ls, invs, rbars = borrow((lin.E, lin.L, lin.inv, lin.rbar))
     blam, bkept, bsteps, bgrads = borrow((lam, kept, steps, grads))
     bPqm, bPmm, bPqW, bPmW, bS, bR, bmdot, bT = borrow((Pqm, Pmm, PqW, PmW, S, R, mdot, T))
@@ -206,7 +218,7 @@ def profile_hessian(A, x, lin, W):
         p, d = P[ch], Dn[ch]
         args = (i, n, k, F, bq, bqh, bmh, bc, bC, bD, bbuf, mt, Cx, bW, Gs[i], Es[i], Ls[i],
                 invs[i], rbars[i], blam, bkept, bsteps, bgrads, bPqm, bPmm, bPqW, bPmW, bS, bR,
-                bmdot, bT)
+                bmdot, bT, linear[ch] != 0)
         if p == 1 and d == 2:  # the shipped families' shapes: their loops unrolled
             ok = measure_hessian(args, 1, 2)
         elif p == 1 and d == 4:

@@ -27,8 +27,9 @@ _SCHEMA = (
     ("c0_addr", "i"), ("r", "i"),  # the parameter constraints' kernel and their number
     # per measure: channel, data row, observed values, metric and its inverse root
     ("chan", "i1"), ("X", "f2"), ("m", "f2"), ("Q", "f3"), ("G", "f3"),
-    # per channel: corrected columns, equations, corrected count, data width, row kernel
-    ("col", "i2"), ("P", "i1"), ("Dn", "i1"), ("W", "i1"), ("meas_addr", "i1"),
+    # per channel: corrected columns, equations, corrected count, data width, row kernel,
+    # equations linear in the parameter (1: their Jacobian C free of it)
+    ("col", "i2"), ("P", "i1"), ("Dn", "i1"), ("W", "i1"), ("meas_addr", "i1"), ("linear", "i1"),
     ("scale", "f1"), ("size", "i1"), ("start", "i1"),
     # inequality relations (appendix F), strict relations' slacks (component, power)
     ("slack_addr", "i"), ("kinds", "i1"), ("clauses", "b2"), ("T", "f2"), ("t", "f1"),
@@ -108,7 +109,7 @@ class RowKernels:
 
     c0: int
     r: int
-    measures: dict  # channel name -> (address, equations per measure)
+    measures: dict  # channel name -> (address, equations per measure, linear in q: 0/1)
     slack: int
     kinds: np.ndarray
     clauses: np.ndarray
@@ -124,13 +125,15 @@ def row_kernels(fam, model: str, reduced=None) -> RowKernels:
     table = entry["reduced"] if reduced is not None else entry
     n = fam.n if reduced is None else len(np.atleast_1d(reduced.free))
     k = fam.constant_vector(None)
+    linear = getattr(module, "LINEAR", ())  # none in a module of an older kanagen
     with np.errstate(all="ignore"):
         r = int(np.asarray(table["c0"](np.zeros(n), k)[0]).size)
         measures = {}
         for name, function in table["channels"].items():
             width = len(fam.channel(name).components)
             p = function(np.zeros(n), np.zeros((0, width)), k)[0].shape[1]
-            measures[name] = (_row_address(module, function, 4), int(p))
+            measures[name] = (_row_address(module, function, 4), int(p),
+                              int(getattr(function, "__name__", None) in linear))
     slack, kinds, clauses = 0, np.zeros(0, dtype=np.int64), np.zeros((0, 0), np.bool_)
     own = module.FAMILY.get("slack_clauses", {}).get(model) or []
     if own and getattr(module, "SLACK_MEASURES", None) is not None:
@@ -199,7 +202,7 @@ def arrays(problem) -> Arrays:
         _of_kind(problem.Q0, *_LAYOUT[_INDEX["Q0"]]),
         _of_kind(problem.k, *_LAYOUT[_INDEX["k"]]), float(problem.eps),
         int(rows.c0), int(rows.r), chan, X, m, Q, G,
-        shape.col, shape.P, shape.Dn, shape.W, shape.addr, scale, size, start,
+        shape.col, shape.P, shape.Dn, shape.W, shape.addr, shape.linear, scale, size, start,
         int(rows.slack), rows.kinds, rows.clauses, rows.T, rows.t,
         shape.strict_idx, shape.strict_pow,
     )  # the fields made here of their kinds (RowKernels' and _Shape's too: made so)
@@ -233,6 +236,7 @@ class _Shape:
     Dn: np.ndarray
     W: np.ndarray
     addr: np.ndarray
+    linear: np.ndarray
     strict_idx: np.ndarray
     strict_pow: np.ndarray
 
@@ -252,12 +256,13 @@ def _shape(rows: RowKernels, channels, strict) -> _Shape:
         dmax = max(dims, default=1)
         col = np.full((nch, dmax), -1, dtype=np.int64)
         P, addr = np.zeros(nch, dtype=np.int64), np.zeros(nch, dtype=np.int64)
+        linear = np.zeros(nch, dtype=np.int64)
         for j, ch in enumerate(channels):
             col[j, :dims[j]] = ch.index
-            addr[j], P[j] = rows.measures[ch.name]
+            addr[j], P[j], linear[j] = rows.measures[ch.name]
         out = cache[key] = _Shape(
             max(widths, default=1), dmax, col, P, np.array(dims, dtype=np.int64),
-            np.array(widths, dtype=np.int64), addr,
+            np.array(widths, dtype=np.int64), addr, linear,
             np.array([i for i, _ in strict], dtype=np.int64),
             np.array([p for _, p in strict], dtype=np.int64))
     return out
