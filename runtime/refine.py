@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import functools
 import itertools
-import math
 from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
 
+from .engine.histogram import first_minimum, reflected_counts
 from .family import ModelFamily
 from .fit import fit_problem
 from .influence import Influence
@@ -54,29 +54,14 @@ def outlier_threshold(errors: np.ndarray, scale: float, window: float = 0.35,
     """
     if not 0.25 <= window <= 0.5:
         raise ValueError("the smoothing window is 25–50 % of L*")
-    e = np.asarray(errors, dtype=float)
-    e = e[np.isfinite(e)]
-    top = 20.0 * scale
+    e = np.ascontiguousarray(np.asarray(errors, dtype=float).ravel())
     edges, half, kernel = _histogram_layout(float(scale), float(window))
-    counts = _counts(np.clip(e, 0.0, top), edges)
-    counts[-1] = 0  # the clipped tail is not a population of the histogram
-    padded = np.r_[counts[half - 1::-1], counts]  # errors are >= 0: reflect at 0
-    smooth = np.convolve(padded, kernel, mode="same")[half:]
-    # A minimum is real when the histogram rises after it by more than its Poisson noise
-    # (the kernel averages about `half` bins); a plateau at zero is a saddle.
-    i = int(np.argmax(smooth))
-    smooth = smooth.tolist()  # the walk below reads single bins: Python floats are faster
-    while i + 1 < len(smooth):
-        if smooth[i + 1] < smooth[i]:
-            i += 1
-            continue
-        if smooth[i] * half < 0.5:
-            break  # flat and empty: saddle
-        ahead = smooth[i + 1:i + 1 + 2 * half]
-        noise = 3.0 * math.sqrt((smooth[i] + 1.0 / half) / half)
-        if ahead and max(ahead) - smooth[i] > noise:
-            break  # a genuine local minimum
-        i += 1
+    # the finite errors' counts (bins of L*/20 up to 20 L*, the clipped tail not counted),
+    # reflected at 0 (errors are >= 0), smoothed; a minimum is real when the histogram
+    # rises after it by more than its Poisson noise (the kernel averages about `half`
+    # bins), a plateau at zero is a saddle (engine/histogram.py)
+    padded = reflected_counts(e, 20.0 * scale, edges, half)
+    i = first_minimum(np.convolve(padded, kernel, mode="same")[half:], half)
     threshold = max(float(edges[i + 1]), float(scale))
     return threshold if ceiling is None else min(threshold, max(float(ceiling), float(scale)))
 
@@ -93,18 +78,6 @@ def _histogram_layout(scale: float, window: float) -> tuple[np.ndarray, int, np.
     kernel /= kernel.sum()  # triangular, of full width window·L*
     kernel.flags.writeable = False
     return edges, half, kernel
-
-
-def _counts(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """``np.histogram(values, edges)``'s counts for equal bins and values inside them, by its
-    own arithmetic (the bin from the scaled value, then corrected by one against the edges,
-    the last bin closed), without its generic checks: it is called on every refinement."""
-    bins = edges.size - 1
-    index = (values / edges[-1] * bins).astype(np.intp)
-    index[index == bins] -= 1
-    index[values < edges[index]] -= 1
-    index[(values >= edges[index + 1]) & (index != bins - 1)] += 1
-    return np.bincount(index, minlength=bins)
 
 
 class Refinement:

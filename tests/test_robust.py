@@ -115,15 +115,19 @@ def test_scorers_and_threshold():
        st.sampled_from([0.37, 1.0, 4.0, 9.0]))
 @settings(max_examples=200, deadline=None)
 def test_threshold_histogram_counts_as_numpy(errors, scale):
-    """outlier_threshold's own binning gives np.histogram's counts (values on the edges
-    included: the bins' edges in units of L*/20)."""
-    from kanagen.runtime.refine import _counts, _histogram_layout
+    """outlier_threshold's own binning (engine/histogram.py) gives np.histogram's counts
+    (values on the edges included: the bins' edges in units of L*/20), the clipped tail's
+    bin emptied, its first bins reflected before them; non-finite errors not counted."""
+    from kanagen.runtime.engine.histogram import reflected_counts
+    from kanagen.runtime.refine import _histogram_layout
 
     top = 20.0 * scale
     e = np.clip(np.r_[errors, np.arange(0, 401) * scale / 20.0], 0.0, top)
-    edges = _histogram_layout(scale, 0.35)[0]
+    edges, half, _ = _histogram_layout(scale, 0.35)
     expected = np.histogram(e, bins=400, range=(0.0, top + 1e-12 * top))[0]
-    np.testing.assert_array_equal(_counts(e, edges), expected)
+    expected[-1] = 0
+    got = reflected_counts(np.r_[e, np.inf, np.nan, -np.inf], top, edges, half)
+    np.testing.assert_array_equal(got, np.r_[expected[half - 1::-1], expected])
 
 
 @pytest.mark.parametrize("spec", ["conic_lattice", "two_view", "line", "conic"])
