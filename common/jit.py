@@ -65,6 +65,9 @@ def _import_numba():
     finally:
         if hide:
             del sys.modules["yaml"]
+    from .interrupts import keep_interrupts
+
+    keep_interrupts()  # a Ctrl-C during a compile is not lost in llvmlite's callbacks
     if not os.environ.get("NUMBA_CACHE_DIR"):
         numba.config.CACHE_DIR = _cache_dir()
         _locate_by_package(numba)
