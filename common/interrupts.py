@@ -1,12 +1,14 @@
-"""Ctrl-C during a compile, kept.
+"""Ctrl-C during a compile, kept and raised where it is safe.
 
-numba compiles (and loads its cache) through llvmlite, which calls back into Python from
-LLVM's object cache by ctypes. A KeyboardInterrupt raised inside such a callback is printed
-by ctypes ("Exception ignored on calling ctypes callback function") and dropped: the compile
-goes on and the Ctrl-C is lost — a first use compiling for a minute could not be
-interrupted. :func:`keep_interrupts` replaces Python's default handler by one that does what
-it does, but for a Ctrl-C landing in one of those callbacks: that one is delivered again a
-moment later, once out of it.
+numba compiles (and loads its cache) through llvmlite. A KeyboardInterrupt raised in the
+middle of their Python code can leave LLVM's objects half-released (a crash later, in the
+same process), and one raised in llvmlite's callbacks from LLVM's object cache (ctypes
+callbacks) or in a finaliser (``__del__``) is printed and dropped ("Exception ignored ...")
+while the compile goes on: a first use compiling for a minute could not be interrupted.
+:func:`keep_interrupts` replaces Python's default handler by one that does what it does,
+but for a Ctrl-C landing in numba's or llvmlite's code or in a finaliser: that one is
+delivered again a moment later, until it lands outside them (the compile of one kernel
+over, the caller's code running).
 """
 
 from __future__ import annotations
@@ -15,25 +17,27 @@ import _thread
 import signal
 import threading
 
-#: llvmlite's callbacks from LLVM's object cache (``ExecutionEngine``'s).
-CALLBACKS = frozenset({"_raw_object_cache_notify", "_raw_object_cache_getbuffer"})
-#: Seconds before a Ctrl-C that landed in a callback is delivered again.
+#: The modules whose Python code a Ctrl-C waits out (prefixes of their names).
+DEFERRED = ("numba.", "llvmlite.")
+#: Seconds before a Ctrl-C that landed there is delivered again.
 RETRY = 0.05
 
 
-def in_callback(frame) -> bool:
-    """``frame`` or one of its callers is one of llvmlite's object-cache callbacks."""
+def deferred_at(frame) -> bool:
+    """``frame`` or one of its callers runs numba's or llvmlite's code, or a finaliser."""
     while frame is not None:
-        if frame.f_code.co_name in CALLBACKS:
+        if frame.f_globals.get("__name__", "").startswith(DEFERRED) or \
+                frame.f_code.co_name == "__del__":
             return True
         frame = frame.f_back
     return False
 
 
 def on_interrupt(signum, frame) -> None:
-    """Python's Ctrl-C (a KeyboardInterrupt where the main thread is), except inside an
-    object-cache callback: there, the same signal again in :data:`RETRY` seconds."""
-    if in_callback(frame):
+    """Python's Ctrl-C (a KeyboardInterrupt where the main thread is), except in numba's or
+    llvmlite's code or a finaliser (:func:`deferred_at`): there, the same signal again in
+    :data:`RETRY` seconds."""
+    if deferred_at(frame):
         timer = threading.Timer(RETRY, _thread.interrupt_main, (signum,))
         timer.daemon = True
         timer.start()

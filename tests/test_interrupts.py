@@ -1,6 +1,7 @@
-"""Ctrl-C during a compile is kept (kanagen.common.interrupts): one landing in llvmlite's
-object-cache callbacks, where ctypes would print and drop the KeyboardInterrupt, is
-delivered again once out of them; anywhere else it raises at once, as Python's own."""
+"""Ctrl-C during a compile is kept and raised where it is safe (kanagen.common.interrupts):
+one landing in numba's or llvmlite's code (half-released LLVM objects, or dropped by
+ctypes in llvmlite's callbacks) or in a finaliser (dropped by Python) is delivered again
+once out of them; anywhere else it raises at once, as Python's own."""
 
 import signal
 import subprocess
@@ -12,27 +13,52 @@ import pytest
 from kanagen.common import interrupts
 
 
-def _raw_object_cache_notify(handler):  # llvmlite's callback's name (ExecutionEngine's)
-    handler(signal.SIGINT, sys._getframe())  # returns: nothing may be raised in there
-    return True
+class _Finalised:
+    """Calls ``handler`` as a Ctrl-C would, from its finaliser (where an exception is
+    printed and dropped); ``returned`` says the handler came back."""
+
+    def __init__(self, handler):
+        self.handler = handler
+        self.returned = []
+
+    def __del__(self):
+        self.handler(signal.SIGINT, sys._getframe())
+        self.returned.append(True)
 
 
-def _installed(handler):
-    return signal.signal(signal.SIGINT, handler)
-
-
-def test_a_ctrl_c_outside_the_callbacks_raises_at_once():
+def test_a_ctrl_c_outside_raises_at_once():
     with pytest.raises(KeyboardInterrupt):
         interrupts.on_interrupt(signal.SIGINT, sys._getframe())
 
 
-def test_a_ctrl_c_in_a_callback_is_delivered_again_once_out_of_it():
-    previous = _installed(interrupts.on_interrupt)
+def test_numbas_and_llvmlites_code_and_finalisers_wait_it_out():
+    from numba.core import event
+
+    frames = []
+
+    class Listener(event.Listener):  # called from numba.core.event's code
+        def on_start(self, e):
+            frames.append(sys._getframe())
+
+        def on_end(self, e):
+            pass
+
+    with event.install_listener("kanagen-test", Listener()):
+        event.start_event("kanagen-test")
+    assert interrupts.deferred_at(frames[0])
+    assert not interrupts.deferred_at(sys._getframe())
+
+
+def test_a_ctrl_c_in_a_finaliser_is_delivered_again_once_out_of_it():
+    previous = signal.signal(signal.SIGINT, interrupts.on_interrupt)
     try:
-        assert _raw_object_cache_notify(interrupts.on_interrupt)  # deferred, not raised
+        finalised = _Finalised(interrupts.on_interrupt)
+        returned = finalised.returned
+        del finalised
+        assert returned == [True]  # deferred, not raised (nor dropped)
         with pytest.raises(KeyboardInterrupt):
             deadline = time.monotonic() + 10.0
-            while time.monotonic() < deadline:  # the retry lands here: out of the callback
+            while time.monotonic() < deadline:  # delivered again here: out of it
                 time.sleep(0.01)
     finally:
         signal.signal(signal.SIGINT, previous)
@@ -42,7 +68,7 @@ def test_only_the_default_handler_is_replaced():
     def own(signum, frame):
         pass
 
-    previous = _installed(own)
+    previous = signal.signal(signal.SIGINT, own)
     try:
         assert not interrupts.keep_interrupts()
         assert signal.getsignal(signal.SIGINT) is own
@@ -66,3 +92,41 @@ def test_a_fit_process_handles_ctrl_c_so():
                          timeout=600)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().endswith("True")
+
+
+_COMPILES = """
+import os, random, signal, sys, threading, time
+import numpy as np
+import numba
+import kanagen.common.jit  # noqa: F401 - installs the handler
+random.seed(0)
+raised = 0
+for trial in range(int(sys.argv[1])):
+    def f(x, k=float(trial)):
+        s = 0.0
+        for i in range(x.size):
+            s += np.sin(x[i]) * k + np.cos(x[i] * k)
+        return s
+    kernel = numba.njit(cache=False)(f)
+    timer = threading.Timer(random.uniform(0.0, 0.25), os.kill, (os.getpid(), signal.SIGINT))
+    timer.start()
+    try:
+        kernel(np.ones(3))  # a compile: the Ctrl-C lands in it, or just after
+        time.sleep(5.0)
+    except KeyboardInterrupt:
+        raised += 1
+    timer.join()
+print(raised)
+"""
+
+
+def test_ctrl_c_at_random_moments_of_compiles_is_never_lost():
+    """Ctrl-C sent at random moments of numba compiles: each one raises in the program,
+    none dropped (without the handler, ~8 % were: "Exception ignored on calling ctypes
+    callback function"), and the process goes on compiling."""
+    trials = 30
+    out = subprocess.run([sys.executable, "-c", _COMPILES, str(trials)], capture_output=True,
+                         text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split()[-1] == str(trials), out.stderr
+    assert "Exception ignored" not in out.stderr
