@@ -1,14 +1,15 @@
 """Ctrl-C during a compile, kept and raised where it is safe.
 
 numba compiles (and loads its cache) through llvmlite. A KeyboardInterrupt raised in the
-middle of their Python code can leave LLVM's objects half-released (a crash later, in the
-same process), and one raised in llvmlite's callbacks from LLVM's object cache (ctypes
-callbacks) or in a finaliser (``__del__``) is printed and dropped ("Exception ignored ...")
-while the compile goes on: a first use compiling for a minute could not be interrupted.
-:func:`keep_interrupts` replaces Python's default handler by one that does what it does,
-but for a Ctrl-C landing in numba's or llvmlite's code or in a finaliser: that one is
-delivered again a moment later, until it lands outside them (the compile of one kernel
-over, the caller's code running).
+middle of llvmlite's Python code can leave LLVM's objects half-released (an "Exception
+ignored in ObjectRef.__del__", then a crash later in the same process), and one raised in
+llvmlite's callbacks from LLVM's object cache (ctypes callbacks) or in a finaliser
+(``__del__``) is printed and dropped ("Exception ignored ...") while the compile goes on: a
+first use compiling for a minute could not be interrupted. :func:`keep_interrupts` replaces
+Python's default handler by one that does what it does, but for a Ctrl-C landing in
+llvmlite's code or in a finaliser: that one is delivered again a moment later, until it
+lands outside them (in numba's own passes, which a KeyboardInterrupt leaves whole, or the
+caller's code), or raised between two kernels' compiles (:func:`raise_pending`).
 """
 
 from __future__ import annotations
@@ -17,14 +18,15 @@ import _thread
 import signal
 import threading
 
-#: The modules whose Python code a Ctrl-C waits out (prefixes of their names).
-DEFERRED = ("numba.", "llvmlite.")
+#: The modules whose Python code a Ctrl-C waits out (prefixes of their names): llvmlite's
+#: (waiting out numba's too kept a Ctrl-C for the rest of a kernel's compile, ~20 s).
+DEFERRED = ("llvmlite.",)
 #: Seconds before a Ctrl-C that landed there is delivered again.
 RETRY = 0.05
 
 
 def deferred_at(frame) -> bool:
-    """``frame`` or one of its callers runs numba's or llvmlite's code, or a finaliser."""
+    """``frame`` or one of its callers runs llvmlite's code, or a finaliser."""
     while frame is not None:
         if frame.f_globals.get("__name__", "").startswith(DEFERRED) or \
                 frame.f_code.co_name == "__del__":
@@ -33,16 +35,38 @@ def deferred_at(frame) -> bool:
     return False
 
 
+#: ``pending``: a Ctrl-C waits to be raised; ``in_flight``: its deliveries again under way.
+_state = {"pending": False, "in_flight": 0}
+
+
 def on_interrupt(signum, frame) -> None:
-    """Python's Ctrl-C (a KeyboardInterrupt where the main thread is), except in numba's or
-    llvmlite's code or a finaliser (:func:`deferred_at`): there, the same signal again in
-    :data:`RETRY` seconds."""
+    """Python's Ctrl-C (a KeyboardInterrupt where the main thread is), except in llvmlite's
+    code or a finaliser (:func:`deferred_at`): there, the same signal again in
+    :data:`RETRY` seconds. A delivery again of one already raised (by
+    :func:`raise_pending`) is ignored."""
+    if _state["in_flight"]:
+        _state["in_flight"] -= 1
+        if not _state["pending"]:
+            return
     if deferred_at(frame):
+        _state["pending"] = True
+        _state["in_flight"] += 1
         timer = threading.Timer(RETRY, _thread.interrupt_main, (signum,))
         timer.daemon = True
         timer.start()
         return
+    _state["pending"] = False
     signal.default_int_handler(signum, frame)
+
+
+def raise_pending() -> None:
+    """Raise the Ctrl-C that waits, if one does: called where it is safe, between two
+    kernels' compiles (kanagen.common.link), so that a run of many compiles stops at the
+    next one's end rather than at the last's (in the main thread, which a Ctrl-C
+    interrupts; another thread's compiles do not raise it)."""
+    if _state["pending"] and threading.current_thread() is threading.main_thread():
+        _state["pending"] = False
+        raise KeyboardInterrupt
 
 
 def keep_interrupts() -> bool:

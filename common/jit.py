@@ -67,7 +67,7 @@ def _import_numba():
             del sys.modules["yaml"]
     from .interrupts import keep_interrupts
 
-    keep_interrupts()  # a Ctrl-C during a compile is not lost in llvmlite's callbacks
+    keep_interrupts()  # a Ctrl-C during a compile: kept, raised once out of it
     if not os.environ.get("NUMBA_CACHE_DIR"):
         numba.config.CACHE_DIR = _cache_dir()
         _locate_by_package(numba)

@@ -33,6 +33,7 @@ import threading
 
 import numpy as np
 
+from kanagen.common.interrupts import raise_pending
 from kanagen.common.jit import NUMBA, jit
 
 _lock = threading.RLock()  # numba's compiler lock where numba is (see below)
@@ -304,13 +305,16 @@ def link(*roots: str) -> None:
                                        item_show_func=_current) as bar:
                     for entry in bar:
                         entry.resolve()
+                        raise_pending()  # a Ctrl-C during that compile: raised here
             else:
                 for entry in mine:
                     entry.resolve()
+                    raise_pending()
             for _, process in helpers:
                 _finish(process)
             for entry in entries:  # the helpers': from the cache (or compiled here)
                 entry.resolve()
+                raise_pending()
         finally:
             _sharing.active = False
             for _, process in helpers:  # an interrupted link leaves no helper behind

@@ -1,12 +1,13 @@
 """Ctrl-C during a compile is kept and raised where it is safe (kanagen.common.interrupts):
-one landing in numba's or llvmlite's code (half-released LLVM objects, or dropped by
-ctypes in llvmlite's callbacks) or in a finaliser (dropped by Python) is delivered again
-once out of them; anywhere else it raises at once, as Python's own."""
+one landing in llvmlite's code (half-released LLVM objects, or dropped by ctypes in its
+callbacks) or in a finaliser (dropped by Python) is delivered again once out of them, or
+raised between two kernels' compiles; anywhere else it raises at once, as Python's own."""
 
 import signal
 import subprocess
 import sys
 import time
+from types import SimpleNamespace
 
 import pytest
 
@@ -31,22 +32,20 @@ def test_a_ctrl_c_outside_raises_at_once():
         interrupts.on_interrupt(signal.SIGINT, sys._getframe())
 
 
-def test_numbas_and_llvmlites_code_and_finalisers_wait_it_out():
-    from numba.core import event
+def _frame(module, name, caller=None):
+    return SimpleNamespace(f_globals={"__name__": module}, f_code=SimpleNamespace(
+        co_name=name), f_back=caller)
 
-    frames = []
 
-    class Listener(event.Listener):  # called from numba.core.event's code
-        def on_start(self, e):
-            frames.append(sys._getframe())
-
-        def on_end(self, e):
-            pass
-
-    with event.install_listener("kanagen-test", Listener()):
-        event.start_event("kanagen-test")
-    assert interrupts.deferred_at(frames[0])
-    assert not interrupts.deferred_at(sys._getframe())
+def test_llvmlites_code_and_finalisers_wait_it_out_numbas_passes_do_not():
+    ours = _frame("kanagen.common.link", "link")
+    compiling = _frame("numba.core.typed_passes", "run_pass", ours)
+    assert interrupts.deferred_at(_frame("llvmlite.binding.executionengine",
+                                         "_raw_object_cache_notify", compiling))
+    assert interrupts.deferred_at(_frame("llvmlite.binding.ffi", "detach", compiling))
+    assert interrupts.deferred_at(_frame("numba.core.codegen", "__del__", compiling))
+    assert not interrupts.deferred_at(compiling)  # numba's passes: a KeyboardInterrupt
+    assert not interrupts.deferred_at(sys._getframe())  # leaves them whole
 
 
 def test_a_ctrl_c_in_a_finaliser_is_delivered_again_once_out_of_it():
@@ -60,6 +59,22 @@ def test_a_ctrl_c_in_a_finaliser_is_delivered_again_once_out_of_it():
             deadline = time.monotonic() + 10.0
             while time.monotonic() < deadline:  # delivered again here: out of it
                 time.sleep(0.01)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def test_a_ctrl_c_waiting_is_raised_at_a_safe_point_once():
+    """Between two kernels' compiles (kanagen.common.link) a waiting Ctrl-C is raised at
+    once, and its delivery again, already under way, is not a second one."""
+    previous = signal.signal(signal.SIGINT, interrupts.on_interrupt)
+    try:
+        interrupts.raise_pending()  # nothing waits: nothing raised
+        finalised = _Finalised(interrupts.on_interrupt)
+        del finalised  # its finaliser: the Ctrl-C deferred, not raised
+        with pytest.raises(KeyboardInterrupt):
+            interrupts.raise_pending()
+        time.sleep(10 * interrupts.RETRY)  # the delivery again lands here: ignored
+        interrupts.raise_pending()
     finally:
         signal.signal(signal.SIGINT, previous)
 
@@ -124,7 +139,7 @@ def test_ctrl_c_at_random_moments_of_compiles_is_never_lost():
     """Ctrl-C sent at random moments of numba compiles: each one raises in the program,
     none dropped (without the handler, ~8 % were: "Exception ignored on calling ctypes
     callback function"), and the process goes on compiling."""
-    trials = 30
+    trials = 20
     out = subprocess.run([sys.executable, "-c", _COMPILES, str(trials)], capture_output=True,
                          text=True, timeout=600)
     assert out.returncode == 0, out.stderr
