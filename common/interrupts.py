@@ -1,15 +1,18 @@
 """Ctrl-C during a compile, kept and raised where it is safe.
 
-numba compiles (and loads its cache) through llvmlite. A KeyboardInterrupt raised in the
-middle of llvmlite's Python code can leave LLVM's objects half-released (an "Exception
-ignored in ObjectRef.__del__", then a crash later in the same process), and one raised in
-llvmlite's callbacks from LLVM's object cache (ctypes callbacks) or in a finaliser
-(``__del__``) is printed and dropped ("Exception ignored ...") while the compile goes on: a
-first use compiling for a minute could not be interrupted. :func:`keep_interrupts` replaces
-Python's default handler by one that does what it does, but for a Ctrl-C landing in
-llvmlite's code or in a finaliser: that one is delivered again a moment later, until it
-lands outside them (in numba's own passes, which a KeyboardInterrupt leaves whole, or the
-caller's code), or raised between two kernels' compiles (:func:`raise_pending`).
+numba compiles (and loads its cache) through llvmlite. A KeyboardInterrupt raised in their
+Python code can leave them broken for the rest of the process: in llvmlite's, LLVM's
+objects half-released (an "Exception ignored in ObjectRef.__del__", then a crash); in
+numba's, a registry's generator closed mid-way ("RuntimeError: generator raised
+StopIteration" at every later compile). One raised in llvmlite's callbacks from LLVM's
+object cache (ctypes callbacks) or in a finaliser (``__del__``) is printed and dropped
+("Exception ignored ...") while the compile goes on: a first use compiling for a minute
+could not be interrupted. :func:`keep_interrupts` replaces Python's default handler by one
+that does what it does, but for a Ctrl-C landing in numba's or llvmlite's code or in a
+finaliser: that one is delivered again a moment later, until it lands outside them (the
+compile over, the caller's code running), or raised between two kernels' compiles
+(:func:`raise_pending`) — so a Ctrl-C during a run of compiles waits for the kernel being
+compiled (seconds; ~20–30 s for the largest on a busy machine).
 """
 
 from __future__ import annotations
@@ -18,15 +21,14 @@ import _thread
 import signal
 import threading
 
-#: The modules whose Python code a Ctrl-C waits out (prefixes of their names): llvmlite's
-#: (waiting out numba's too kept a Ctrl-C for the rest of a kernel's compile, ~20 s).
-DEFERRED = ("llvmlite.",)
+#: The modules whose Python code a Ctrl-C waits out (prefixes of their names).
+DEFERRED = ("numba.", "llvmlite.")
 #: Seconds before a Ctrl-C that landed there is delivered again.
 RETRY = 0.05
 
 
 def deferred_at(frame) -> bool:
-    """``frame`` or one of its callers runs llvmlite's code, or a finaliser."""
+    """``frame`` or one of its callers runs numba's or llvmlite's code, or a finaliser."""
     while frame is not None:
         if frame.f_globals.get("__name__", "").startswith(DEFERRED) or \
                 frame.f_code.co_name == "__del__":
@@ -40,8 +42,8 @@ _state = {"pending": False, "in_flight": 0}
 
 
 def on_interrupt(signum, frame) -> None:
-    """Python's Ctrl-C (a KeyboardInterrupt where the main thread is), except in llvmlite's
-    code or a finaliser (:func:`deferred_at`): there, the same signal again in
+    """Python's Ctrl-C (a KeyboardInterrupt where the main thread is), except in numba's or
+    llvmlite's code or a finaliser (:func:`deferred_at`): there, the same signal again in
     :data:`RETRY` seconds. A delivery again of one already raised (by
     :func:`raise_pending`) is ignored."""
     if _state["in_flight"]:
