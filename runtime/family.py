@@ -148,6 +148,12 @@ class ModelFamily:
 
     def constant_vector(self, constants: Mapping[str, float] | None = None) -> np.ndarray:
         """Constants in declaration order, defaults overridden by ``constants``."""
+        if not constants:  # the defaults: made once
+            defaults = self.__dict__.get("_default_constants")
+            if defaults is None:
+                defaults = self._default_constants = np.array(
+                    [self._constants[n] for n in self.constant_names], dtype=float)
+            return defaults.copy()
         values = dict(self._constants)
         for key, value in (constants or {}).items():
             if key not in values:

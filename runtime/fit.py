@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import replace
 
@@ -178,9 +179,10 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
         info_q, rank0, residual = np.full((n, n), np.nan), 0, np.nan
         ranks = tuple(np.zeros(ch.size, dtype=int) for ch in problem.channels)
         covariance = np.full((n, n), np.nan)
-    dof = n - rank0 + int(sum(int(r.sum()) for r in ranks))
+    kept, every = _kept(ranks)
+    dof = n - rank0 + kept
     success = not brief and out.status == CONVERGED and \
-        _feasible(x, out.start_violation, residual, ranks)
+        _feasible(x, out.start_violation, residual, every)
     measures = {ch.name: ch.with_corrected(m) for ch, m in zip(problem.channels, x.mt,
                                                                  strict=True)}
     return FitResult(
@@ -228,13 +230,23 @@ def _inside(problem: Problem, start: np.ndarray) -> np.ndarray:
     return sol.q if sol.success and problem.relations(sol.q) else start
 
 
-def _feasible(x, start_violation: float, residual: float, ranks) -> bool:
-    """The equations hold at ``x``. With every measure keeping its equations, the whitened
-    violation E² must be negligible against the cost (scale-free); when a vanishing gradient
-    dropped some equation (E² no longer sees it), the raw violation must have fallen by six
-    orders of magnitude from the start."""
+def _kept(ranks) -> tuple[int, bool]:
+    """The equations the measures keep (``Σ pᵢ``, per channel's ranks ``ranks``) and
+    whether every measure keeps one."""
+    kept, every = 0, True
+    for r in ranks:
+        kept += int(np.add.reduce(r))
+        every = every and np.count_nonzero(r) == r.size
+    return kept, bool(every)
+
+
+def _feasible(x, start_violation: float, residual: float, every: bool) -> bool:
+    """The equations hold at ``x``. With every measure keeping its equations (``every``),
+    the whitened violation E² must be negligible against the cost (scale-free); when a
+    vanishing gradient dropped some equation (E² no longer sees it), the raw violation must
+    have fallen by six orders of magnitude from the start."""
     if x.delta == 0.0:
         return True
-    if all(np.count_nonzero(r) == r.size for r in ranks):  # every measure keeps one
-        return bool(np.isfinite(residual) and residual <= 1e-10 * max(1.0, x.cost))
+    if every:
+        return math.isfinite(residual) and residual <= 1e-10 * max(1.0, x.cost)
     return x.delta <= 1e-6 * start_violation

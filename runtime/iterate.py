@@ -93,7 +93,7 @@ MESSAGES = {
 }
 
 
-@dataclass(frozen=True)
+@dataclass  # output records, not frozen: a frozen dataclass's fields cost ~0.2 µs each to set
 class Projected:
     """What a fit reports from the projector at its returned point: the information
     ``Q̃``, each measure's equations kept (per channel), the rows of ``C0`` kept and their
@@ -109,7 +109,7 @@ class Projected:
     covariance: np.ndarray | None = None
 
 
-@dataclass(frozen=True)
+@dataclass  # (see Projected)
 class Outcome:
     point: Point
     lin: Linearisation | None

@@ -65,7 +65,7 @@ class Problem:
         return out
 
 
-@dataclass(frozen=True)
+@dataclass  # an output record, made at every fit and restoration: not frozen (iterate.py)
 class Point:
     """A point ``x = (q, m̃_i)`` with its equations and Jacobians evaluated."""
 

@@ -258,7 +258,7 @@ def test_lost_direction_measure_without_constraints(n, seed):
     info = J.T @ J
     x = Pt(np.ones(n), np.zeros((0, 1)), np.zeros(0), np.zeros((0, n)), np.zeros((0, 1)),
            np.zeros((0, 1, n)), np.zeros((0, 1, 1)), 0.0, 0.0)
-    ok, least, u = verify.weakest(info, x)
+    ok, least, u = verify.weakest(info, x, 0.0)
     d = np.sqrt(np.diag(info))
     w, V = np.linalg.eigh(info / np.outer(d, d))
     assert ok
@@ -266,3 +266,28 @@ def test_lost_direction_measure_without_constraints(n, seed):
     if w.size == 1 or w[1] - w[0] > 1e-6 * w[-1]:  # a direction well defined: separated
         ref = V[:, 0] / d
         assert min(np.abs(u - ref).max(), np.abs(u + ref).max()) <= 1e-6 * np.abs(ref).max()
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(1, 9), st.integers(0, 2**32 - 1), st.floats(-16, 0))
+def test_certainly_above_never_certifies_a_smaller_ratio(k, seed, log_ratio):
+    """``verify.certainly_above`` (which spares the lost-direction check its eigenproblem)
+    says True only when the least eigenvalue of the unit-diagonal matrix really is above
+    ``ratio`` times its largest — the eigenproblem would have said the same — and says it
+    for a well-conditioned matrix."""
+    rng = np.random.default_rng(seed)
+    U, _ = np.linalg.qr(rng.standard_normal((k, k)))
+    w = 10.0 ** rng.uniform(-16, 0, k)
+    w[rng.integers(k)] = 1.0
+    M = (U * w) @ U.T
+    d = np.sqrt(np.diag(M))
+    S = M / np.outer(d, d)
+    S = 0.5 * (S + S.T)
+    ratio = 10.0 ** log_ratio
+    eig = np.linalg.eigvalsh(S)
+    if verify.certainly_above(S, ratio):
+        assert eig[0] > ratio * eig[-1]
+    assert verify.certainly_above(np.eye(k), 1e-3)
+    # the bound loses a factor k² at worst (λmax ≥ 1 on a unit diagonal); rounding aside
+    if ratio >= 1e-10 and eig[0] / eig[-1] > k * k * ratio * 1.1:
+        assert verify.certainly_above(S, ratio)

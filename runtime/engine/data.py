@@ -10,7 +10,7 @@ its data width ``W`` and the address of its row kernel (:mod:`.rows`). The infor
 from __future__ import annotations
 
 from collections import namedtuple
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -179,8 +179,7 @@ def arrays(problem) -> Arrays:
         ch = channels[0]
         X, m = _of_kind(ch.X, *_F2), _of_kind(ch.m, *_F2)
         Q, G = _per_measure(ch.Q, M), _per_measure(ch.G, M)
-        chan, size, start = np.zeros(M, dtype=np.int64), np.array(sizes, dtype=np.int64), \
-            np.zeros(1, dtype=np.int64)
+        chan, size, start = shape.single(M)
     else:
         X, m = np.zeros((M, wmax)), np.zeros((M, dmax))
         Q, G = np.zeros((M, dmax, dmax)), np.zeros((M, dmax, dmax))
@@ -239,6 +238,18 @@ class _Shape:
     linear: np.ndarray
     strict_idx: np.ndarray
     strict_pow: np.ndarray
+    singles: dict = field(default_factory=dict, compare=False)  # single's, by size
+
+    def single(self, M: int) -> tuple:
+        """A one-channel problem's ``chan, size, start`` for ``M`` measures: made once per
+        size and shared (the kernels and the Python only read them)."""
+        out = self.singles.get(M)
+        if out is None:
+            if len(self.singles) >= 64:
+                self.singles.clear()
+            out = self.singles[M] = (np.zeros(M, dtype=np.int64),
+                                     np.array([M], dtype=np.int64), np.zeros(1, dtype=np.int64))
+        return out
 
 
 def _shape(rows: RowKernels, channels, strict) -> _Shape:

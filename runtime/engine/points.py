@@ -27,7 +27,8 @@ from .measures import (
     point_values,
     quad_between,
     restore_all,
-    violations_all,
+    scratch,
+    violation,
 )
 from .rows import call3
 
@@ -349,14 +350,18 @@ def nearer_points(A, x):
     other, _ = restore(A, x.q, A.m, RESTORE_STEPS)
     if not finite(other):
         return False, x
-    on = violations_all(A, other.c, other.D) <= UNREACHED
-    mt, c, C, D = x.mt.copy(), x.c.copy(), x.C.copy(), x.D.copy()
+    mt, c, C, D = x.mt, x.c, x.C, x.D  # copied at the first measure moved
     changed = False
+    work = scratch(A, 0)
     for i in range(A.chan.size):
-        d = A.Dn[A.chan[i]]
+        ch = A.chan[i]
+        d = A.Dn[ch]
         d_x = quad_between(x.mt[i], A.m[i], A.Q[i], d)
         d_o = quad_between(other.mt[i], A.m[i], A.Q[i], d)
-        if on[i] and d_o < d_x - 1e-9 * (1.0 + d_x):
+        if d_o < d_x - 1e-9 * (1.0 + d_x) and violation(
+                other.c[i], other.D[i], A.G[i], A.P[ch], d, A.eps, work)[0] <= UNREACHED:
+            if not changed:
+                mt, c, C, D = x.mt.copy(), x.c.copy(), x.C.copy(), x.D.copy()
             changed = True
             copy_into(mt[i], other.mt[i])
             copy_into(c[i], other.c[i])

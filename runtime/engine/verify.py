@@ -43,6 +43,7 @@ VANISHED = 1e-12  # information fallen by this factor since the start: a plateau
 SCREEN = 0.05  # least forward-difference curvature above which no central check is needed
 LOST = 1e-12  # least eigenvalue of the scaled information, relative: a direction lost
 SLOPE = 1e3  # the gradient along it, in rounding levels of its terms, above which it falls
+_CERTAIN = 1e3  # a ratio certified above this many times LOST is no lost direction
 
 Verdict = namedtuple("Verdict", ["stationary", "decrement", "cost", "curvature", "direction",
                                  "plateau", "plateau_vector"])
@@ -134,10 +135,45 @@ def plateau_mask(x, info, info_start):
     return gone, gone.any()
 
 
-@linked("f2 Pt -> b f f1")
-def weakest(info, x):
+@jit
+def certainly_above(S, ratio):
+    """The least eigenvalue of the symmetric ``S`` (``k × k``, unit diagonal) is certainly
+    above ``ratio`` times its largest: ``S = L Lᵀ`` exists and ``k tr S⁻¹ < 1 / ratio``
+    (``tr S⁻¹ = ‖L⁻¹‖²_F``), for ``λmin ≥ 1 / tr S⁻¹`` and ``λmax ≤ tr S = k``. A sufficient
+    test, far cheaper than the eigenproblem; ``ratio`` is taken far above the threshold it
+    certifies (the factor's rounding, relative ``k ε cond S``, is then nothing)."""
+    k = S.shape[0]
+    L = np.zeros((k, k))
+    for j in range(k):
+        acc = S[j, j]
+        for u in range(j):
+            acc -= L[j, u] * L[j, u]
+        if not acc > 0.0:
+            return False
+        L[j, j] = np.sqrt(acc)
+        for i in range(j + 1, k):
+            acc = S[i, j]
+            for u in range(j):
+                acc -= L[i, u] * L[j, u]
+            L[i, j] = acc / L[j, j]
+    trace = 0.0
+    column = np.zeros(k)
+    for j in range(k):  # column j of L⁻¹ by forward substitution
+        for i in range(k):
+            acc = 1.0 if i == j else 0.0
+            for u in range(j, i):
+                acc -= L[i, u] * column[u]
+            column[i] = acc / L[i, i] if i >= j else 0.0
+            trace += column[i] * column[i]
+    return k * trace * ratio < 1.0
+
+
+@linked("f2 Pt f -> b f f1")
+def weakest(info, x, only_below):
     """The least eigenvalue of ``info`` on the tangent space, scaled to a unit diagonal,
-    relative to the largest, and its direction (``ok`` False without one). The scaling is
+    relative to the largest, and its direction (``ok`` False without one; with
+    ``only_below`` > 0, also when the ratio is certainly above ``only_below``:
+    :func:`certainly_above`, no eigenproblem). The scaling is
     in the coordinates of the tangent space's basis (:func:`tangent_space`'s): with
     constraints the ratio depends on that basis, as it did on LAPACK's (a basis-free
     scaling moved a two-view fit's path to another minimum: docs/performance.md)."""
@@ -159,6 +195,8 @@ def weakest(info, x):
     for a in range(k):
         for b in range(k):
             scaled[a, b] = M[a, b] / (d[a] * d[b])
+    if only_below > 0.0 and certainly_above(scaled, only_below):
+        return False, 0.0, np.zeros(0)
     w, U = sym_eigh(scaled)
     if not w[-1] > 0:
         return False, 0.0, np.zeros(0)
@@ -169,7 +207,7 @@ def weakest(info, x):
 def lost_direction(A, x, lin):
     """A direction the equations no longer see along which the cost still falls, scaled to
     a largest component of one, its sign the falling one (``found`` False without one)."""
-    ok, least, u = weakest(lin.info, x)
+    ok, least, u = weakest(lin.info, x, _CERTAIN * LOST)
     if not ok or least > LOST:
         return False, np.zeros(0)
     slope = dot(lin.gradient, u)

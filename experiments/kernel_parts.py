@@ -1,0 +1,157 @@
+"""What each part of a conic fit's kernel costs, timed inside numba (docs/engine.md, "What a
+conic fit's kernel spends").
+
+A fit's parts are linked kernels (``kanagen.common.link``); called from Python each would
+pay for boxing its named tuples of arrays, more than some of them cost. Here a compiled
+loop calls each part ``--calls`` times at one fit's returned point (a restored point, its
+linearisation and the Lagrangian's model there), the loops interleaved over ``--rounds``
+rounds and the fastest round kept (this machine's runs of the same code differ by tens of
+per cent). How often a fit calls each part is counted apart: ``NUMBA_DISABLE_JIT=1 python
+experiments/kernel_parts.py --count`` (interpreted: slow) traces 30 fits of the
+``conic_odr`` benchmark's draws.
+
+Run ``python experiments/kernel_parts.py`` (about a minute once the kernels are cached).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+import conic_odr as bench  # noqa: E402
+
+import kanagen  # noqa: E402
+from kanagen.common.jit import NUMBA, jit  # noqa: E402
+from kanagen.common.link import link  # noqa: E402
+from kanagen.runtime import fit as fitting  # noqa: E402
+from kanagen.runtime.engine import curvature, points, verify  # noqa: E402
+from kanagen.runtime.engine import iterate as engine  # noqa: E402
+from kanagen.runtime.engine.data import arrays  # noqa: E402
+
+#: The engine's kernels a conic fit calls, for ``--count``.
+PARTS = ("project_point", "restored", "lagrangian", "step", "lost_direction", "nearer_points",
+         "verify", "profile_hessian", "tangent_basis")
+
+
+def problems(count: int, sigma: float = 1.0):
+    """``count`` conic problems of the benchmark (30 points, noise ``sigma``): their arrays
+    and Taubin starts."""
+    fam = kanagen.load("conic")
+    truth = bench.SCENE.points(bench.N_POINTS)
+    out = []
+    for noise in bench.noise_draws(sigma, count):
+        xy = truth + noise
+        start = bench.taubin(xy)
+        problem = fitting.make_problem(fam, "conic", {"point": xy}, {"point": 1 / sigma**2},
+                                       start, None, None)
+        out.append((arrays(problem), np.ascontiguousarray(start)))
+    return out
+
+
+def _timed(part):
+    """A compiled loop calling the compiled ``part(A, x, lin, proj, W, model, model_proj)``
+    (a number back) ``calls`` times."""
+    @NUMBA.njit
+    def loop(A, x, lin, proj, W, model, model_proj, calls):
+        total = 0.0
+        for _ in range(calls):
+            total += part(A, x, lin, proj, W, model, model_proj)
+        return total
+    return loop
+
+
+def _parts() -> dict:
+    """The parts, each a compiled call returning a number (so that it is not optimised
+    away): at a restored point ``x``, its linearisation and projector's point ``lin,
+    proj``, its tangent basis ``W`` and the Lagrangian's model there."""
+    njit = NUMBA.njit
+    return {
+        "project_point": njit(lambda A, x, lin, proj, W, m, mp: 1.0 if points.project_point(
+            A, x, 0.0, np.zeros(0))[0] else 0.0),
+        "restored (at a restored point)": njit(lambda A, x, lin, proj, W, m, mp: points.restored(
+            A, x.q, x.mt, np.zeros((0, 0)), 30, True)[1]),
+        "lagrangian": njit(lambda A, x, lin, proj, W, m, mp: points.lagrangian(
+            A, x, lin, proj)[0].info[0, 0]),
+        "lost_direction": njit(lambda A, x, lin, proj, W, m, mp: float(
+            verify.lost_direction(A, x, lin)[1].size)),
+        "nearer_points": njit(lambda A, x, lin, proj, W, m, mp: 1.0 if points.nearer_points(
+            A, x)[0] else 0.0),
+        "tangent_basis": njit(lambda A, x, lin, proj, W, m, mp: float(
+            verify.tangent_basis(x, lin.info).size)),
+        "profile_hessian": njit(lambda A, x, lin, proj, W, m, mp: curvature.profile_hessian(
+            A, x, lin, W)[1][0, 0]),
+        "verify": njit(lambda A, x, lin, proj, W, m, mp: verify.verify(
+            A, x, lin, proj, np.zeros(0), False, m, mp).curvature),
+    }
+
+
+def timings(calls: int, rounds: int) -> dict[str, float]:
+    """Each part's fastest time a call (µs), at the first problem's returned point."""
+    A, start = problems(1)[0]
+    out = engine.run_flat(A, start, 100, 1e-10, True, True)
+    x, _ = points.restored(A, out[4], out[5], np.zeros((0, 0)), 30, True)
+    _, lin, proj = points.project_point(A, x, 0.0, np.zeros(0))
+    context = (A, x, lin, proj, verify.tangent_basis(x, lin.info),
+               *points.lagrangian(A, x, lin, proj))
+    link()
+    loops = {name: _timed(part) for name, part in _parts().items()}
+    best = dict.fromkeys(loops, np.inf)
+    fit_best = np.inf
+    for _ in range(rounds):
+        for name, loop in loops.items():
+            loop(*context, 2)
+            began = time.perf_counter()
+            loop(*context, calls)
+            best[name] = min(best[name], (time.perf_counter() - began) / calls * 1e6)
+        began = time.perf_counter()
+        for _ in range(calls // 20):
+            engine.run_flat(A, start, 100, 1e-10, True, True)
+        fit_best = min(fit_best, (time.perf_counter() - began) / (calls // 20) * 1e6)
+    best["a whole fit (run_flat, from Python)"] = fit_best
+    return best
+
+
+def counts(fits: int) -> dict[str, float]:
+    """How many times a fit calls each part (interpreted, traced), on average."""
+    seen: collections.Counter = collections.Counter()
+
+    def trace(frame, event, arg):
+        if event == "call" and frame.f_code.co_name in PARTS and \
+                "engine" in frame.f_code.co_filename:
+            seen[frame.f_code.co_name] += 1
+
+    made = [p for sigma in bench.SIGMAS for p in problems(fits // len(bench.SIGMAS), sigma)]
+    for A, start in made:
+        sys.setprofile(trace)
+        try:
+            engine.run_flat(A, start, 100, 1e-10, True, True)
+        finally:
+            sys.setprofile(None)
+    return {name: seen[name] / len(made) for name in PARTS}
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--calls", type=int, default=1000)
+    parser.add_argument("--rounds", type=int, default=24)
+    parser.add_argument("--count", action="store_true",
+                        help="count the parts' calls per fit (with NUMBA_DISABLE_JIT=1)")
+    args = parser.parse_args(argv)
+    if args.count:
+        for name, value in counts(30).items():
+            print(f"{name:40s} {value:6.2f} a fit")
+        return
+    if NUMBA is None or jit.disabled:
+        sys.exit("the timings need numba's compiled kernels (unset NUMBA_DISABLE_JIT)")
+    for name, value in timings(args.calls, args.rounds).items():
+        print(f"{name:40s} {value:8.2f} µs")
+
+
+if __name__ == "__main__":
+    main()
