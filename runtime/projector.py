@@ -23,16 +23,13 @@ from .engine.data import (
 from .engine.linear import (
     corrected,
     parameter_block,
-    retraction_step,
     seen_components,
 )
 from .engine.linear import linearise as engine_linearise
 from .engine.measures import project_all
+from .engine.points import restore_parameter as engine_restore_parameter
 from .inputs import ChannelData
 from .sqrt import EPS
-
-#: Relative rounding level of stored values (moves below it are noise).
-_ROUNDING = 1e3 * np.finfo(float).eps
 
 
 @dataclass(frozen=True)
@@ -179,25 +176,16 @@ def restore_parameter(problem: Problem, q: np.ndarray, root: np.ndarray | None,
     This is the parameter-space twin of :func:`project_measures` — a second-order correction:
     a long projector step leaves a violation of the order of its square on curved
     constraints (a unit norm, a slack's ``c·s² − 1``), which would make eq. 18 refuse it.
-    Steps that do not lower ``‖c0‖∞`` are not taken (call under np.errstate). ``root``
-    None: the Euclidean metric.
+    Steps that do not lower ``‖c0‖∞`` are not taken. ``root`` None: the Euclidean metric.
+    The kernel :func:`~kanagen.runtime.engine.points.restore_parameter` (the iteration's
+    retraction) on the problem's arrays.
     """
-    c0, C0 = problem.c0(q, problem.k)
-    if not c0.size:
-        return q
-    worst = float(np.max(np.abs(c0)))
-    if root is None:
-        root = np.eye(q.size)
-    for _ in range(iterations):
-        if not worst > _ROUNDING * (1.0 + float(np.max(np.abs(q)))) * 1e-3:
-            break
-        trial = q - retraction_step(root, C0, c0, problem.eps)
-        c0_new, C0_new = problem.c0(trial, problem.k)
-        new_worst = float(np.max(np.abs(c0_new)))
-        if not new_worst < worst:
-            break
-        q, c0, C0, worst = trial, c0_new, C0_new, new_worst
-    return q
+    return engine_restore_parameter(
+        arrays(problem), np.ascontiguousarray(q, dtype=float),
+        _EUCLIDEAN if root is None else np.ascontiguousarray(root, dtype=float), int(iterations))
+
+
+_EUCLIDEAN = np.zeros((0, 0))  # the kernels' empty metric: Euclidean
 
 
 def linearise(problem: Problem, x: Point) -> Linearisation:

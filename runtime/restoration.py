@@ -17,6 +17,13 @@ stops off its equations. Those measures are finished by a feasible descent on th
 Each accepted step lowers the distance on the manifold: it ends at a local nearest point.
 Both are kernels, measure by measure (:mod:`kanagen.runtime.engine.measures`:
 ``restore_all``, ``descend``).
+
+A local nearest point may not be the nearest: with an anisotropic information a curve can
+hold two nearest points of a measure (the near and the far side of a circle). The iteration
+follows the branch it started on, and its profile cost is smooth along it, so a stationary
+point there is a local minimum of the joint problem in ``(q, m̃)`` only — not of the cost of
+``q``. Where the iteration ends, each measure is restored again from its observed value and
+moved to that point when it is nearer (:func:`kanagen.runtime.engine.points.nearer_points`).
 """
 
 from __future__ import annotations

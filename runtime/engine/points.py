@@ -111,7 +111,7 @@ def c0_rounding(q):
     return 1e-13 * (1.0 + max_abs(q)) ** 2
 
 
-@linked("A f1 f2 i -> f1")
+@linked("A f1 f2 i -> f1", python=True)
 def restore_parameter(A, q, root, iterations):
     """``q`` moved back onto ``c0(q) = 0`` by Gauss–Newton steps in the metric ``root``
     (empty: Euclidean), each taken when it lowers ``‖c0‖∞`` (runtime/projector.py)."""
