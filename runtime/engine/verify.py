@@ -18,7 +18,7 @@ from kanagen.common.jit import jit
 from kanagen.common.link import linked, record_kind
 
 from ..linalg import dot, matmul, matvec, null_space, projected, sym_eigh
-from ..sqrt import put_column
+from ..sqrt import put_column, reduced_root, solve_lower_columns
 from .curvature import profile_hessian
 from .linear import linearise, seen_components
 from .measures import RESTORE_STEPS
@@ -143,28 +143,14 @@ def certainly_above(S, ratio):
     test, far cheaper than the eigenproblem; ``ratio`` is taken far above the threshold it
     certifies (the factor's rounding, relative ``k ε cond S``, is then nothing)."""
     k = S.shape[0]
-    L = np.zeros((k, k))
-    for j in range(k):
-        acc = S[j, j]
-        for u in range(j):
-            acc -= L[j, u] * L[j, u]
-        if not acc > 0.0:
-            return False
-        L[j, j] = np.sqrt(acc)
-        for i in range(j + 1, k):
-            acc = S[i, j]
-            for u in range(j):
-                acc -= L[i, u] * L[j, u]
-            L[i, j] = acc / L[j, j]
+    L, kept = reduced_root(S, 0.0)  # a pivot dropped (not above rounding): no certificate
+    if not kept.all():
+        return False
+    inverse = solve_lower_columns(L, np.eye(k), False)
     trace = 0.0
-    column = np.zeros(k)
-    for j in range(k):  # column j of L⁻¹ by forward substitution
-        for i in range(k):
-            acc = 1.0 if i == j else 0.0
-            for u in range(j, i):
-                acc -= L[i, u] * column[u]
-            column[i] = acc / L[i, i] if i >= j else 0.0
-            trace += column[i] * column[i]
+    for i in range(k):
+        for j in range(i + 1):
+            trace += inverse[i, j] * inverse[i, j]
     return k * trace * ratio < 1.0
 
 
@@ -173,10 +159,10 @@ def weakest(info, x, only_below):
     """The least eigenvalue of ``info`` on the tangent space, scaled to a unit diagonal,
     relative to the largest, and its direction (``ok`` False without one; with
     ``only_below`` > 0, also when the ratio is certainly above ``only_below``:
-    :func:`certainly_above`, no eigenproblem). The scaling is
-    in the coordinates of the tangent space's basis (:func:`tangent_space`'s): with
-    constraints the ratio depends on that basis, as it did on LAPACK's (a basis-free
-    scaling moved a two-view fit's path to another minimum: docs/performance.md)."""
+    :func:`certainly_above`, no eigenproblem). The scaling is in the coordinates of the
+    tangent space's basis (:func:`tangent_space`'s): with constraints the ratio depends on
+    that basis, as it did on LAPACK's (a basis-free scaling moved a two-view fit's path to
+    another minimum: docs/performance.md)."""
     n = x.q.size
     seen = np.zeros(n, dtype=np.bool_)
     for a in range(n):
