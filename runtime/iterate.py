@@ -28,9 +28,12 @@ trial point that breaks them is refused; a strict relation whose slack diverges 
 iteration at the boundary (status 4).
 
 Starts (ours). The projector's step from the observed measures (ODRPACK's first step) is
-tried first; when the descent from there fails, the same step damped to the first trust
-radius, then the restored start with every step inside the trust region, then the restored
-start as the first.
+tried first, and the joint problem's Gauss–Newton steps on from its point while they lower
+the cost (four steps at most; a step's restoration, most of its cost, is made for the first
+point and the last only when every step lowers it:
+:func:`kanagen.runtime.engine.iterate.joint_start`); when the descent from there fails, the
+same step damped to the first trust radius, then the restored start with every step inside
+the trust region, then the restored start as the first.
 
 The end (:mod:`.verify`): wherever the iteration stops, the point is checked — stationary
 (the Newton decrement of the projector's step small against the cost), no negative

@@ -385,28 +385,51 @@ def descend(A, st, info0, scale, q_start, x, violation, max_iter, xtol, verify_e
 
 @linked("A f1 f1 Pt f Proj f2 -> Pt f b")
 def joint_start(A, st, scale, x, violation, proj0, root):
-    """The restored start, or the points of the joint problem's steps from the raw start
-    while they improve (runtime/iterate.py: ``_Run.joint_start``); ``moved`` whether it
-    is not the restored start."""
-    best, best_violation, moved = x, violation, False
-    proj = proj0
+    """The restored start ``x``, or the point of the joint problem's steps from the raw
+    start while they improve (runtime/iterate.py: "Starts"); ``moved`` whether it is not
+    ``x``.
+
+    The steps' projector points are made from the steps' unrestored points: their chain (at
+    most :data:`_JOINT_STEPS` points, each within the start's reach) does not depend on the
+    restorations, which only decide the point kept — and are most of a step's cost. So the
+    first point and the last are restored, the others only where those two cannot decide:
+    the first must improve on ``x`` (else ``x``); the last is kept when it improves on the
+    first — when every step improves (the usual case), the point that restoring each would
+    keep; else the points between are restored in turn while they improve."""
     w = weights(A, st, scale, x.q)
-    for k in range(_JOINT_STEPS):
-        s = proj.q - x.q
-        if not wnorm(s, w) <= _JOINT * st[0]:
-            break
-        trial, tv = restored(A, proj.q, proj.mt, root, RESTORE_STEPS, True)
-        if not (finite(trial) and on_constraints(trial, tv) and (
-                trial.cost < best.cost or not on_constraints(best, best_violation)) and (
-                not has_relations(A) or relations_hold(A, trial.q))):
-            break
-        best, best_violation, moved = trial, tv, True
-        if k == _JOINT_STEPS - 1:  # the last step: no projector's point is used after it
-            break
+    reach = _JOINT * st[0]
+    if not wnorm(proj0.q - x.q, w) <= reach:
+        return x, violation, False
+    best, best_violation = restored(A, proj0.q, proj0.mt, root, RESTORE_STEPS, True)
+    if not improves(A, best, best_violation, x, violation):
+        return x, violation, False
+    chain = [proj0]
+    proj = proj0
+    for _ in range(_JOINT_STEPS - 1):
         ok, _, proj = project_point(A, evaluate(A, proj.q, proj.mt), 0.0, np.zeros(0))
-        if not ok:
+        if not (ok and wnorm(proj.q - x.q, w) <= reach):
             break
-    return best, best_violation, moved
+        chain.append(proj)
+    if len(chain) > 1:
+        last = chain[len(chain) - 1]
+        trial, tv = restored(A, last.q, last.mt, root, RESTORE_STEPS, True)
+        if improves(A, trial, tv, best, best_violation):
+            return trial, tv, True
+    for k in range(1, len(chain) - 1):  # the last is above these when they improve
+        trial, tv = restored(A, chain[k].q, chain[k].mt, root, RESTORE_STEPS, True)
+        if not improves(A, trial, tv, best, best_violation):
+            break
+        best, best_violation = trial, tv
+    return best, best_violation, True
+
+
+@jit(inline=True)
+def improves(A, trial, tv, best, best_violation):
+    """A joint step's restored point improves on ``best``: finite, on its equations, of
+    lower cost (or ``best`` off them), inside the model's relations."""
+    return finite(trial) and on_constraints(trial, tv) and (
+        trial.cost < best.cost or not on_constraints(best, best_violation)) and (
+        not has_relations(A) or relations_hold(A, trial.q))
 
 
 @jit
