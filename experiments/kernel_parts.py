@@ -8,7 +8,8 @@ linearisation and the Lagrangian's model there), the loops interleaved over ``--
 rounds and the fastest round kept (this machine's runs of the same code differ by tens of
 per cent). How often a fit calls each part is counted apart: ``NUMBA_DISABLE_JIT=1 python
 experiments/kernel_parts.py --count`` (interpreted: slow) traces 30 fits of the
-``conic_odr`` benchmark's draws.
+``conic_odr`` benchmark's draws (``--sigma 0.5``: all at one noise level), the projector's
+points and the restorations also by the engine function calling them.
 
 Run ``python experiments/kernel_parts.py`` (about a minute once the kernels are cached).
 """
@@ -117,23 +118,39 @@ def timings(calls: int, rounds: int) -> dict[str, float]:
     return best
 
 
-def counts(fits: int) -> dict[str, float]:
-    """How many times a fit calls each part (interpreted, traced), on average."""
+def counts(fits: int, sigma: float | None = None) -> dict[str, float]:
+    """How many times a fit calls each part (interpreted, traced), on average, over
+    ``fits`` draws (spread over the benchmark's noise levels, or all at ``sigma``); the
+    projector's points and the restorations also by the engine function that calls them
+    (``restored < joint_start``)."""
     seen: collections.Counter = collections.Counter()
 
     def trace(frame, event, arg):
         if event == "call" and frame.f_code.co_name in PARTS and \
                 "engine" in frame.f_code.co_filename:
-            seen[frame.f_code.co_name] += 1
+            name = frame.f_code.co_name
+            seen[name] += 1
+            if name in _BY_CALLER:
+                seen[f"{name} < {frame.f_back.f_code.co_name}"] += 1
 
-    made = [p for sigma in bench.SIGMAS for p in problems(fits // len(bench.SIGMAS), sigma)]
+    levels = bench.SIGMAS if sigma is None else (sigma,)
+    made = [p for level in levels for p in problems(fits // len(levels), level)]
     for A, start in made:
         sys.setprofile(trace)
         try:
             engine.run_flat(A, start, 100, 1e-10, True, True)
         finally:
             sys.setprofile(None)
-    return {name: seen[name] / len(made) for name in PARTS}
+    return {name: seen[name] / len(made) for name in sorted(seen, key=_order)}
+
+
+#: The parts :func:`counts` also counts by their calling engine function.
+_BY_CALLER = ("project_point", "restored")
+
+
+def _order(name: str) -> tuple:
+    part = name.split(" < ")[0]
+    return PARTS.index(part), name
 
 
 def main(argv=None) -> None:
@@ -142,9 +159,12 @@ def main(argv=None) -> None:
     parser.add_argument("--rounds", type=int, default=24)
     parser.add_argument("--count", action="store_true",
                         help="count the parts' calls per fit (with NUMBA_DISABLE_JIT=1)")
+    parser.add_argument("--sigma", type=float, default=None,
+                        help="--count's draws all at this noise level (default: the "
+                             "benchmark's levels, a third each)")
     args = parser.parse_args(argv)
     if args.count:
-        for name, value in counts(30).items():
+        for name, value in counts(30, args.sigma).items():
             print(f"{name:40s} {value:6.2f} a fit")
         return
     if NUMBA is None or jit.disabled:
