@@ -77,7 +77,7 @@ from .engine import iterate as engine
 from .engine import points as engine_points
 from .engine.data import arrays, pack_measures, per_channel, unpack_evals, unpack_measures
 from .engine.measures import RESTORE_STEPS
-from .projector import Linearisation, Point, Problem, Projection
+from .projector import Linearisation, Point, Problem, Projection, kernel_metric
 from .verify import Verdict, plateau_text
 
 CONVERGED, MAX_ITER, STALLED, FAILED, BOUNDARY, SADDLE, PLATEAU, INFEASIBLE, UNVERIFIED = \
@@ -187,6 +187,6 @@ def restored(problem: Problem, q: np.ndarray, mt, root: np.ndarray | None = None
     A = arrays(problem)
     *x, violation = engine_points.restored_flat(
         A, np.ascontiguousarray(q, dtype=float), pack_measures(A, mt),
-        np.zeros((0, 0)) if root is None else np.ascontiguousarray(root, dtype=float),
+        kernel_metric(root),
         RESTORE_STEPS if iterations is None else int(iterations), bool(retract))
     return _point(problem, A, x), float(violation)

@@ -180,12 +180,17 @@ def restore_parameter(problem: Problem, q: np.ndarray, root: np.ndarray | None,
     The kernel :func:`~kanagen.runtime.engine.points.restore_parameter` (the iteration's
     retraction) on the problem's arrays.
     """
-    return engine_restore_parameter(
-        arrays(problem), np.ascontiguousarray(q, dtype=float),
-        _EUCLIDEAN if root is None else np.ascontiguousarray(root, dtype=float), int(iterations))
+    return engine_restore_parameter(arrays(problem), np.ascontiguousarray(q, dtype=float),
+                                    kernel_metric(root), int(iterations))
 
 
 _EUCLIDEAN = np.zeros((0, 0))  # the kernels' empty metric: Euclidean
+
+
+def kernel_metric(root: np.ndarray | None) -> np.ndarray:
+    """A metric's square root as the kernels take it: a C-ordered float matrix, or the
+    empty one (the Euclidean metric) for None."""
+    return _EUCLIDEAN if root is None else np.ascontiguousarray(root, dtype=float)
 
 
 def linearise(problem: Problem, x: Point) -> Linearisation:
