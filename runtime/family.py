@@ -274,6 +274,8 @@ class ModelFamily:
     def assumed(self, constants=None) -> dict[str, float]:
         """The constants of :attr:`assumptions` that ``constants`` does not give: their
         defaults, which a fit then assumes (and says so: :meth:`warn_assumed`)."""
+        if not self.assumptions:
+            return {}
         given = constants or {}
         defaults = self.constants
         return {name: defaults[name] for name in self.assumptions if name not in given}

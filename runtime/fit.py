@@ -129,6 +129,9 @@ def check_correct_bias(correct_bias) -> None:
 def check_options(max_iter, xtol, eps) -> None:
     """The local estimator's options: an iteration cap (an integer, at least 0), a step
     tolerance and a pivot threshold (positive and finite)."""
+    if type(max_iter) is int and max_iter >= 0 and type(xtol) is float and \
+            0 < xtol < math.inf and type(eps) is float and 0 < eps < math.inf:
+        return  # the common case: Python numbers
     if isinstance(max_iter, bool) or not isinstance(max_iter, int | np.integer) or \
             max_iter < 0:
         raise ValueError(f"max_iter must be an integer >= 0, got {max_iter!r}")

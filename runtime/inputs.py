@@ -58,6 +58,8 @@ def real_array(value, what: str) -> np.ndarray:
     booleans (they would pass for 0 and 1), text and objects (even "1") are refused, naming
     ``what``."""
     array = np.asarray(value)
+    if type(array) is np.ndarray and array.dtype == _FLOAT:  # the common case: a copy
+        return array.copy()
     if array.dtype.kind == "c":
         raise ValueError(f"{what} holds complex numbers; measures and information are real")
     if array.dtype.kind == "b":
@@ -67,10 +69,13 @@ def real_array(value, what: str) -> np.ndarray:
     return np.array(array, dtype=float)
 
 
+_FLOAT = np.dtype(float)
+
+
 def _finite(a: np.ndarray, what: str) -> None:
-    if math.isfinite(np.add.reduce(a, axis=None)):  # a finite sum: every entry finite
+    if math.isfinite(np.vdot(a, a)):  # a finite sum of squares: every entry finite
         return
-    if np.isfinite(a).all():  # finite entries whose sum overflows
+    if np.isfinite(a).all():  # finite entries whose squares' sum overflows
         return
     where = np.argwhere(~np.isfinite(a))[0]
     raise ValueError(f"{what} contains NaN or infinite values (first at index "
@@ -127,6 +132,21 @@ def information(value, k: int, M: int, what: str) -> np.ndarray:
 
 
 _ROOTS: dict = {}  # inverse_root of a shared (k, k) information, by its bytes
+_SCALARS: dict = {}  # (Q, G) of a scalar information, by its value and size
+
+
+def scalar_information(value: float, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`information` of a positive finite scalar and its :func:`inverse_root`, made
+    once per value and size (a fit after fit with the same σ): copies of the same
+    numbers."""
+    key = (float(value), k)
+    made = _SCALARS.get(key)
+    if made is None:
+        if len(_SCALARS) >= 256:
+            _SCALARS.clear()
+        Q = float(value) * _eye(k)
+        made = _SCALARS[key] = (Q, inverse_root(Q))
+    return made[0].copy(), made[1].copy()
 
 
 def inverse_root(Q: np.ndarray) -> np.ndarray:
@@ -169,7 +189,7 @@ def describe(value) -> str:
 def check_data_mapping(fam: ModelFamily, data) -> None:
     """``data`` is a dict ``{channel: array}``; otherwise (a bare array, say) a ValueError
     that says how to pass it, naming the family's channels and their components."""
-    if not isinstance(data, Mapping):
+    if type(data) is not dict and not isinstance(data, Mapping):
         raise ValueError(f"data must be a dict {{channel name: array}}, got {describe(data)}: "
                          f"pass {data_hint(fam)}")
 
@@ -181,7 +201,7 @@ def channel_data(fam: ModelFamily, data: Mapping, info: Mapping | None,
     info = info or {}
     exact = exact or {}
     for what, value in (("info", info), ("exact", exact)):
-        if not isinstance(value, Mapping):
+        if type(value) is not dict and not isinstance(value, Mapping):
             raise ValueError(f"{what} must be a dict {{channel name: ...}}")
     for name in list(data) + list(info) + list(exact):
         fam.channel(name)
@@ -197,9 +217,13 @@ def channel_data(fam: ModelFamily, data: Mapping, info: Mapping | None,
                              f"{width}) with columns {list(ch.components)}")
         _finite(X, f"data for channel {name!r}")
         idx = ch.corrected_index
-        Q = information(info.get(name), len(idx), X.shape[0], f"info for channel {name!r}")
+        value = info.get(name)
+        if (type(value) is float or type(value) is int) and 0 < value < np.inf:
+            Q, G = scalar_information(value, len(idx))  # the common case
+        else:
+            Q = information(value, len(idx), X.shape[0], f"info for channel {name!r}")
+            G = inverse_root(Q)
         fixed = exact_mask(exact.get(name), ch, X.shape[0], f"exact for channel {name!r}")
-        G = inverse_root(Q)
         if fixed is not None:
             Q = np.broadcast_to(Q, (X.shape[0],) + Q.shape[-2:]).copy()
             G = exact_root(Q, fixed)

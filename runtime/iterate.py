@@ -148,21 +148,23 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
         # the compiled linear algebra refuses non-finite matrices: a numerical failure
         x = _point(problem, A, engine_points.evaluate_flat(A, q_start, A.m))
         return Outcome(x, None, None, 0, FAILED, MESSAGES[FAILED] + f" ({exc})", np.inf)
-    verdict = Verdict(bool(stationary), float(decrement), float(cost), float(curvature),
-                      direction if direction.size else None,
-                      plateau_text(int(plateau), vector, problem.names))
+    checked = status in (CONVERGED, STALLED, SADDLE) or kind == engine.PLATEAU_DETAIL
     detail = _DETAILS.get(kind)
+    verdict = None
+    if checked or detail is None:  # the checks' verdict is reported or described
+        verdict = Verdict(bool(stationary), float(decrement), float(cost), float(curvature),
+                          direction if direction.size else None,
+                          plateau_text(int(plateau), vector, problem.names))
     if detail is None:
         detail = verdict.plateau if kind in (engine.LOST, engine.PLATEAU_DETAIL) else \
             verdict.describe()
-    message = MESSAGES[status] + (detail if detail.startswith(" ") else
-                                  f": {detail}" if detail else "")
-    checked = status in (CONVERGED, STALLED, SADDLE) or kind == engine.PLATEAU_DETAIL
+    message = MESSAGES[status] if not detail else MESSAGES[status] + (
+        detail if detail.startswith(" ") else f": {detail}")
     point = _point(problem, A, x)
     projected = Projected(info, per_channel(A, ranks), point.C0[kept0], int(rank0),
                           float(residual), covariance) if report and ok else None
     return Outcome(point, None, None, int(iterations), int(status), message,
-                   float(delta0), verdict if checked else None, projected)
+                   float(delta0), verdict, projected)
 
 
 #: The fixed details of a status's message, by the engine's code.

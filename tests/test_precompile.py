@@ -207,3 +207,42 @@ def test_the_build_step_workload_runs_every_shipped_family():
     assert sorted(SHIPPED) == shipped
     assert all(kanagen.load(name).name == name for name in SHIPPED)
     assert precompile() == {name: "ok" for name in SHIPPED}
+
+
+def test_a_second_build_starts_from_the_users_kernels_of_the_same_sources(tmp_path,
+                                                                           monkeypatch):
+    """``pip install ".[test]"`` after ``pip install .`` builds the wheel again: its step
+    starts the fresh cache from the user's cache of the same digest (the first install's
+    kernels, seeded at its first use) — only the package's own folders, without locks and
+    without the kernels of the user's families — and ships what the workload leaves there;
+    with no such cache it starts empty."""
+    from kanagen import precompile
+
+    xdg = tmp_path / "xdg"
+    mine = xdg / "kanagen" / "numba" / jit._sources_digest()
+    for name, content in (("kanagen_engine/a.nbi", b"index"), ("kanagen_engine/a.nbc", b"code"),
+                          ("kanagen_runtime/b.nbi", b"index"), ("kanagen_engine/c.lock", b""),
+                          ("0123abcd_4567/d.nbi", b"a user's family")):
+        (mine / name).parent.mkdir(parents=True, exist_ok=True)
+        (mine / name).write_bytes(content)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(xdg))
+    seen = []
+
+    def child(args, env, **options):  # the step's child: reads the cache, writes the manifest
+        cache = Path(env["XDG_CACHE_HOME"]) / "kanagen" / "numba" / mine.name
+        seen.append(sorted(str(p.relative_to(cache)) for p in cache.rglob("*") if p.is_file())
+                    if cache.is_dir() else [])
+        cache.mkdir(parents=True, exist_ok=True)
+        (cache / jit.SHIPPED_MANIFEST).write_text("{}")
+        return subprocess.CompletedProcess(args, 0)
+
+    monkeypatch.setattr(subprocess, "run", child)
+    assert precompile._into(tmp_path / "ship") == 0
+    assert seen == [["kanagen_engine/a.nbc", "kanagen_engine/a.nbi", "kanagen_runtime/b.nbi"]]
+    shipped = tmp_path / "ship" / mine.name
+    assert (shipped / "kanagen_engine" / "a.nbc").read_bytes() == b"code"
+    assert (shipped / jit.SHIPPED_MANIFEST).is_file()
+    assert (mine / "0123abcd_4567" / "d.nbi").is_file()  # the user's cache is left as it was
+    shutil.rmtree(xdg)
+    assert precompile._into(tmp_path / "ship") == 0
+    assert seen[1] == []
