@@ -53,6 +53,9 @@ class ChannelData:
         return X
 
 
+_FLOAT = np.dtype(float)
+
+
 def real_array(value, what: str) -> np.ndarray:
     """``value`` as a float array: complex numbers (their imaginary part would be lost),
     booleans (they would pass for 0 and 1), text and objects (even "1") are refused, naming
@@ -67,9 +70,6 @@ def real_array(value, what: str) -> np.ndarray:
     if array.dtype.kind not in "iuf":
         raise ValueError(f"{what} must be numbers, got {array.dtype.name} values")
     return np.array(array, dtype=float)
-
-
-_FLOAT = np.dtype(float)
 
 
 def _finite(a: np.ndarray, what: str) -> None:
@@ -111,7 +111,7 @@ def information(value, k: int, M: int, what: str) -> np.ndarray:
     """Normalise an information specification to (k, k) or (M, k, k), validated."""
     if value is None:
         return np.eye(k)
-    if (type(value) is float or type(value) is int) and 0 < value < np.inf:
+    if _positive_number(value):
         return float(value) * _eye(k)  # the common case (bad numbers: checked below)
     Q = real_array(value, what)
     _finite(Q, what)
@@ -129,6 +129,11 @@ def information(value, k: int, M: int, what: str) -> np.ndarray:
         return Q
     raise ValueError(f"{what} has shape {Q.shape}; expected a scalar, ({k}, {k}), ({M},) "
                      f"or ({M}, {k}, {k})")
+
+
+def _positive_number(value) -> bool:
+    """``value`` is a Python number (not a bool), positive and finite."""
+    return (type(value) is float or type(value) is int) and 0 < value < math.inf
 
 
 _ROOTS: dict = {}  # inverse_root of a shared (k, k) information, by its bytes
@@ -218,7 +223,7 @@ def channel_data(fam: ModelFamily, data: Mapping, info: Mapping | None,
         _finite(X, f"data for channel {name!r}")
         idx = ch.corrected_index
         value = info.get(name)
-        if (type(value) is float or type(value) is int) and 0 < value < np.inf:
+        if _positive_number(value):
             Q, G = scalar_information(value, len(idx))  # the common case
         else:
             Q = information(value, len(idx), X.shape[0], f"info for channel {name!r}")
