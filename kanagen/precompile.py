@@ -107,7 +107,8 @@ def _into(target: Path) -> int:
     from .common.jit import SHIPPED_MANIFEST, _cache_dir
 
     with tempfile.TemporaryDirectory(prefix="kanagen-kernels-") as cache:
-        _reuse(Path(_cache_dir()), Path(cache) / "kanagen" / "numba")
+        kernels = Path(cache) / "kanagen" / "numba"
+        _reuse(Path(_cache_dir()), kernels)
         env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
         env.update(XDG_CACHE_HOME=cache, KANAGEN_CACHE=str(Path(cache) / "specs"))
         try:
@@ -115,7 +116,6 @@ def _into(target: Path) -> int:
                                   env=env, check=False, timeout=3600).returncode
         except subprocess.TimeoutExpired:
             done = "timed out"
-        kernels = Path(cache) / "kanagen" / "numba"
         folders = [f for f in kernels.iterdir() if (f / SHIPPED_MANIFEST).is_file()] \
             if kernels.is_dir() else []
         if done != 0 or len(folders) != 1:
@@ -123,8 +123,7 @@ def _into(target: Path) -> int:
             return 1
         partial = target / f".{folders[0].name}.partial"  # inside target, then renamed:
         try:  # the digest's folder is all or none, and removing target removes any leftover
-            shutil.copytree(folders[0], partial,
-                            ignore=shutil.ignore_patterns("*.lock", "*.tmp*"))
+            shutil.copytree(folders[0], partial, ignore=_TRANSIENT)
             partial.rename(target / folders[0].name)
         except OSError as exc:
             shutil.rmtree(target, ignore_errors=True)
@@ -134,7 +133,11 @@ def _into(target: Path) -> int:
     return 0
 
 
-def _reuse(mine: Path, into: Path) -> bool:
+#: A cache's files that are not kernels: numba's locks and the temporary files it renames.
+_TRANSIENT = shutil.ignore_patterns("*.lock", "*.tmp*")
+
+
+def _reuse(mine: Path, into: Path) -> None:
     """Start the fresh cache ``into`` from the user's cache of the same sources, ``mine``
     (``kanagen/numba/<digest>``: an earlier build's kernels, seeded at that install's first
     use, or compiled there): building the wheel again (``pip install ".[test]"`` after
@@ -144,16 +147,12 @@ def _reuse(mine: Path, into: Path) -> bool:
     shipped are those a fresh cache would hold, and perhaps more signatures of them. Only
     the package's own folders (``kanagen_engine``, ``kanagen_runtime``,
     ``kanagen_generated``: common/jit.py's locator) are taken, not the kernels of the
-    user's families. Never raises; True when something was copied."""
+    user's families. Never raises."""
     try:
-        folders = sorted(mine.glob("kanagen_*")) if mine.is_dir() else []
-        for folder in folders:
-            shutil.copytree(folder, into / mine.name / folder.name,
-                            ignore=shutil.ignore_patterns("*.lock", "*.tmp*"))
-        return bool(folders)
+        for folder in sorted(mine.glob("kanagen_*")) if mine.is_dir() else []:
+            shutil.copytree(folder, into / mine.name / folder.name, ignore=_TRANSIENT)
     except OSError:  # unreadable, being written: compile as from nothing
         shutil.rmtree(into, ignore_errors=True)
-        return False
 
 
 def main(argv=None) -> int:

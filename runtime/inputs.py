@@ -111,8 +111,6 @@ def information(value, k: int, M: int, what: str) -> np.ndarray:
     """Normalise an information specification to (k, k) or (M, k, k), validated."""
     if value is None:
         return np.eye(k)
-    if _positive_number(value):
-        return float(value) * _eye(k)  # the common case (bad numbers: checked below)
     Q = real_array(value, what)
     _finite(Q, what)
     if Q.ndim == 0:
@@ -131,19 +129,17 @@ def information(value, k: int, M: int, what: str) -> np.ndarray:
                      f"or ({M}, {k}, {k})")
 
 
-def _positive_number(value) -> bool:
-    """``value`` is a Python number (not a bool), positive and finite."""
-    return (type(value) is float or type(value) is int) and 0 < value < math.inf
-
-
 _ROOTS: dict = {}  # inverse_root of a shared (k, k) information, by its bytes
-_SCALARS: dict = {}  # (Q, G) of a scalar information, by its value and size
+_SCALARS: dict = {}  # (Q, G) of a number's information, by its value and size
 
 
-def scalar_information(value: float, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`information` of a positive finite scalar and its :func:`inverse_root`, made
-    once per value and size (a fit after fit with the same σ): copies of the same
-    numbers."""
+def information_and_root(value, k: int, M: int, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`information` and its :func:`inverse_root`. A positive Python number (the
+    common case: ``1/σ²``) gives ``value · I`` and its root made once per value and size
+    (fit after fit with the same σ), as copies of the same numbers."""
+    if not ((type(value) is float or type(value) is int) and 0 < value < math.inf):
+        Q = information(value, k, M, what)  # anything else (bad numbers too) validated
+        return Q, inverse_root(Q)
     key = (float(value), k)
     made = _SCALARS.get(key)
     if made is None:
@@ -156,7 +152,7 @@ def scalar_information(value: float, k: int) -> tuple[np.ndarray, np.ndarray]:
 
 def inverse_root(Q: np.ndarray) -> np.ndarray:
     """``G = L⁻¹`` for ``L`` the closest square root of ``Q`` (so ``Q⁺ = Gᵀ G``); a shared
-    (k, k) information's once (a scalar information is the same matrix fit after fit)."""
+    (k, k) information's once (a user's matrix is the same fit after fit)."""
     if Q.ndim != 2:
         return _inverse_root(Q)
     key = (Q.shape, Q.dtype.str, Q.tobytes())
@@ -222,12 +218,8 @@ def channel_data(fam: ModelFamily, data: Mapping, info: Mapping | None,
                              f"{width}) with columns {list(ch.components)}")
         _finite(X, f"data for channel {name!r}")
         idx = ch.corrected_index
-        value = info.get(name)
-        if _positive_number(value):
-            Q, G = scalar_information(value, len(idx))  # the common case
-        else:
-            Q = information(value, len(idx), X.shape[0], f"info for channel {name!r}")
-            G = inverse_root(Q)
+        Q, G = information_and_root(info.get(name), len(idx), X.shape[0],
+                                    f"info for channel {name!r}")
         fixed = exact_mask(exact.get(name), ch, X.shape[0], f"exact for channel {name!r}")
         if fixed is not None:
             Q = np.broadcast_to(Q, (X.shape[0],) + Q.shape[-2:]).copy()
