@@ -136,35 +136,44 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
     A = arrays(problem)
     q_start = np.ascontiguousarray(q_start, dtype=float).copy()
     try:
-        (status, iterations, kind, delta0, *x, stationary, decrement, cost, curvature,
-         direction, plateau, vector, ok, info, ranks, kept0, rank0, residual,
-         covariance) = engine.run_flat(A, q_start, int(max_iter), float(xtol), bool(verify),
-                                       bool(report))
+        (status, iterations, kind, stationary, plateau, ok, rank0, width, sizes, values,
+         integers) = engine.run_flat(A, q_start, int(max_iter), float(xtol), bool(verify),
+                                     bool(report))
     except SystemError as exc:
         if interrupted(exc):  # Ctrl-C, raised inside the kernel's boxing of its results
             raise KeyboardInterrupt from exc
         raise
     except (ValueError, ZeroDivisionError, np.linalg.LinAlgError) as exc:
         # the compiled linear algebra refuses non-finite matrices: a numerical failure
-        x = _point(problem, A, engine_points.evaluate_flat(A, q_start, A.m))
+        x, _ = flat_point(A, *engine_points.evaluate_flat(A, q_start, A.m))
         return Outcome(x, None, None, 0, FAILED, MESSAGES[FAILED] + f" ({exc})", np.inf)
+    delta0, decrement, cost, curvature, residual = values[:5].tolist()
+    point, at = flat_point(A, values, width, 5)
+    n_direction, n_vector, n_info, n_covariance = sizes
     checked = status in (CONVERGED, STALLED, SADDLE) or kind == engine.PLATEAU_DETAIL
     detail = _DETAILS.get(kind)
     verdict = None
     if checked or detail is None:  # the checks' verdict is reported or described
-        verdict = Verdict(bool(stationary), float(decrement), float(cost), float(curvature),
-                          direction if direction.size else None,
-                          plateau_text(int(plateau), vector, problem.names))
+        direction = values[at:at + n_direction] if n_direction else None
+        vector = values[at + n_direction:at + n_direction + n_vector]
+        verdict = Verdict(stationary, decrement, cost, curvature, direction,
+                          plateau_text(plateau, vector, problem.names))
     if detail is None:
         detail = verdict.plateau if kind in (engine.LOST, engine.PLATEAU_DETAIL) else \
             verdict.describe()
     message = MESSAGES[status] if not detail else MESSAGES[status] + (
         detail if detail.startswith(" ") else f": {detail}")
-    point = _point(problem, A, x)
-    projected = Projected(info, per_channel(A, ranks), point.C0[kept0], int(rank0),
-                          float(residual), covariance) if report and ok else None
-    return Outcome(point, None, None, int(iterations), int(status), message,
-                   float(delta0), verdict, projected)
+    projected = None
+    if report and ok:
+        at += n_direction + n_vector
+        info = values[at:at + n_info * n_info].reshape(n_info, n_info)
+        at += n_info * n_info
+        covariance = values[at:at + n_covariance * n_covariance].reshape(n_covariance,
+                                                                         n_covariance)
+        M = A.chan.size
+        projected = Projected(info, per_channel(A, integers[:M]), point.C0[integers[M:] != 0],
+                              rank0, residual, covariance)
+    return Outcome(point, None, None, iterations, status, message, delta0, verdict, projected)
 
 
 #: The fixed details of a status's message, by the engine's code.
@@ -172,12 +181,27 @@ _DETAILS = {engine.NO_DETAIL: "", engine.AT_START: " at the starting point",
             engine.IN_PROJECTOR: " in the projector"}
 
 
-def _point(problem: Problem, A, fields) -> Point:
-    """A :class:`~kanagen.runtime.projector.Point` from the engine's (its fields in order:
-    ``q, mt, c0, C0, c, C, D, delta, cost``)."""
-    q, mt, c0, C0, c, C, D, delta, cost = fields
-    return Point(q, unpack_measures(A, mt), c0, C0, unpack_evals(A, c, C, D), float(delta),
-                 float(cost))
+def flat_point(A, values: np.ndarray, width: int, at: int = 0) -> tuple[Point, int]:
+    """A :class:`~kanagen.runtime.projector.Point` from the engine's layout of one
+    (``runtime/engine/points.py: put_point``) in ``values`` from ``at``, its equations
+    padded to ``width``: the point (views of ``values``) and the index after it."""
+    n, M, d, r, p = A.q0.size, A.chan.size, A.m.shape[1], A.r, width
+    delta, cost = values[at:at + 2].tolist()
+    at += 2
+    q = values[at:at + n]
+    mt = values[at + n:at + n + M * d].reshape(M, d)
+    at += n + M * d
+    c0 = values[at:at + r]
+    C0 = values[at + r:at + r + r * n].reshape(r, n)
+    at += r + r * n
+    c = values[at:at + M * p].reshape(M, p)
+    at += M * p
+    C = values[at:at + M * p * n].reshape(M, p, n)
+    at += M * p * n
+    D = values[at:at + M * p * d].reshape(M, p, d)
+    at += M * p * d
+    return Point(q, unpack_measures(A, mt), c0, C0, unpack_evals(A, c, C, D), delta,
+                 cost), at
 
 
 def restored(problem: Problem, q: np.ndarray, mt, root: np.ndarray | None = None,
@@ -187,8 +211,8 @@ def restored(problem: Problem, q: np.ndarray, mt, root: np.ndarray | None = None
     onto their equations for that ``q`` (report eq. 22, iterated), and its violation ``E²``
     in cost units. ``retract=False``: ``q`` as it is."""
     A = arrays(problem)
-    *x, violation = engine_points.restored_flat(
+    values, width, violation = engine_points.restored_flat(
         A, np.ascontiguousarray(q, dtype=float), pack_measures(A, mt),
         kernel_metric(root),
         RESTORE_STEPS if iterations is None else int(iterations), bool(retract))
-    return _point(problem, A, x), float(violation)
+    return flat_point(A, values, width)[0], violation

@@ -34,7 +34,10 @@ from .points import (
     negligible,
     on_constraints,
     parameter_step,
+    point_length,
     project_point,
+    put_flat,
+    put_point,
     relations_hold,
     restored,
     solve,
@@ -514,10 +517,19 @@ def projected_at(A, x):
 
 @jit
 def run_flat(A, q_start, max_iter, xtol, verify_end, report):
-    """:func:`run` with its outcome as a plain tuple: boxing a named tuple calls its Python
-    class, where a pending Ctrl-C would raise inside numba's boxing (and crash).
+    """:func:`run` for Python: numbers, one float array and one integer array (boxing a
+    named tuple calls its Python class, where a pending Ctrl-C would raise inside numba's
+    boxing, and crash; each array boxed costs about a microsecond).
+
     ``report``: with :func:`projected_at` the returned point and the covariance there
-    (:func:`.covariance.constrained_covariance`; else ``ok`` False and empty arrays)."""
+    (:func:`.covariance.constrained_covariance`; else ``ok`` False and nothing of them).
+    Returns ``(status, iterations, detail, stationary, plateau, ok, rank0, width, sizes,
+    values, integers)``: ``width`` the point's equations' padded width; ``sizes`` those of
+    the verdict's direction and plateau vector and the sides of the information and the
+    covariance; ``values`` the start's violation, the verdict's decrement, cost and
+    curvature, the residual, the point (:func:`.points.put_point`), the direction, the
+    plateau vector, the information, the covariance; ``integers`` the ranks, then the
+    constraints kept (0/1)."""
     out, delta0 = run(A, q_start, max_iter, xtol, verify_end)
     x, v = out.x, out.verdict
     covariance = np.zeros((0, 0))
@@ -534,10 +546,23 @@ def run_flat(A, q_start, max_iter, xtol, verify_end, report):
         ok, info, ranks, kept0 = False, np.zeros((0, 0)), np.zeros(0, np.int64), \
             np.zeros(0, np.bool_)
         rank0, residual = 0, np.nan
-    return (out.status, out.iterations, out.detail, delta0,
-            x.q, x.mt, x.c0, x.C0, x.c, x.C, x.D, x.delta, x.cost,
-            v.stationary, v.decrement, v.cost, v.curvature, v.direction, v.plateau,
-            v.plateau_vector, ok, info, ranks, kept0, rank0, residual, covariance)
+    values = np.empty(5 + point_length(x) + v.direction.size + v.plateau_vector.size +
+                      info.size + covariance.size)
+    values[0], values[1], values[2], values[3], values[4] = delta0, v.decrement, v.cost, \
+        v.curvature, residual
+    at = put_point(values, 5, x)
+    at = put_flat(values, at, v.direction)
+    at = put_flat(values, at, v.plateau_vector)
+    at = put_flat(values, at, info)
+    put_flat(values, at, covariance)
+    integers = np.empty(ranks.size + kept0.size, np.int64)
+    for i in range(ranks.size):
+        integers[i] = ranks[i]
+    for a in range(kept0.size):
+        integers[ranks.size + a] = 1 if kept0[a] else 0
+    sizes = (v.direction.size, v.plateau_vector.size, info.shape[0], covariance.shape[0])
+    return (out.status, out.iterations, out.detail, v.stationary, v.plateau, ok, rank0,
+            x.c.shape[1], sizes, values, integers)
 
 
 @jit

@@ -372,16 +372,59 @@ def nearer_points(A, x):
     return True, make_point(A, x.q.copy(), mt, c, C, D)
 
 
+# -- points handed to Python: one array each ----------------------------------------------
+#
+# Boxing an array for Python costs about a microsecond, more than copying a point's values:
+# a point reaches Python as one float array (its equations' padded width beside it), cut
+# into views there (runtime/iterate.py: ``flat_point``) — in this order: ``delta, cost``,
+# then ``q, mt, c0, C0, c, C, D`` in C order.
+
+@jit
+def point_length(x):
+    """The values of :func:`put_point`'s layout of ``x``."""
+    return 2 + x.q.size + x.mt.size + x.c0.size + x.C0.size + x.c.size + x.C.size + x.D.size
+
+
+@jit(inline=True)
+def put_flat(out, at, values):
+    """``values`` (any shape, C order) into ``out`` from ``at``: the next free index."""
+    flat = np.ascontiguousarray(values).reshape(values.size)
+    for a in range(flat.size):
+        out[at + a] = flat[a]
+    return at + flat.size
+
+
+@jit
+def put_point(out, at, x):
+    """``x``'s values into ``out`` from ``at`` (the layout above): the next free index."""
+    out[at], out[at + 1] = x.delta, x.cost
+    at = put_flat(out, at + 2, x.q)
+    at = put_flat(out, at, x.mt)
+    at = put_flat(out, at, x.c0)
+    at = put_flat(out, at, x.C0)
+    at = put_flat(out, at, x.c)
+    at = put_flat(out, at, x.C)
+    return put_flat(out, at, x.D)
+
+
+@jit
+def flat_point(x):
+    """``x`` as one array and its equations' padded width."""
+    out = np.empty(point_length(x))
+    put_point(out, 0, x)
+    return out, x.c.shape[1]
+
+
 @jit
 def restored_flat(A, q, mt, root, iterations, retract):
-    """:func:`restored` as a plain tuple (``x``'s fields, then the violation): the values
-    Python receives (engine/iterate.py: ``run_flat`` says why)."""
+    """:func:`restored` for Python: ``x`` as :func:`flat_point` gives it, and the
+    violation."""
     x, violation = restored(A, q, mt, root, iterations, retract)
-    return x.q, x.mt, x.c0, x.C0, x.c, x.C, x.D, x.delta, x.cost, violation
+    flat, width = flat_point(x)
+    return flat, width, violation
 
 
 @jit
 def evaluate_flat(A, q, mt):
-    """:func:`evaluate` as a plain tuple of ``x``'s fields."""
-    x = evaluate(A, q, mt)
-    return x.q, x.mt, x.c0, x.C0, x.c, x.C, x.D, x.delta, x.cost
+    """:func:`evaluate` for Python: ``x`` as :func:`flat_point` gives it."""
+    return flat_point(evaluate(A, q, mt))
