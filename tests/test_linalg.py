@@ -84,3 +84,38 @@ def test_non_finite_matrices_raise(factor):
         A[1, 2] = bad
         with pytest.raises(np.linalg.LinAlgError):
             factor(A)
+
+
+@given(n=st.integers(1, 12), seed=st.integers(0, 2**32 - 1),
+       scale=st.sampled_from([1e-150, 1e-3, 1.0, 1e150]))
+@settings(max_examples=150, deadline=None)
+def test_one_constraints_complement_is_lapacks_null_space(n, seed, scale):
+    """The null space of one constraint row (the covariance's, runtime/engine/covariance.py:
+    ``complement``): ``n − 1`` orthonormal columns orthogonal to the row, the same subspace
+    as LAPACK's SVD gives (its projector), at scales near over- and underflow."""
+    from kanagen.runtime.engine.covariance import complement
+
+    c = scale * np.random.default_rng(seed).standard_normal(n)
+    Z = complement(c)
+    assert Z.shape == (n, n - 1)
+    np.testing.assert_allclose(Z.T @ Z, np.eye(n - 1), atol=1e-14)
+    np.testing.assert_allclose(c @ Z / np.abs(c).max(), 0.0, atol=1e-14)
+    N = np.linalg.svd(c[None, :])[2][1:].T
+    np.testing.assert_allclose(Z @ Z.T, N @ N.T, atol=1e-14)
+
+
+@pytest.mark.parametrize("value", [1.0, -1.0, 2.5e-200, -7e250])
+def test_one_pinned_components_complement_is_exact(value):
+    """A constraint that pins one component (a multiple of an axis): the other axes
+    exactly, so that the pinned component's variance is exactly zero; a zero row: every
+    axis."""
+    from kanagen.runtime.engine.covariance import complement, constrained_covariance
+
+    c = np.zeros(5)
+    c[2] = value
+    Z = complement(c)
+    assert np.array_equal(np.abs(Z), np.eye(5)[:, [0, 1, 3, 4]])
+    info = np.diag([1.0, 2.0, 3.0, 4.0, 5.0]) + 0.1
+    cov = constrained_covariance(info, c[None, :])
+    assert np.all(cov[2] == 0.0) and np.all(cov[:, 2] == 0.0)
+    assert np.array_equal(complement(np.zeros(4)), np.eye(4))

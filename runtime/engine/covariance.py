@@ -13,10 +13,49 @@ from ..linalg import matmul, projected, svd_null_space, sym_eigh
 @jit
 def null_basis(C0, n):
     """An orthonormal basis of the null space of ``C0`` (rank: singular values above
-    1e-12 of the largest), LAPACK's: a pinned component's variance exactly zero."""
+    1e-12 of the largest): one constraint's by a reflection (:func:`complement`), more
+    LAPACK's SVD's — a pinned component's variance exactly zero either way."""
     if C0.shape[0] == 0:
         return np.eye(n)
+    if C0.shape[0] == 1:
+        return complement(C0[0])
     return svd_null_space(C0, 1e-12)
+
+
+@jit
+def complement(c):
+    """Orthonormal columns spanning the vectors orthogonal to ``c`` (``n − 1`` of them; all
+    ``n`` axes when ``c`` is zero): the columns of the Householder reflection that maps
+    ``c`` onto the axis of its largest component, that column left out. A unit ``c = ±e_k``
+    (a pinned component) gives the other axes exactly; LAPACK's SVD of one row costs
+    several times more (its workspace queries and copies), in another basis of the same
+    space."""
+    n = c.size
+    k, top = 0, 0.0
+    for j in range(n):
+        if abs(c[j]) > top:
+            k, top = j, abs(c[j])
+    if not top > 0.0:
+        return np.eye(n)
+    u = np.empty(n)  # v + sign(v_k) ‖v‖ e_k, v = c / top (no overflow, no cancellation)
+    norm = 0.0
+    for j in range(n):
+        u[j] = c[j] / top
+        norm += u[j] * u[j]
+    u[k] += np.sqrt(norm) if c[k] > 0 else -np.sqrt(norm)
+    size = 0.0
+    for j in range(n):
+        size += u[j] * u[j]
+    Z = np.empty((n, n - 1))
+    col = 0
+    for j in range(n):
+        if j == k:
+            continue
+        f = 2.0 * u[j] / size
+        for i in range(n):
+            Z[i, col] = (1.0 if i == j else 0.0) - f * u[i]
+        col += 1
+    return Z
 
 
 @jit
