@@ -34,7 +34,7 @@ from kanagen.runtime import fit as fitting  # noqa: E402
 from kanagen.runtime.engine import curvature, points, verify  # noqa: E402
 from kanagen.runtime.engine import iterate as engine  # noqa: E402
 from kanagen.runtime.engine.data import arrays, pack_measures  # noqa: E402
-from kanagen.runtime.iterate import flat_point  # noqa: E402
+from kanagen.runtime.iterate import unpack_point  # noqa: E402
 
 #: The engine's kernels a conic fit calls, for ``--count``.
 PARTS = ("project_point", "restored", "lagrangian", "step", "lost_direction", "nearer_points",
@@ -97,7 +97,7 @@ def timings(calls: int, rounds: int) -> dict[str, float]:
     """Each part's fastest time a call (µs), at the first problem's returned point."""
     A, start = problems(1)[0]
     out = engine.run_flat(A, start, 100, 1e-10, True, True)
-    returned, _ = flat_point(A, out[9], out[7], 5)  # the fit's point (after 5 numbers)
+    returned, _ = unpack_point(A, out[9], out[7], 5)  # the fit's point (after 5 numbers)
     x, _ = points.restored(A, returned.q, pack_measures(A, returned.mt), np.zeros((0, 0)), 30,
                            True)
     _, lin, proj = points.project_point(A, x, 0.0, np.zeros(0))

@@ -145,10 +145,10 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
         raise
     except (ValueError, ZeroDivisionError, np.linalg.LinAlgError) as exc:
         # the compiled linear algebra refuses non-finite matrices: a numerical failure
-        x, _ = flat_point(A, *engine_points.evaluate_flat(A, q_start, A.m))
+        x, _ = unpack_point(A, *engine_points.evaluate_flat(A, q_start, A.m))
         return Outcome(x, None, None, 0, FAILED, MESSAGES[FAILED] + f" ({exc})", np.inf)
     delta0, decrement, cost, curvature, residual = values[:5].tolist()
-    point, at = flat_point(A, values, width, 5)
+    point, at = unpack_point(A, values, width, 5)
     n_direction, n_vector, n_info, n_covariance = sizes
     checked = status in (CONVERGED, STALLED, SADDLE) or kind == engine.PLATEAU_DETAIL
     detail = _DETAILS.get(kind)
@@ -156,8 +156,8 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
     if checked or detail is None:  # the checks' verdict is reported or described
         direction = values[at:at + n_direction] if n_direction else None
         vector = values[at + n_direction:at + n_direction + n_vector]
-        verdict = Verdict(stationary, decrement, cost, curvature, direction,
-                          plateau_text(plateau, vector, problem.names))
+        verdict = Verdict(bool(stationary), decrement, cost, curvature, direction,
+                          plateau_text(int(plateau), vector, problem.names))
     if detail is None:
         detail = verdict.plateau if kind in (engine.LOST, engine.PLATEAU_DETAIL) else \
             verdict.describe()
@@ -172,8 +172,9 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
                                                                          n_covariance)
         M = A.chan.size
         projected = Projected(info, per_channel(A, integers[:M]), point.C0[integers[M:] != 0],
-                              rank0, residual, covariance)
-    return Outcome(point, None, None, iterations, status, message, delta0, verdict, projected)
+                              int(rank0), residual, covariance)
+    return Outcome(point, None, None, int(iterations), int(status), message, delta0, verdict,
+                   projected)
 
 
 #: The fixed details of a status's message, by the engine's code.
@@ -181,7 +182,7 @@ _DETAILS = {engine.NO_DETAIL: "", engine.AT_START: " at the starting point",
             engine.IN_PROJECTOR: " in the projector"}
 
 
-def flat_point(A, values: np.ndarray, width: int, at: int = 0) -> tuple[Point, int]:
+def unpack_point(A, values: np.ndarray, width: int, at: int = 0) -> tuple[Point, int]:
     """A :class:`~kanagen.runtime.projector.Point` from the engine's layout of one
     (``runtime/engine/points.py: put_point``) in ``values`` from ``at``, its equations
     padded to ``width``: the point (views of ``values``) and the index after it."""
@@ -215,4 +216,4 @@ def restored(problem: Problem, q: np.ndarray, mt, root: np.ndarray | None = None
         A, np.ascontiguousarray(q, dtype=float), pack_measures(A, mt),
         kernel_metric(root),
         RESTORE_STEPS if iterations is None else int(iterations), bool(retract))
-    return flat_point(A, values, width)[0], violation
+    return unpack_point(A, values, width)[0], violation

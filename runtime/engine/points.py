@@ -376,7 +376,7 @@ def nearer_points(A, x):
 #
 # Boxing an array for Python costs about a microsecond, more than copying a point's values:
 # a point reaches Python as one float array (its equations' padded width beside it), cut
-# into views there (runtime/iterate.py: ``flat_point``) — in this order: ``delta, cost``,
+# into views there (runtime/iterate.py: ``unpack_point``) — in this order: ``delta, cost``,
 # then ``q, mt, c0, C0, c, C, D`` in C order.
 
 @jit
