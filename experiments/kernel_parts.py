@@ -9,7 +9,10 @@ rounds and the fastest round kept (this machine's runs of the same code differ b
 per cent). How often a fit calls each part is counted apart: ``NUMBA_DISABLE_JIT=1 python
 experiments/kernel_parts.py --count`` (interpreted: slow) traces 30 fits of the
 ``conic_odr`` benchmark's draws (``--sigma 0.5``: all at one noise level), the projector's
-points and the restorations also by the engine function calling them.
+points and the restorations also by the engine function calling them. ``--phases`` times
+whole fits instead (50 draws, ``--sigma`` 1 unless given), with the end's checks, the
+report at the returned point and the iterations switched off in turn: the differences are
+what each phase costs in a fit (docs/engine.md, "A fit by its parts").
 
 Run ``python experiments/kernel_parts.py`` (about a minute once the kernels are cached).
 """
@@ -121,6 +124,30 @@ def timings(calls: int, rounds: int) -> dict[str, float]:
     return best
 
 
+#: The fits of :func:`phases`: ``(label, max_iter, checks of the end, report)``.
+PHASES = (("a whole fit", 100, True, True), ("without the report", 100, True, False),
+          ("without the report and the checks", 100, False, False),
+          ("the start alone (max_iter 0, neither)", 0, False, False))
+
+
+def phases(count: int, sigma: float, rounds: int) -> dict[str, float]:
+    """The kernel of ``count`` conic fits at ``sigma`` (µs a fit, fastest of ``rounds``
+    interleaved loops) as :data:`PHASES` runs them, and what each phase costs: the report
+    (its covariance), the end's checks, the iterations — the differences of the loops."""
+    made = problems(count, sigma)
+    best = {label: np.inf for label, *_ in PHASES}
+    for _ in range(rounds):
+        for label, max_iter, checks, report in PHASES:
+            began = time.perf_counter()
+            for A, start in made:
+                engine.run_flat(A, start, max_iter, 1e-10, checks, report)
+            best[label] = min(best[label], (time.perf_counter() - began) / len(made) * 1e6)
+    whole, bare, unchecked, start = best.values()
+    return {**best, "the report (difference)": whole - bare,
+            "the end's checks (difference)": bare - unchecked,
+            "the iterations (difference)": unchecked - start}
+
+
 def counts(fits: int, sigma: float | None = None) -> dict[str, float]:
     """How many times a fit calls each part (interpreted, traced), on average, over
     ``fits`` draws (spread over the benchmark's noise levels, or all at ``sigma``); the
@@ -164,7 +191,10 @@ def main(argv=None) -> None:
                         help="count the parts' calls per fit (with NUMBA_DISABLE_JIT=1)")
     parser.add_argument("--sigma", type=float, default=None,
                         help="--count's draws all at this noise level (default: the "
-                             "benchmark's levels, a third each)")
+                             "benchmark's levels, a third each; --phases: 1)")
+    parser.add_argument("--phases", action="store_true",
+                        help="whole fits with the checks, the report and the iterations "
+                             "switched off in turn")
     args = parser.parse_args(argv)
     if args.count:
         for name, value in counts(30, args.sigma).items():
@@ -172,6 +202,11 @@ def main(argv=None) -> None:
         return
     if NUMBA is None or jit.disabled:
         sys.exit("the timings need numba's compiled kernels (unset NUMBA_DISABLE_JIT)")
+    if args.phases:
+        sigma = 1.0 if args.sigma is None else args.sigma
+        for name, value in phases(50, sigma, min(args.rounds, 12)).items():
+            print(f"{name:40s} {value:8.1f} µs")
+        return
     for name, value in timings(args.calls, args.rounds).items():
         print(f"{name:40s} {value:8.2f} µs")
 
