@@ -7,6 +7,7 @@ import numpy as np
 
 from kanagen.common.jit import jit
 
+from ..linalg import complement as linalg_complement
 from ..linalg import matmul, projected, svd_null_space, sym_eigh
 
 
@@ -25,11 +26,11 @@ def null_basis(C0, n):
 @jit
 def complement(c):
     """Orthonormal columns spanning the vectors orthogonal to ``c`` (``n − 1`` of them; all
-    ``n`` axes when ``c`` is zero): the columns of the Householder reflection that maps
-    ``c`` onto the axis of its largest component, that column left out. A unit ``c = ±e_k``
-    (a pinned component) gives the other axes exactly; LAPACK's SVD of one row costs
-    several times more (its workspace queries and copies), in another basis of the same
-    space."""
+    ``n`` axes when ``c`` is zero): :func:`~..linalg.complement`'s reflection of ``c``
+    scaled by its largest magnitude, that component moved first — so a unit ``c = ±e_k``
+    (a pinned component) is reflected onto its own axis and gives the other axes exactly.
+    LAPACK's SVD of one row costs several times more (its workspace queries and copies), in
+    another basis of the same space."""
     n = c.size
     k, top = 0, 0.0
     for j in range(n):
@@ -37,24 +38,14 @@ def complement(c):
             k, top = j, abs(c[j])
     if not top > 0.0:
         return np.eye(n)
-    u = np.empty(n)  # v + sign(v_k) ‖v‖ e_k, v = c / top (no overflow, no cancellation)
-    norm = 0.0
+    V = np.empty((n, 1))  # c / top with component k moved first, the others in order
     for j in range(n):
-        u[j] = c[j] / top
-        norm += u[j] * u[j]
-    u[k] += np.sqrt(norm) if c[k] > 0 else -np.sqrt(norm)
-    size = 0.0
+        V[0 if j == k else j + 1 if j < k else j, 0] = c[j] / top
+    W = linalg_complement(V, 1)
+    Z = np.empty((n, n - 1))  # back to c's order
     for j in range(n):
-        size += u[j] * u[j]
-    Z = np.empty((n, n - 1))
-    col = 0
-    for j in range(n):
-        if j == k:
-            continue
-        f = 2.0 * u[j] / size
-        for i in range(n):
-            Z[i, col] = (1.0 if i == j else 0.0) - f * u[i]
-        col += 1
+        for col in range(n - 1):
+            Z[j, col] = W[0 if j == k else j + 1 if j < k else j, col]
     return Z
 
 
