@@ -129,9 +129,9 @@ def check_correct_bias(correct_bias) -> None:
 def check_options(max_iter, xtol, eps) -> None:
     """The local estimator's options: an iteration cap (an integer, at least 0), a step
     tolerance and a pivot threshold (positive and finite)."""
-    if type(max_iter) is int and max_iter >= 0 and type(xtol) is float and \
-            0 < xtol < math.inf and type(eps) is float and 0 < eps < math.inf:
-        return  # the common case: Python numbers
+    if type(max_iter) is int and max_iter >= 0 and isinstance(xtol, float) and \
+            0 < xtol < math.inf and isinstance(eps, float) and 0 < eps < math.inf:
+        return  # the common case: Python numbers (or NumPy's: the default eps is one)
     if isinstance(max_iter, bool) or not isinstance(max_iter, int | np.integer) or \
             max_iter < 0:
         raise ValueError(f"max_iter must be an integer >= 0, got {max_iter!r}")
@@ -161,17 +161,17 @@ def fit_problem(fam: ModelFamily, model: str, problem: Problem, q_start=None, q0
     if red is None:
         out = iterate(problem, start, max_iter=max_iter, xtol=xtol, verify=verify,
                       report=not brief)
-        x, projected = out.point, out.projected
+        x, projected = out, out.projected  # x: the returned point's q, mt, cost, delta
     else:  # iterate in the free components (report §6); outputs from the full model
         out = iterate(reduced_problem(fam, model, problem, red), start[red.free],
                       max_iter=max_iter, xtol=xtol, verify=verify)
         with np.errstate(all="ignore"):
-            x = evaluate(problem, red.full(out.point.q), out.point.mt)
+            x = evaluate(problem, red.full(out.q), out.mt)
         projected = None
     if brief:  # a hypothesis: no outputs at the returned point
         projected, derive = None, False
     elif projected is None:  # the outputs are taken at the returned point
-        projected = _projected(problem, x)
+        projected = _projected(problem, out.point if x is out else x)
     n = fam.n
     if projected is not None:
         info_q, rank0, ranks, residual = (projected.info, projected.rank0, projected.ranks,
@@ -237,10 +237,11 @@ def _kept(ranks) -> tuple[int, bool]:
     """The equations the measures keep (``Σ pᵢ``, per channel's ranks ``ranks``) and
     whether every measure keeps one."""
     kept, every = 0, True
-    for r in ranks:
-        kept += int(np.add.reduce(r))
-        every = every and np.count_nonzero(r) == r.size
-    return kept, bool(every)
+    for r in ranks:  # as Python integers: a few measures' ranks, summed without NumPy's calls
+        values = r.tolist()
+        kept += sum(values)
+        every = every and 0 not in values
+    return kept, every
 
 
 def _feasible(x, start_violation: float, residual: float, every: bool) -> bool:

@@ -77,7 +77,7 @@ from .engine import iterate as engine
 from .engine import points as engine_points
 from .engine.data import arrays, pack_measures, per_channel, unpack_evals, unpack_measures
 from .engine.measures import RESTORE_STEPS
-from .projector import Linearisation, Point, Problem, Projection, kernel_metric
+from .projector import Point, Problem, kernel_metric
 from .verify import Verdict, plateau_text
 
 CONVERGED, MAX_ITER, STALLED, FAILED, BOUNDARY, SADDLE, PLATEAU, INFEASIBLE, UNVERIFIED = \
@@ -112,17 +112,41 @@ class Projected:
     covariance: np.ndarray | None = None
 
 
-@dataclass  # (see Projected)
 class Outcome:
-    point: Point
-    lin: Linearisation | None
-    proj: Projection | None
-    iterations: int
-    status: int
-    message: str
-    start_violation: float = 0.0
-    verdict: Verdict | None = None
-    projected: Projected | None = None
+    """What :func:`iterate` returns: the returned point's parameter ``q``, corrected
+    measures ``mt`` (per channel), cost and violation ``delta``; the iterations, status and
+    message; the start's violation; the report at the point (:class:`Projected`, None when
+    not asked for or where the projector fails). The whole point (:attr:`point`, with its
+    equations) and the checks' :attr:`verdict` are made when first read: a fit reads
+    neither, and the Python run after a kernel call is most of a small fit's overhead."""
+
+    __slots__ = ("q", "mt", "cost", "delta", "iterations", "status", "message",
+                 "start_violation", "projected", "_point", "_verdict")
+
+    def __init__(self, point, iterations: int, status: int, message: str,
+                 start_violation: float = 0.0, verdict=None, projected: Projected | None = None,
+                 head: tuple | None = None):
+        # ``point``: a Point, or ``(A, values, width, at)`` to cut it from when read
+        # (``head``: its ``q, mt, cost, delta`` cut already); ``verdict``: a Verdict, None,
+        # or the arguments that make it
+        if head is None:
+            head = (point.q, point.mt, point.cost, point.delta)
+        self.q, self.mt, self.cost, self.delta = head
+        self.iterations, self.status, self.message = iterations, status, message
+        self.start_violation, self.projected = start_violation, projected
+        self._point, self._verdict = point, verdict
+
+    @property
+    def point(self) -> Point:
+        if type(self._point) is tuple:
+            self._point = unpack_point(*self._point)[0]
+        return self._point
+
+    @property
+    def verdict(self) -> Verdict | None:
+        if type(self._verdict) is tuple:
+            self._verdict = _verdict(*self._verdict)
+        return self._verdict
 
 
 def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
@@ -146,19 +170,24 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
     except (ValueError, ZeroDivisionError, np.linalg.LinAlgError) as exc:
         # the compiled linear algebra refuses non-finite matrices: a numerical failure
         x, _ = unpack_point(A, *engine_points.evaluate_flat(A, q_start, A.m))
-        return Outcome(x, None, None, 0, FAILED, MESSAGES[FAILED] + f" ({exc})", np.inf)
-    delta0, decrement, cost, curvature, residual = values[:5].tolist()
-    point, at = unpack_point(A, values, width, 5)
+        return Outcome(x, 0, FAILED, MESSAGES[FAILED] + f" ({exc})", np.inf)
+    status, iterations = int(status), int(iterations)
+    delta0, decrement, cost, curvature, residual, delta, x_cost = values[:7].tolist()
+    n, M, d, r = A.q0.size, A.chan.size, A.m.shape[1], A.r
+    q = values[7:7 + n]
+    at_C0 = 7 + n + M * d + r
+    at = at_C0 + r * n + M * width * (1 + n + d)  # after the point (put_point's layout)
+    head = (q, unpack_measures(A, values[7 + n:7 + n + M * d].reshape(M, d)), x_cost, delta)
     n_direction, n_vector, n_info, n_covariance = sizes
     checked = status in (CONVERGED, STALLED, SADDLE) or kind == engine.PLATEAU_DETAIL
     detail = _DETAILS.get(kind)
     verdict = None
     if checked or detail is None:  # the checks' verdict is reported or described
-        direction = values[at:at + n_direction] if n_direction else None
-        vector = values[at + n_direction:at + n_direction + n_vector]
-        verdict = Verdict(bool(stationary), decrement, cost, curvature, direction,
-                          plateau_text(int(plateau), vector, problem.names))
+        verdict = (bool(stationary), decrement, cost, curvature,
+                   values[at:at + n_direction] if n_direction else None, int(plateau),
+                   values[at + n_direction:at + n_direction + n_vector], problem.names)
     if detail is None:
+        verdict = _verdict(*verdict)
         detail = verdict.plateau if kind in (engine.LOST, engine.PLATEAU_DETAIL) else \
             verdict.describe()
     message = MESSAGES[status] if not detail else MESSAGES[status] + (
@@ -170,11 +199,20 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
         at += n_info * n_info
         covariance = values[at:at + n_covariance * n_covariance].reshape(n_covariance,
                                                                          n_covariance)
-        M = A.chan.size
-        projected = Projected(info, per_channel(A, integers[:M]), point.C0[integers[M:] != 0],
+        kept = integers[M:].tolist()
+        C0 = values[at_C0:at_C0 + r * n].reshape(r, n)
+        projected = Projected(info, per_channel(A, integers[:M]),
+                              C0 if 0 not in kept else C0[np.array(kept, dtype=bool)],
                               int(rank0), residual, covariance)
-    return Outcome(point, None, None, int(iterations), int(status), message, delta0, verdict,
-                   projected)
+    return Outcome((A, values, width, 5), iterations, status, message, delta0, verdict,
+                   projected, head)
+
+
+def _verdict(stationary, decrement, cost, curvature, direction, plateau, vector,
+             names) -> Verdict:
+    """The checks' :class:`~kanagen.runtime.verify.Verdict` from the kernel's numbers."""
+    return Verdict(stationary, decrement, cost, curvature, direction,
+                   plateau_text(plateau, vector, names))
 
 
 #: The fixed details of a status's message, by the engine's code.
