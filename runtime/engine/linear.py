@@ -22,7 +22,15 @@ from ..sqrt import (
     solve_lower,
     solve_lower_columns,
 )
-from .measures import ROUNDING, correct, factor, residual_into, whiten_column, whiten_rows
+from .measures import (
+    ROUNDING,
+    correct,
+    factor,
+    fields,
+    residual_into,
+    whiten_column,
+    whiten_rows,
+)
 
 
 @linked("A f1 f2 f2 f3 f3 f1 f2 -> f2 f2 f1 f1 f3 f2 f3 f3 f2 b2 i1 f", python=True)
@@ -50,27 +58,26 @@ def linearise(A, q, mt, c, C, D, c0, C0):
     residual = 0.0
     cbar, r = np.zeros(pmax), np.zeros(pmax)
     # the loop's arrays borrowed (kanagen.common.borrow): no reference counts per measure
-    bc, bC, bD, bmt, bG, bm = borrow((c, C, D, mt, A.G, A.m))
+    F = fields(A)
+    bc, bC, bD, bmt = borrow((c, C, D, mt))
     bCbar, brbar, bE, bL, binv, bkept = borrow((Cbar, rbar, E, L, inv, kept))
-    bcbar, br = borrow((cbar, r))
+    bcbar, br, binfo, bg = borrow((cbar, r, info, g))
+    branks = borrow(ranks)
+    eps = A.eps
     for i in range(M):
-        ch = A.chan[i]
-        p, d = A.P[ch], A.Dn[ch]
-        Li, invi, keptc = bL[i], binv[i], bkept[i]
-        factor(bD[i], bG[i], p, d, A.eps, bE[i], Li, invi, keptc)
-        for a in range(p):
-            ranks[i] += 1 if keptc[a] else 0
-        residual_into(bD[i], bmt[i], bm[i], bc[i], p, d, br)
-        whiten_column(Li, invi, br, p, brbar[i])
-        whiten_column(Li, invi, bc[i], p, bcbar)
-        whiten_rows(Li, invi, bC[i], p, n, bCbar[i])
-        for a in range(p):
-            residual += bcbar[a] * bcbar[a]
-            for j in range(n):
-                g[j] += bCbar[i, a, j] * brbar[i, a]
-                for u in range(j + 1):
-                    info[j, u] += bCbar[i, a, j] * bCbar[i, a, u]
-    alive((c, C, D, mt, A, cbar, r))
+        ch = F[0][i]
+        p, d = F[1][ch], F[2][ch]
+        args = (i, n, eps, F[8][i], F[10][i], bc[i], bC[i], bD[i], bmt[i], bCbar[i], brbar[i],
+                bE[i], bL[i], binv[i], bkept[i], branks, binfo, bg, bcbar, br)
+        if p == 1 and d == 2:  # the shipped families' shapes: their loops unrolled
+            residual = linearise_measure(args, 1, 2, residual)
+        elif p == 1 and d == 4:
+            residual = linearise_measure(args, 1, 4, residual)
+        elif p == 3 and d == 4:
+            residual = linearise_measure(args, 3, 4, residual)
+        else:
+            residual = linearise_measure(args, p, d, residual)
+    alive((c, C, D, mt, A, cbar, r, info, g, ranks, Cbar, rbar, E, L, inv, kept))
     for j in range(n):
         for u in range(j):
             info[u, j] = info[j, u]
@@ -94,6 +101,29 @@ def linearise(A, q, mt, c, C, D, c0, C0):
                 acc += C0[k, a] * c0[k]
             rhs[a] -= rho * acc
     return info, H, rhs, gradient, Cbar, rbar, E, L, inv, kept, ranks, residual
+
+
+@jit(inline=True)
+def linearise_measure(args, p, d, residual):
+    """Measure ``i``'s part of :func:`linearise` (``p`` equations, ``d`` components): its
+    factor, rank and whitened rows, its terms added to ``info`` and ``g``; returns
+    ``residual`` with its ``‖W c‖²`` added. ``args``: borrowed arrays."""
+    (i, n, eps, G, m_obs, c, C, D, mt, Cbar, rbar, E, L, inv, kept, ranks, info, g, cbar,
+     r) = args
+    factor(D, G, p, d, eps, E, L, inv, kept)
+    for a in range(p):
+        ranks[i] += 1 if kept[a] else 0
+    residual_into(D, mt, m_obs, c, p, d, r)
+    whiten_column(L, inv, r, p, rbar)
+    whiten_column(L, inv, c, p, cbar)
+    whiten_rows(L, inv, C, p, n, Cbar)
+    for a in range(p):
+        residual += cbar[a] * cbar[a]
+        for j in range(n):
+            g[j] += Cbar[a, j] * rbar[a]
+            for u in range(j + 1):
+                info[j, u] += Cbar[a, j] * Cbar[a, u]
+    return residual
 
 
 @jit
@@ -174,18 +204,39 @@ def corrected(A, dq, Cbar, rbar, E, L, inv):
     out = np.zeros(A.m.shape)
     pmax, dmax = Cbar.shape[1], A.m.shape[1]
     z, y, dm = np.zeros(pmax), np.zeros(pmax), np.zeros(dmax)
+    F = fields(A)  # A's arrays and the loop's borrowed: no reference counts per measure
+    bdq, bCbar, brbar, bE, bL, binv, bout, bz, by, bdm = borrow((dq, Cbar, rbar, E, L, inv,
+                                                                out, z, y, dm))
     for i in range(M):
-        ch = A.chan[i]
-        p, d = A.P[ch], A.Dn[ch]
-        for a in range(p):
-            acc = 0.0
-            for j in range(dq.size):
-                acc += Cbar[i, a, j] * dq[j]
-            z[a] = rbar[i, a] - acc
-        correct(E[i], L[i], inv[i], A.G[i], z, p, d, y, dm)
-        for j in range(d):
-            out[i, j] = A.m[i, j] + dm[j]
+        ch = F[0][i]
+        p, d = F[1][ch], F[2][ch]
+        args = (bdq, bCbar[i], brbar[i], bE[i], bL[i], binv[i], F[8][i], F[10][i], bout[i],
+                bz, by, bdm)
+        if p == 1 and d == 2:  # the shipped families' shapes: their loops unrolled
+            corrected_measure(args, 1, 2)
+        elif p == 1 and d == 4:
+            corrected_measure(args, 1, 4)
+        elif p == 3 and d == 4:
+            corrected_measure(args, 3, 4)
+        else:
+            corrected_measure(args, p, d)
+    alive((dq, Cbar, rbar, E, L, inv, z, y, dm, A))
     return out
+
+
+@jit(inline=True)
+def corrected_measure(args, p, d):
+    """Measure ``i``'s corrected values of :func:`corrected` (``p`` equations, ``d``
+    components). ``args``: borrowed arrays."""
+    dq, Cbar, rbar, E, L, inv, G, m_obs, out, z, y, dm = args
+    for a in range(p):
+        acc = 0.0
+        for j in range(dq.size):
+            acc += Cbar[a, j] * dq[j]
+        z[a] = rbar[a] - acc
+    correct(E, L, inv, G, z, p, d, y, dm)
+    for j in range(d):
+        out[j] = m_obs[j] + dm[j]
 
 
 # -- the parameter block and the constraints ----------------------------------------------

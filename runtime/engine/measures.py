@@ -134,7 +134,16 @@ def eval_all(A, q, mt):
     bq, bmt, bc, bC, bD, bx = borrow((q, mt, c, C, D, x))
     F = fields(A)
     for i in range(A.chan.size):
-        eval_measure(F, i, bq, bmt[i], bc[i], bC[i], bD[i], bx)
+        ch = F[0][i]
+        p, d = F[1][ch], F[2][ch]
+        if p == 1 and d == 2:  # the shipped families' shapes: their loops unrolled
+            eval_shaped(F, i, bq, bmt[i], bc[i], bC[i], bD[i], bx, 1, 2)
+        elif p == 1 and d == 4:
+            eval_shaped(F, i, bq, bmt[i], bc[i], bC[i], bD[i], bx, 1, 4)
+        elif p == 3 and d == 4:
+            eval_shaped(F, i, bq, bmt[i], bc[i], bC[i], bD[i], bx, 3, 4)
+        else:
+            eval_shaped(F, i, bq, bmt[i], bc[i], bC[i], bD[i], bx, p, d)
     alive((q, x))
     return c, C, D
 
@@ -173,12 +182,28 @@ def point_values(A, q, mt, c, c0):
     bmt, bc = borrow((mt, c))
     for i in range(chan.size):
         ch = chan[i]
-        d = Dn[ch]
-        for a in range(P[ch]):
-            v = abs(bc[i, a])
-            delta = np.inf if v != v or delta == np.inf else max(delta, v)
-        cost += 0.5 * quad_between(bmt[i], m_obs[i], Q[i], d)
+        p, d = P[ch], Dn[ch]
+        args = (bc[i], bmt[i], m_obs[i], Q[i])
+        if p == 1 and d == 2:  # the shipped families' shapes: their loops unrolled
+            delta, cost = measure_values(args, 1, 2, delta, cost)
+        elif p == 1 and d == 4:
+            delta, cost = measure_values(args, 1, 4, delta, cost)
+        elif p == 3 and d == 4:
+            delta, cost = measure_values(args, 3, 4, delta, cost)
+        else:
+            delta, cost = measure_values(args, p, d, delta, cost)
     return delta, cost
+
+
+@jit(inline=True)
+def measure_values(args, p, d, delta, cost):
+    """:func:`point_values`'s ``delta`` and ``cost`` with one measure's terms (``p``
+    equations, ``d`` components; ``args``: its ``c, m̃, m, Q``)."""
+    c, mt, m_obs, Q = args
+    for a in range(p):
+        v = abs(c[a])
+        delta = np.inf if v != v or delta == np.inf else max(delta, v)
+    return delta, cost + 0.5 * quad_between(mt, m_obs, Q, d)
 
 
 @jit(inline=True)
