@@ -12,7 +12,13 @@ experiments/kernel_parts.py --count`` (interpreted: slow) traces 30 fits of the
 points and the restorations also by the engine function calling them. ``--phases`` times
 whole fits instead (50 draws, ``--sigma`` 1 unless given), with the end's checks, the
 report at the returned point and the iterations switched off in turn: the differences are
-what each phase costs in a fit (docs/engine.md, "A fit by its parts").
+what each phase costs in a fit (docs/engine.md, "A fit by its parts"). ``--layers`` times
+``kanagen.fit`` as a user calls it and its layers underneath, each on the same 50 draws in a
+loop: the kernel alone (the problems made beforehand), then with the problem and its engine
+arrays made, with ``iterate``'s Python, with the result (``fit_problem``), ``kanagen.fit``
+itself — the differences are what each layer's Python costs where it runs, after a kernel
+has left the interpreter's caches cold (two to three times what the same code costs timed
+alone in a loop).
 
 Run ``python experiments/kernel_parts.py`` (about a minute once the kernels are cached).
 """
@@ -37,7 +43,7 @@ from kanagen.runtime import fit as fitting  # noqa: E402
 from kanagen.runtime.engine import curvature, points, verify  # noqa: E402
 from kanagen.runtime.engine import iterate as engine  # noqa: E402
 from kanagen.runtime.engine.data import arrays, pack_measures  # noqa: E402
-from kanagen.runtime.iterate import unpack_point  # noqa: E402
+from kanagen.runtime.iterate import iterate, unpack_point  # noqa: E402
 
 #: The engine's kernels a conic fit calls, for ``--count``.
 PARTS = ("project_point", "restored", "lagrangian", "step", "lost_direction", "nearer_points",
@@ -148,6 +154,58 @@ def phases(count: int, sigma: float, rounds: int) -> dict[str, float]:
             "the iterations (difference)": unchecked - start}
 
 
+def layers(count: int, sigma: float, rounds: int) -> dict[str, float]:
+    """``kanagen.fit`` on ``count`` conic draws at ``sigma`` and the layers under it (µs a
+    fit, fastest of ``rounds`` interleaved loops), each layer's difference after them."""
+    fam = kanagen.load("conic")
+    truth = bench.SCENE.points(bench.N_POINTS)
+    info = {"point": 1 / sigma**2}
+    draws = [(truth + noise, bench.taubin(truth + noise))
+             for noise in bench.noise_draws(sigma, count)]
+    made = problems(count, sigma)
+
+    def problem(xy, start):
+        return fitting.make_problem(fam, "conic", {"point": xy}, info, start, None, None)
+
+    def kernel():
+        for A, start in made:
+            engine.run_flat(A, start.copy(), 100, 1e-10, True, True)
+
+    def with_arrays():
+        for xy, start in draws:
+            made_now = problem(xy, start)
+            engine.run_flat(arrays(made_now), made_now.q0.copy(), 100, 1e-10, True, True)
+
+    def with_iterate():
+        for xy, start in draws:
+            made_now = problem(xy, start)
+            iterate(made_now, made_now.q0, report=True)
+
+    def with_result():
+        for xy, start in draws:
+            fitting.fit_problem(fam, "conic", problem(xy, start))
+
+    def whole():
+        for xy, start in draws:
+            kanagen.fit(fam, "conic", data={"point": xy}, info=info, q0=start)
+
+    loops = {"the kernel (problems made before)": kernel,
+             "+ the problem and its arrays made": with_arrays,
+             "+ iterate's Python": with_iterate, "+ the result (fit_problem)": with_result,
+             "kanagen.fit": whole}
+    best = dict.fromkeys(loops, np.inf)
+    for _ in range(rounds):
+        for label, loop in loops.items():
+            began = time.perf_counter()
+            loop()
+            best[label] = min(best[label], (time.perf_counter() - began) / count * 1e6)
+    steps = list(best.values())
+    names = ("the problem and its arrays", "iterate's Python", "the result",
+             "kanagen.fit's checks")
+    return {**best, **{f"{name} (difference)": b - a
+                       for name, a, b in zip(names, steps, steps[1:], strict=True)}}
+
+
 def counts(fits: int, sigma: float | None = None) -> dict[str, float]:
     """How many times a fit calls each part (interpreted, traced), on average, over
     ``fits`` draws (spread over the benchmark's noise levels, or all at ``sigma``); the
@@ -195,6 +253,8 @@ def main(argv=None) -> None:
     parser.add_argument("--phases", action="store_true",
                         help="whole fits with the checks, the report and the iterations "
                              "switched off in turn")
+    parser.add_argument("--layers", action="store_true",
+                        help="kanagen.fit and the layers of Python around its kernel")
     args = parser.parse_args(argv)
     if args.count:
         for name, value in counts(30, args.sigma).items():
@@ -202,9 +262,10 @@ def main(argv=None) -> None:
         return
     if NUMBA is None or jit.disabled:
         sys.exit("the timings need numba's compiled kernels (unset NUMBA_DISABLE_JIT)")
-    if args.phases:
+    if args.phases or args.layers:
         sigma = 1.0 if args.sigma is None else args.sigma
-        for name, value in phases(50, sigma, min(args.rounds, 12)).items():
+        measure = phases if args.phases else layers
+        for name, value in measure(50, sigma, min(args.rounds, 12)).items():
             print(f"{name:40s} {value:8.1f} µs")
         return
     for name, value in timings(args.calls, args.rounds).items():
