@@ -203,7 +203,7 @@ def layers(count: int, sigma: float, rounds: int) -> dict[str, float]:
     names = ("the problem and its arrays", "iterate's Python", "the result",
              "kanagen.fit's checks")
     return {**best, **{f"{name} (difference)": b - a
-                       for name, a, b in zip(names, steps, steps[1:], strict=True)}}
+                       for name, a, b in zip(names, steps[:-1], steps[1:], strict=True)}}
 
 
 def counts(fits: int, sigma: float | None = None) -> dict[str, float]:
