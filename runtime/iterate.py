@@ -173,11 +173,11 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
         return Outcome(x, 0, FAILED, MESSAGES[FAILED] + f" ({exc})", np.inf)
     status, iterations = int(status), int(iterations)
     delta0, decrement, cost, curvature, residual, delta, x_cost = values[:7].tolist()
-    n, M, d, r = A.q0.size, A.chan.size, A.m.shape[1], A.r
-    q = values[7:7 + n]
-    at_C0 = 7 + n + M * d + r
-    at = at_C0 + r * n + M * width * (1 + n + d)  # after the point (put_point's layout)
-    head = (q, unpack_measures(A, values[7 + n:7 + n + M * d].reshape(M, d)), x_cost, delta)
+    starts = point_starts(A, width, 5)  # the point from 5, then the verdict's vectors
+    head = (values[starts[1]:starts[2]], unpack_measures(A, values[starts[2]:starts[3]]
+                                                         .reshape(A.chan.size, A.m.shape[1])),
+            x_cost, delta)
+    at = starts[8]
     n_direction, n_vector, n_info, n_covariance = sizes
     checked = status in (CONVERGED, STALLED, SADDLE) or kind == engine.PLATEAU_DETAIL
     detail = _DETAILS.get(kind)
@@ -199,8 +199,9 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
         at += n_info * n_info
         covariance = values[at:at + n_covariance * n_covariance].reshape(n_covariance,
                                                                          n_covariance)
+        M = A.chan.size
         kept = integers[M:].tolist()
-        C0 = values[at_C0:at_C0 + r * n].reshape(r, n)
+        C0 = values[starts[4]:starts[5]].reshape(A.r, A.q0.size)
         projected = Projected(info, per_channel(A, integers[:M]),
                               C0 if 0 not in kept else C0[np.array(kept, dtype=bool)],
                               int(rank0), residual, covariance)
@@ -220,27 +221,29 @@ _DETAILS = {engine.NO_DETAIL: "", engine.AT_START: " at the starting point",
             engine.IN_PROJECTOR: " in the projector"}
 
 
-def unpack_point(A, values: np.ndarray, width: int, at: int = 0) -> tuple[Point, int]:
-    """A :class:`~kanagen.runtime.projector.Point` from the engine's layout of one
-    (``runtime/engine/points.py: put_point``) in ``values`` from ``at``, its equations
-    padded to ``width``: the point (views of ``values``) and the index after it."""
+def point_starts(A, width: int, at: int = 0) -> tuple[int, ...]:
+    """Where the fields of the engine's layout of a point (``runtime/engine/points.py:
+    put_point``: ``delta`` and ``cost``, ``q, mt, c0, C0, c, C, D``), its equations padded
+    to ``width``, start in a flat array holding it from ``at``, and where it ends."""
     n, M, d, r, p = A.q0.size, A.chan.size, A.m.shape[1], A.r, width
-    delta, cost = values[at:at + 2].tolist()
-    at += 2
-    q = values[at:at + n]
-    mt = values[at + n:at + n + M * d].reshape(M, d)
-    at += n + M * d
-    c0 = values[at:at + r]
-    C0 = values[at + r:at + r + r * n].reshape(r, n)
-    at += r + r * n
-    c = values[at:at + M * p].reshape(M, p)
-    at += M * p
-    C = values[at:at + M * p * n].reshape(M, p, n)
-    at += M * p * n
-    D = values[at:at + M * p * d].reshape(M, p, d)
-    at += M * p * d
-    return Point(q, unpack_measures(A, mt), c0, C0, unpack_evals(A, c, C, D), delta,
-                 cost), at
+    starts = [at]
+    for size in (2, n, M * d, r, r * n, M * p, M * p * n, M * p * d):
+        starts.append(starts[-1] + size)
+    return tuple(starts)
+
+
+def unpack_point(A, values: np.ndarray, width: int, at: int = 0) -> tuple[Point, int]:
+    """A :class:`~kanagen.runtime.projector.Point` from the engine's layout of one in
+    ``values`` from ``at`` (:func:`point_starts`), its equations padded to ``width``: the
+    point (views of ``values``) and the index after it."""
+    n, M, d, r, p = A.q0.size, A.chan.size, A.m.shape[1], A.r, width
+    s = point_starts(A, width, at)
+    delta, cost = values[s[0]:s[1]].tolist()
+    mt = values[s[2]:s[3]].reshape(M, d)
+    evals = unpack_evals(A, values[s[5]:s[6]].reshape(M, p), values[s[6]:s[7]].reshape(M, p, n),
+                         values[s[7]:s[8]].reshape(M, p, d))
+    return Point(values[s[1]:s[2]], unpack_measures(A, mt), values[s[3]:s[4]],
+                 values[s[4]:s[5]].reshape(r, n), evals, delta, cost), s[8]
 
 
 def restored(problem: Problem, q: np.ndarray, mt, root: np.ndarray | None = None,
