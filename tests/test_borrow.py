@@ -13,7 +13,7 @@ from kanagen.common.borrow import alive, borrow
 from kanagen.common.jit import NUMBA, jit
 from kanagen.runtime.fit import fit_problem, make_problem
 from kanagen.runtime.iterate import CONVERGED, iterate
-from kanagen.runtime.projector import project
+from kanagen.runtime.projector import evaluate, project
 from kanagen.runtime.results import constrained_covariance
 
 
@@ -106,6 +106,31 @@ def test_a_fit_reports_the_projector_at_its_point(case):
     np.testing.assert_array_equal(res.info, lin.info)
     np.testing.assert_array_equal(res.covariance, constrained_covariance(lin.info, proj.C0))
     assert iterate(problem, problem.q0).projected is None  # not asked for
+
+
+@pytest.mark.parametrize("case", range(3))
+def test_the_outcome_makes_its_point_when_read(case):
+    """An outcome holds its returned point's q, m̃, cost and violation; the whole point,
+    cut from the kernel's layout when first read, has the same numbers and the equations
+    the NumPy path's evaluation at (q, m̃) gives, bit for bit; the verdict is the checks'
+    (a minimum)."""
+    fam, model, problem = _problems()[case]
+    out = iterate(problem, problem.q0, report=True)
+    x = out.point
+    assert out.point is x  # made once
+    np.testing.assert_array_equal(out.q, x.q)
+    for mine, theirs in zip(out.mt, x.mt, strict=True):
+        np.testing.assert_array_equal(mine, theirs)
+    assert (out.cost, out.delta) == (x.cost, x.delta)
+    y = evaluate(problem, x.q, x.mt)
+    np.testing.assert_array_equal(x.c0, y.c0)
+    np.testing.assert_array_equal(x.C0, y.C0)
+    for mine, theirs in zip(x.evals, y.evals, strict=True):
+        for a, b in zip(mine, theirs, strict=True):
+            np.testing.assert_array_equal(a, b)
+    # the NumPy path sums the cost in its own order: to rounding
+    assert x.delta == y.delta and x.cost == pytest.approx(y.cost, rel=1e-13)
+    assert out.verdict is out.verdict and out.verdict.minimum
 
 
 @pytest.mark.parametrize("case", range(3))
