@@ -54,15 +54,20 @@ def problems(count: int, sigma: float = 1.0):
     """``count`` conic problems of the benchmark (30 points, noise ``sigma``): their arrays
     and Taubin starts."""
     fam = kanagen.load("conic")
-    truth = bench.SCENE.points(bench.N_POINTS)
     out = []
-    for noise in bench.noise_draws(sigma, count):
-        xy = truth + noise
-        start = bench.taubin(xy)
+    for xy, start in draws(count, sigma):
         problem = fitting.make_problem(fam, "conic", {"point": xy}, {"point": 1 / sigma**2},
                                        start, None, None)
         out.append((arrays(problem), np.ascontiguousarray(start)))
     return out
+
+
+def draws(count: int, sigma: float) -> list:
+    """The benchmark's first ``count`` conic draws at ``sigma``: the points and their Taubin
+    starts."""
+    truth = bench.SCENE.points(bench.N_POINTS)
+    return [(truth + noise, bench.taubin(truth + noise))
+            for noise in bench.noise_draws(sigma, count)]
 
 
 def _timed(part):
@@ -158,35 +163,34 @@ def layers(count: int, sigma: float, rounds: int) -> dict[str, float]:
     """``kanagen.fit`` on ``count`` conic draws at ``sigma`` and the layers under it (µs a
     fit, fastest of ``rounds`` interleaved loops), each layer's difference after them."""
     fam = kanagen.load("conic")
-    truth = bench.SCENE.points(bench.N_POINTS)
     info = {"point": 1 / sigma**2}
-    draws = [(truth + noise, bench.taubin(truth + noise))
-             for noise in bench.noise_draws(sigma, count)]
-    made = problems(count, sigma)
+    made = draws(count, sigma)
 
     def problem(xy, start):
         return fitting.make_problem(fam, "conic", {"point": xy}, info, start, None, None)
 
+    before = [(arrays(problem(xy, start)), start) for xy, start in made]
+
     def kernel():
-        for A, start in made:
+        for A, start in before:
             engine.run_flat(A, start.copy(), 100, 1e-10, True, True)
 
     def with_arrays():
-        for xy, start in draws:
+        for xy, start in made:
             made_now = problem(xy, start)
             engine.run_flat(arrays(made_now), made_now.q0.copy(), 100, 1e-10, True, True)
 
     def with_iterate():
-        for xy, start in draws:
+        for xy, start in made:
             made_now = problem(xy, start)
             iterate(made_now, made_now.q0, report=True)
 
     def with_result():
-        for xy, start in draws:
+        for xy, start in made:
             fitting.fit_problem(fam, "conic", problem(xy, start))
 
     def whole():
-        for xy, start in draws:
+        for xy, start in made:
             kanagen.fit(fam, "conic", data={"point": xy}, info=info, q0=start)
 
     loops = {"the kernel (problems made before)": kernel,

@@ -126,9 +126,9 @@ class Outcome:
     def __init__(self, point, iterations: int, status: int, message: str,
                  start_violation: float = 0.0, verdict=None, projected: Projected | None = None,
                  head: tuple | None = None):
-        # ``point``: a Point, or ``(A, values, width, at)`` to cut it from when read
-        # (``head``: its ``q, mt, cost, delta`` cut already); ``verdict``: a Verdict, None,
-        # or the arguments that make it
+        # ``point``: a Point, or ``(A, values, width, at)`` to cut it from when read, with
+        # ``head`` its ``q, mt, cost, delta`` (:func:`point_head`); ``verdict``: a Verdict,
+        # None, or the arguments that make it
         if head is None:
             head = (point.q, point.mt, point.cost, point.delta)
         self.q, self.mt, self.cost, self.delta = head
@@ -172,12 +172,10 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
         x, _ = unpack_point(A, *engine_points.evaluate_flat(A, q_start, A.m))
         return Outcome(x, 0, FAILED, MESSAGES[FAILED] + f" ({exc})", np.inf)
     status, iterations = int(status), int(iterations)
-    delta0, decrement, cost, curvature, residual, delta, x_cost = values[:7].tolist()
+    delta0, decrement, cost, curvature, residual = values[:5].tolist()
     starts = point_starts(A, width, 5)  # the point from 5, then the verdict's vectors
-    head = (values[starts[1]:starts[2]], unpack_measures(A, values[starts[2]:starts[3]]
-                                                         .reshape(A.chan.size, A.m.shape[1])),
-            x_cost, delta)
     at = starts[8]
+    head = point_head(A, values, starts)
     n_direction, n_vector, n_info, n_covariance = sizes
     checked = status in (CONVERGED, STALLED, SADDLE) or kind == engine.PLATEAU_DETAIL
     detail = _DETAILS.get(kind)
@@ -232,18 +230,26 @@ def point_starts(A, width: int, at: int = 0) -> tuple[int, ...]:
     return tuple(starts)
 
 
+def point_head(A, values: np.ndarray, starts: tuple[int, ...]) -> tuple:
+    """``q``, ``mt`` (per channel), cost and violation of the point laid out in ``values``
+    at ``starts`` (:func:`point_starts`; views of ``values``): what a fit reads of it,
+    without its equations."""
+    delta, cost = values[starts[0]:starts[1]].tolist()
+    mt = values[starts[2]:starts[3]].reshape(A.chan.size, A.m.shape[1])
+    return values[starts[1]:starts[2]], unpack_measures(A, mt), cost, delta
+
+
 def unpack_point(A, values: np.ndarray, width: int, at: int = 0) -> tuple[Point, int]:
     """A :class:`~kanagen.runtime.projector.Point` from the engine's layout of one in
     ``values`` from ``at`` (:func:`point_starts`), its equations padded to ``width``: the
     point (views of ``values``) and the index after it."""
     n, M, d, r, p = A.q0.size, A.chan.size, A.m.shape[1], A.r, width
     s = point_starts(A, width, at)
-    delta, cost = values[s[0]:s[1]].tolist()
-    mt = values[s[2]:s[3]].reshape(M, d)
+    q, mt, cost, delta = point_head(A, values, s)
     evals = unpack_evals(A, values[s[5]:s[6]].reshape(M, p), values[s[6]:s[7]].reshape(M, p, n),
                          values[s[7]:s[8]].reshape(M, p, d))
-    return Point(values[s[1]:s[2]], unpack_measures(A, mt), values[s[3]:s[4]],
-                 values[s[4]:s[5]].reshape(r, n), evals, delta, cost), s[8]
+    return Point(q, mt, values[s[3]:s[4]], values[s[4]:s[5]].reshape(r, n), evals, delta,
+                 cost), s[8]
 
 
 def restored(problem: Problem, q: np.ndarray, mt, root: np.ndarray | None = None,

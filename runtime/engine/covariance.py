@@ -40,13 +40,20 @@ def complement(c):
         return np.eye(n)
     V = np.empty((n, 1))  # c / top with component k moved first, the others in order
     for j in range(n):
-        V[0 if j == k else j + 1 if j < k else j, 0] = c[j] / top
+        V[moved_first(j, k), 0] = c[j] / top
     W = linalg_complement(V, 1)
     Z = np.empty((n, n - 1))  # back to c's order
     for j in range(n):
         for col in range(n - 1):
-            Z[j, col] = W[0 if j == k else j + 1 if j < k else j, col]
+            Z[j, col] = W[moved_first(j, k), col]
     return Z
+
+
+@jit(inline=True)
+def moved_first(j, k):
+    """Where component ``j`` lies once component ``k`` is moved first, the others kept in
+    order."""
+    return 0 if j == k else j + 1 if j < k else j
 
 
 @jit
