@@ -76,6 +76,22 @@ class Function:
         return [(inp, i, s) for inp in self.inputs for i, s in enumerate(inp.symbols)
                 if s in used]
 
+    def needed(self, outputs: tuple[str, ...]) -> tuple[set, list[tuple[Input, int, sp.Symbol]]]:
+        """What the entries of ``outputs`` (names) need: the temporaries (a set of their
+        symbols) and the input symbols (:meth:`used`'s triples), through the temporaries."""
+        need = set()
+        for o in self.outputs:
+            if o.name in outputs:
+                for _, e in o.entries:
+                    need |= e.free_symbols
+        temps = set()
+        for t, e in reversed(self.temps):
+            if t in need:
+                temps.add(t)
+                need |= e.free_symbols
+        return temps, [(inp, i, s) for inp in self.inputs for i, s in enumerate(inp.symbols)
+                       if s in need]
+
     def free_of(self, output: str, input_name: str) -> bool:
         """No entry of ``output`` depends on the symbols of the input ``input_name``, through
         the temporaries either (a measurement function's ``C`` free of ``q``: its equations

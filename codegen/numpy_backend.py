@@ -44,29 +44,48 @@ def _flat(index: tuple[int, ...], shape: tuple[int, ...]) -> int:
     return flat
 
 
-def row_context(f: Function, temps, outputs) -> dict:
+def row_context(f: Function, temps, outputs, only: tuple[str, ...] | None = None) -> dict:
     """The row form of a function: one measure (``m`` its whole row) and every output entry
-    written, in order, into one flat ``out`` (the kernels' layout, runtime/engine)."""
-    used = sorted(f.used(), key=lambda u: u[0].name == "m")
+    written, in order, into one flat ``out`` (the kernels' layout, runtime/engine). With
+    ``only`` (output names), its *values form*: only those outputs' entries written, at the
+    same places, with the temporaries and inputs they need — the same statements as the
+    row form's, in the same order (the same numbers)."""
+    if only is None:
+        keep, used = {t for t, _ in f.temps}, f.used()
+    else:
+        keep, used = f.needed(only)
+    used = sorted(used, key=lambda u: u[0].name == "m")
     entries, base = [], 0
     for o, printed_entries in zip(f.outputs, outputs, strict=True):
         size = 1
         for dim in o.shape:
             size *= dim
-        values = {_flat(index, o.shape): code for index, code in printed_entries}
-        entries += [(base + i, values.get(i, "0.0")) for i in range(size)]
+        if only is None or o.name in only:
+            values = {_flat(index, o.shape): code for index, code in printed_entries}
+            entries += [(base + i, values.get(i, "0.0")) for i in range(size)]
         base += size
+    written = f.outputs if only is None else [o for o in f.outputs if o.name in only]
     return {
-        "name": f"row_{f.name}",
+        "name": f"row_{f.name}" if only is None else f"row_values_{f.name}",
         "args": [inp.name for inp in f.inputs] + ["out"],
-        "doc": f"Row form of ``{f.name}`` (one measure, ``m`` its whole row): ``out`` holds "
-               + ", ".join(f"{o.name} {o.shape}" for o in f.outputs)
-               + ", row-major, one after the other.",
+        "doc": (f"Row form of ``{f.name}`` (one measure, ``m`` its whole row): ``out`` holds "
+                + ", ".join(f"{o.name} {o.shape}" for o in written)
+                + ", row-major, one after the other.") if only is None else
+               (f"Values form of ``row_{f.name}``: its statements that "
+                + ", ".join(only) + " need; ``out`` holds "
+                + ", ".join(f"{o.name} {o.shape}" for o in written)
+                + " at their places in the row form's layout, the rest untouched."),
         "unpack": [f"{inp.prefix}{s.name} = {inp.name}[{i}]" for inp, i, s in used],
-        "temps": temps,
+        "temps": [(name, code) for (t, _), (name, code) in zip(f.temps, temps, strict=True)
+                  if t in keep],
         "entries": entries,
         "size": base,
     }
+
+
+#: The outputs a measurement function's values form writes: its equations' values and their
+#: Jacobian in the measure (a measure's error and its projection's steps need no ``C``).
+VALUES = ("c", "D")
 
 
 def function_context(f: Function) -> dict:
@@ -89,6 +108,7 @@ def function_context(f: Function) -> dict:
                     for o, entries in zip(f.outputs, outputs, strict=True)],
         "returns": _returns(f),
         "row": row_context(f, temps, outputs) if f.kind in ("c0", "measure", "slack") else None,
+        "values_row": row_context(f, temps, outputs, VALUES) if f.kind == "measure" else None,
         "linear": f.kind == "measure" and f.free_of("C", f.inputs[0].name),
     }
 

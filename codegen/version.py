@@ -9,7 +9,7 @@ from functools import cache
 from pathlib import Path
 
 #: Version of the generated-file layout; generated modules carry it and the loader checks it.
-FORMAT = 3
+FORMAT = 4
 
 
 @cache

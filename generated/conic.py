@@ -6,7 +6,7 @@ Model family "conic": equations, their Jacobians and their row forms
 
 import numpy as np
 
-FORMAT = 3
+FORMAT = 4
 SPEC_SOURCE = "conic.yaml"
 SPEC_SHA256 = "6beb11540e75ad36938eedc377d2c0695a4acf3b853debd403b62bf469304c97"
 FAMILY = {'name': 'conic',
@@ -183,6 +183,29 @@ def row_measure_point(q, m, k, out):
     out[8] = p_B*_tmp3 + p_C*_tmp6 + p_E*_tmp5
 
 
+def row_values_measure_point(q, m, k, out):
+    """Values form of ``row_measure_point``: its statements that c, D need; ``out`` holds c (1,), D (1, 2) at their places in the row form's layout, the rest untouched."""
+    p_A = q[0]
+    p_B = q[1]
+    p_C = q[2]
+    p_D = q[3]
+    p_E = q[4]
+    p_F = q[5]
+    k_f0 = k[0]
+    m_x = m[0]
+    m_y = m[1]
+    _tmp0 = m_x**2
+    _tmp1 = m_y**2
+    _tmp2 = k_f0**2
+    _tmp3 = 2*m_x
+    _tmp4 = _tmp3*m_y
+    _tmp5 = 2*k_f0
+    _tmp6 = 2*m_y
+    out[0] = p_A*_tmp0 + p_B*_tmp4 + p_C*_tmp1 + p_F*_tmp2 + _tmp5*(p_D*m_x + p_E*m_y)
+    out[7] = p_A*_tmp3 + p_B*_tmp6 + p_D*_tmp5
+    out[8] = p_B*_tmp3 + p_C*_tmp6 + p_E*_tmp5
+
+
 def c0_circle__reduced(r, k):
     """Remaining constraints c0(r) of model 'circle' and their Jacobian: shapes (1,), (1, 4)."""
     p_A = r[0]
@@ -263,6 +286,25 @@ def row_measure_point__circle__reduced(r, m, k, out):
     out[2] = _tmp3*m_x
     out[3] = _tmp3*m_y
     out[4] = _tmp2
+    out[5] = p_D*_tmp3 + _tmp4*m_x
+    out[6] = p_E*_tmp3 + _tmp4*m_y
+
+
+def row_values_measure_point__circle__reduced(r, m, k, out):
+    """Values form of ``row_measure_point__circle__reduced``: its statements that c, D need; ``out`` holds c (1,), D (1, 2) at their places in the row form's layout, the rest untouched."""
+    p_A = r[0]
+    p_D = r[1]
+    p_E = r[2]
+    p_F = r[3]
+    k_f0 = k[0]
+    m_x = m[0]
+    m_y = m[1]
+    _tmp0 = m_x**2
+    _tmp1 = m_y**2
+    _tmp2 = k_f0**2
+    _tmp3 = 2*k_f0
+    _tmp4 = 2*p_A
+    out[0] = p_A*_tmp0 + p_A*_tmp1 + p_F*_tmp2 + _tmp3*(p_D*m_x + p_E*m_y)
     out[5] = p_D*_tmp3 + _tmp4*m_x
     out[6] = p_E*_tmp3 + _tmp4*m_y
 
@@ -484,6 +526,12 @@ ROWS = {
     "c0_circle__reduced": row_c0_circle__reduced,
     "measure_point__circle__reduced": row_measure_point__circle__reduced,
     "c0_conic": row_c0_conic,
+}
+#: The values forms of the measurement functions' row forms (their ``c`` and ``D`` at the
+#: same places, nothing else: runtime/engine/rows.py), by the name of the function.
+VALUES = {
+    "measure_point": row_values_measure_point,
+    "measure_point__circle__reduced": row_values_measure_point__circle__reduced,
 }
 #: The measurement functions whose equations are linear in the parameter (their Jacobian
 #: ``C`` free of it): the profile's exact Hessian takes no differences along the parameter

@@ -8,7 +8,7 @@ channel) and the derived quantities, with their Jacobians. Load it with
 
 import casadi as ca
 
-FORMAT = 3
+FORMAT = 4
 BACKEND = "casadi"
 SPEC_SOURCE = "conic.yaml"
 SPEC_SHA256 = "6beb11540e75ad36938eedc377d2c0695a4acf3b853debd403b62bf469304c97"

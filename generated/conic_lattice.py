@@ -6,7 +6,7 @@ Model family "conic_lattice": equations, their Jacobians and their row forms
 
 import numpy as np
 
-FORMAT = 3
+FORMAT = 4
 SPEC_SOURCE = "conic_lattice.yaml"
 SPEC_SHA256 = "db3fa90ad005c76eb6f8f41c78f5d5a0f8c7932fa10abb577be24d573558f46f"
 FAMILY = {'name': 'conic_lattice',
@@ -281,6 +281,29 @@ def row_measure_point(q, m, k, out):
     out[10] = p_B*_tmp3 + p_C*_tmp6 + p_E*_tmp5
 
 
+def row_values_measure_point(q, m, k, out):
+    """Values form of ``row_measure_point``: its statements that c, D need; ``out`` holds c (1,), D (1, 2) at their places in the row form's layout, the rest untouched."""
+    p_A = q[0]
+    p_B = q[1]
+    p_C = q[2]
+    p_D = q[3]
+    p_E = q[4]
+    p_F = q[5]
+    k_f0 = k[0]
+    m_x = m[0]
+    m_y = m[1]
+    _tmp0 = m_x**2
+    _tmp1 = m_y**2
+    _tmp2 = k_f0**2
+    _tmp3 = 2*m_x
+    _tmp4 = _tmp3*m_y
+    _tmp5 = 2*k_f0
+    _tmp6 = 2*m_y
+    out[0] = p_A*_tmp0 + p_B*_tmp4 + p_C*_tmp1 + p_F*_tmp2 + _tmp5*(p_D*m_x + p_E*m_y)
+    out[9] = p_A*_tmp3 + p_B*_tmp6 + p_D*_tmp5
+    out[10] = p_B*_tmp3 + p_C*_tmp6 + p_E*_tmp5
+
+
 def c0_line__reduced(r, k):
     """Remaining constraints c0(r) of model 'line' and their Jacobian: shapes (1,), (1, 3)."""
     p_D = r[0]
@@ -347,6 +370,21 @@ def row_measure_point__line__reduced(r, m, k, out):
     out[1] = _tmp1*m_x
     out[2] = _tmp1*m_y
     out[3] = _tmp0
+    out[4] = p_D*_tmp1
+    out[5] = p_E*_tmp1
+
+
+def row_values_measure_point__line__reduced(r, m, k, out):
+    """Values form of ``row_measure_point__line__reduced``: its statements that c, D need; ``out`` holds c (1,), D (1, 2) at their places in the row form's layout, the rest untouched."""
+    p_D = r[0]
+    p_E = r[1]
+    p_F = r[2]
+    k_f0 = k[0]
+    m_x = m[0]
+    m_y = m[1]
+    _tmp0 = k_f0**2
+    _tmp1 = 2*k_f0
+    out[0] = p_F*_tmp0 + _tmp1*(p_D*m_x + p_E*m_y)
     out[4] = p_D*_tmp1
     out[5] = p_E*_tmp1
 
@@ -520,6 +558,25 @@ def row_measure_point__circle__reduced(r, m, k, out):
     out[2] = _tmp3*m_x
     out[3] = _tmp3*m_y
     out[4] = _tmp2
+    out[5] = p_D*_tmp3 + _tmp4*m_x
+    out[6] = p_E*_tmp3 + _tmp4*m_y
+
+
+def row_values_measure_point__circle__reduced(r, m, k, out):
+    """Values form of ``row_measure_point__circle__reduced``: its statements that c, D need; ``out`` holds c (1,), D (1, 2) at their places in the row form's layout, the rest untouched."""
+    p_A = r[0]
+    p_D = r[1]
+    p_E = r[2]
+    p_F = r[3]
+    k_f0 = k[0]
+    m_x = m[0]
+    m_y = m[1]
+    _tmp0 = m_x**2
+    _tmp1 = m_y**2
+    _tmp2 = k_f0**2
+    _tmp3 = 2*k_f0
+    _tmp4 = 2*p_A
+    out[0] = p_A*_tmp0 + p_A*_tmp1 + p_F*_tmp2 + _tmp3*(p_D*m_x + p_E*m_y)
     out[5] = p_D*_tmp3 + _tmp4*m_x
     out[6] = p_E*_tmp3 + _tmp4*m_y
 
@@ -728,6 +785,29 @@ def row_measure_point__ellipse__reduced(r, m, k, out):
     out[5] = _tmp5*m_y
     out[6] = _tmp2
     out[7] = 0.0
+    out[8] = p_A*_tmp3 + p_B*_tmp6 + p_D*_tmp5
+    out[9] = p_B*_tmp3 + p_C*_tmp6 + p_E*_tmp5
+
+
+def row_values_measure_point__ellipse__reduced(r, m, k, out):
+    """Values form of ``row_measure_point__ellipse__reduced``: its statements that c, D need; ``out`` holds c (1,), D (1, 2) at their places in the row form's layout, the rest untouched."""
+    p_A = r[0]
+    p_B = r[1]
+    p_C = r[2]
+    p_D = r[3]
+    p_E = r[4]
+    p_F = r[5]
+    k_f0 = k[0]
+    m_x = m[0]
+    m_y = m[1]
+    _tmp0 = m_x**2
+    _tmp1 = m_y**2
+    _tmp2 = k_f0**2
+    _tmp3 = 2*m_x
+    _tmp4 = _tmp3*m_y
+    _tmp5 = 2*k_f0
+    _tmp6 = 2*m_y
+    out[0] = p_A*_tmp0 + p_B*_tmp4 + p_C*_tmp1 + p_F*_tmp2 + _tmp5*(p_D*m_x + p_E*m_y)
     out[8] = p_A*_tmp3 + p_B*_tmp6 + p_D*_tmp5
     out[9] = p_B*_tmp3 + p_C*_tmp6 + p_E*_tmp5
 
@@ -982,6 +1062,29 @@ def row_measure_point__conic__reduced(r, m, k, out):
     out[9] = p_B*_tmp3 + p_C*_tmp6 + p_E*_tmp5
 
 
+def row_values_measure_point__conic__reduced(r, m, k, out):
+    """Values form of ``row_measure_point__conic__reduced``: its statements that c, D need; ``out`` holds c (1,), D (1, 2) at their places in the row form's layout, the rest untouched."""
+    p_A = r[0]
+    p_B = r[1]
+    p_C = r[2]
+    p_D = r[3]
+    p_E = r[4]
+    p_F = r[5]
+    k_f0 = k[0]
+    m_x = m[0]
+    m_y = m[1]
+    _tmp0 = m_x**2
+    _tmp1 = m_y**2
+    _tmp2 = k_f0**2
+    _tmp3 = 2*m_x
+    _tmp4 = _tmp3*m_y
+    _tmp5 = 2*k_f0
+    _tmp6 = 2*m_y
+    out[0] = p_A*_tmp0 + p_B*_tmp4 + p_C*_tmp1 + p_F*_tmp2 + _tmp5*(p_D*m_x + p_E*m_y)
+    out[8] = p_A*_tmp3 + p_B*_tmp6 + p_D*_tmp5
+    out[9] = p_B*_tmp3 + p_C*_tmp6 + p_E*_tmp5
+
+
 def derived(q, k):
     """Derived quantities and their Jacobians in q, by name: {name: (value, jacobian)}."""
     p_A = q[0]
@@ -1219,6 +1322,15 @@ ROWS = {
     "c0_conic__reduced": row_c0_conic__reduced,
     "measure_point__conic__reduced": row_measure_point__conic__reduced,
     "slack_measures": row_slack_measures,
+}
+#: The values forms of the measurement functions' row forms (their ``c`` and ``D`` at the
+#: same places, nothing else: runtime/engine/rows.py), by the name of the function.
+VALUES = {
+    "measure_point": row_values_measure_point,
+    "measure_point__line__reduced": row_values_measure_point__line__reduced,
+    "measure_point__circle__reduced": row_values_measure_point__circle__reduced,
+    "measure_point__ellipse__reduced": row_values_measure_point__ellipse__reduced,
+    "measure_point__conic__reduced": row_values_measure_point__conic__reduced,
 }
 #: The measurement functions whose equations are linear in the parameter (their Jacobian
 #: ``C`` free of it): the profile's exact Hessian takes no differences along the parameter

@@ -8,7 +8,7 @@ channel) and the derived quantities, with their Jacobians. Load it with
 
 import casadi as ca
 
-FORMAT = 3
+FORMAT = 4
 BACKEND = "casadi"
 SPEC_SOURCE = "conic_lattice.yaml"
 SPEC_SHA256 = "db3fa90ad005c76eb6f8f41c78f5d5a0f8c7932fa10abb577be24d573558f46f"

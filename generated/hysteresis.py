@@ -6,7 +6,7 @@ Model family "hysteresis": equations, their Jacobians and their row forms
 
 import numpy as np
 
-FORMAT = 3
+FORMAT = 4
 SPEC_SOURCE = "hysteresis.yaml"
 SPEC_SHA256 = "bed58e6950d17582f5cee9dc9ec186320c901e8386354e1e50dbe729b333d635"
 FAMILY = {'name': 'hysteresis',
@@ -574,6 +574,14 @@ def row_measure_reading(q, m, k, out):
     out[12] = 1
 
 
+def row_values_measure_reading(q, m, k, out):
+    """Values form of ``row_measure_reading``: its statements that c, D need; ``out`` holds c (1,), D (1, 1) at their places in the row form's layout, the rest untouched."""
+    p_y = q[0]
+    m_r = m[0]
+    out[0] = m_r - p_y
+    out[12] = 1
+
+
 def slack_measures(q, k):
     """For each slack component, c of its relation (c >= 0, c > 0 or c != 0)."""
     p_s = q[1]
@@ -632,6 +640,11 @@ ROWS = {
     "c0_hysteresis": row_c0_hysteresis,
     "measure_reading": row_measure_reading,
     "slack_measures": row_slack_measures,
+}
+#: The values forms of the measurement functions' row forms (their ``c`` and ``D`` at the
+#: same places, nothing else: runtime/engine/rows.py), by the name of the function.
+VALUES = {
+    "measure_reading": row_values_measure_reading,
 }
 #: The measurement functions whose equations are linear in the parameter (their Jacobian
 #: ``C`` free of it): the profile's exact Hessian takes no differences along the parameter

@@ -8,7 +8,7 @@ channel) and the derived quantities, with their Jacobians. Load it with
 
 import casadi as ca
 
-FORMAT = 3
+FORMAT = 4
 BACKEND = "casadi"
 SPEC_SOURCE = "hysteresis.yaml"
 SPEC_SHA256 = "bed58e6950d17582f5cee9dc9ec186320c901e8386354e1e50dbe729b333d635"

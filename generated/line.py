@@ -6,7 +6,7 @@ Model family "line": equations, their Jacobians and their row forms
 
 import numpy as np
 
-FORMAT = 3
+FORMAT = 4
 SPEC_SOURCE = "line.yaml"
 SPEC_SHA256 = "0c0f4b5249f5beb13cd3ba271a3cb3ad728e3302c6d9deb57a5fcadb7b82cceb"
 FAMILY = {'name': 'line',
@@ -81,6 +81,17 @@ def row_measure_point(q, m, k, out):
     out[4] = 1
 
 
+def row_values_measure_point(q, m, k, out):
+    """Values form of ``row_measure_point``: its statements that c, D need; ``out`` holds c (1,), D (1, 2) at their places in the row form's layout, the rest untouched."""
+    p_a = q[0]
+    p_b = q[1]
+    m_x = m[0]
+    m_y = m[1]
+    out[0] = -p_a*m_x - p_b + m_y
+    out[3] = -p_a
+    out[4] = 1
+
+
 def c0_horizontal__reduced(r, k):
     """Remaining constraints c0(r) of model 'horizontal' and their Jacobian: shapes (0,), (0, 1)."""
     # Outputs
@@ -115,6 +126,15 @@ def row_measure_point__horizontal__reduced(r, m, k, out):
     m_y = m[1]
     out[0] = -p_b + m_y
     out[1] = -1
+    out[2] = 0.0
+    out[3] = 1
+
+
+def row_values_measure_point__horizontal__reduced(r, m, k, out):
+    """Values form of ``row_measure_point__horizontal__reduced``: its statements that c, D need; ``out`` holds c (1,), D (1, 2) at their places in the row form's layout, the rest untouched."""
+    p_b = r[0]
+    m_y = m[1]
+    out[0] = -p_b + m_y
     out[2] = 0.0
     out[3] = 1
 
@@ -172,6 +192,12 @@ ROWS = {
     "c0_horizontal__reduced": row_c0_horizontal__reduced,
     "measure_point__horizontal__reduced": row_measure_point__horizontal__reduced,
     "c0_line": row_c0_line,
+}
+#: The values forms of the measurement functions' row forms (their ``c`` and ``D`` at the
+#: same places, nothing else: runtime/engine/rows.py), by the name of the function.
+VALUES = {
+    "measure_point": row_values_measure_point,
+    "measure_point__horizontal__reduced": row_values_measure_point__horizontal__reduced,
 }
 #: The measurement functions whose equations are linear in the parameter (their Jacobian
 #: ``C`` free of it): the profile's exact Hessian takes no differences along the parameter

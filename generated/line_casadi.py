@@ -8,7 +8,7 @@ channel) and the derived quantities, with their Jacobians. Load it with
 
 import casadi as ca
 
-FORMAT = 3
+FORMAT = 4
 BACKEND = "casadi"
 SPEC_SOURCE = "line.yaml"
 SPEC_SHA256 = "0c0f4b5249f5beb13cd3ba271a3cb3ad728e3302c6d9deb57a5fcadb7b82cceb"

@@ -6,7 +6,7 @@ Model family "pga": equations, their Jacobians and their row forms
 
 import numpy as np
 
-FORMAT = 3
+FORMAT = 4
 SPEC_SOURCE = "pga.yaml"
 SPEC_SHA256 = "f8c30c0d93577258c30b753b2406d64403a7e07b68a95528e8c04cc599a1126a"
 FAMILY = {'name': 'pga',
@@ -95,6 +95,16 @@ def row_measure_reading(q, m, k, out):
     out[3] = 1
 
 
+def row_values_measure_reading(q, m, k, out):
+    """Values form of ``row_measure_reading``: its statements that c, D need; ``out`` holds c (1,), D (1, 1) at their places in the row form's layout, the rest untouched."""
+    p_g = q[0]
+    p_o = q[1]
+    m_v = m[0]
+    m_r = m[1]
+    out[0] = -p_g*m_v - p_o + m_r
+    out[3] = 1
+
+
 def c0_linear(q, k):
     """Constraints c0(q) of model 'linear' and their Jacobian: shapes (0,), (0, 2)."""
     # Outputs
@@ -125,6 +135,11 @@ ROWS = {
     "c0_pga": row_c0_pga,
     "measure_reading": row_measure_reading,
     "c0_linear": row_c0_linear,
+}
+#: The values forms of the measurement functions' row forms (their ``c`` and ``D`` at the
+#: same places, nothing else: runtime/engine/rows.py), by the name of the function.
+VALUES = {
+    "measure_reading": row_values_measure_reading,
 }
 #: The measurement functions whose equations are linear in the parameter (their Jacobian
 #: ``C`` free of it): the profile's exact Hessian takes no differences along the parameter

@@ -8,7 +8,7 @@ channel) and the derived quantities, with their Jacobians. Load it with
 
 import casadi as ca
 
-FORMAT = 3
+FORMAT = 4
 BACKEND = "casadi"
 SPEC_SOURCE = "pga.yaml"
 SPEC_SHA256 = "f8c30c0d93577258c30b753b2406d64403a7e07b68a95528e8c04cc599a1126a"

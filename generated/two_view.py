@@ -6,7 +6,7 @@ Model family "two_view": equations, their Jacobians and their row forms
 
 import numpy as np
 
-FORMAT = 3
+FORMAT = 4
 SPEC_SOURCE = "two_view.yaml"
 SPEC_SHA256 = "0c6228e18bb92e65daf1155cc3b3565e7f8744b10061497f0591c5f01f762998"
 FAMILY = {'name': 'two_view',
@@ -922,6 +922,86 @@ def row_measure_match__none(q, m, k, out):
     out[50] = -_tmp37
 
 
+def row_values_measure_match__none(q, m, k, out):
+    """Values form of ``row_measure_match__none``: its statements that c, D need; ``out`` holds c (3,), D (3, 4) at their places in the row form's layout, the rest untouched."""
+    p_f1 = q[0]
+    p_f2 = q[1]
+    p_qw = q[2]
+    p_qx = q[3]
+    p_qy = q[4]
+    p_qz = q[5]
+    p_tx = q[6]
+    p_ty = q[7]
+    p_tz = q[8]
+    p_wx = q[9]
+    p_wy = q[10]
+    p_wz = q[11]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 2*p_qw
+    _tmp1 = _tmp0*p_qx
+    _tmp2 = 2*p_qy
+    _tmp3 = _tmp2*p_qz
+    _tmp4 = -_tmp1 + _tmp3 + p_ty*p_wz
+    _tmp5 = _tmp0*p_qz
+    _tmp6 = _tmp2*p_qx
+    _tmp7 = _tmp5 + _tmp6 + p_ty*p_wx
+    _tmp8 = 1/k_f0
+    _tmp9 = -k_cx + m_u
+    _tmp10 = _tmp8*_tmp9
+    _tmp11 = p_qy**2
+    _tmp12 = p_qz**2
+    _tmp13 = -_tmp12
+    _tmp14 = p_qw**2
+    _tmp15 = p_qx**2
+    _tmp16 = _tmp14 - _tmp15
+    _tmp17 = _tmp11 + _tmp13 + _tmp16 + p_ty*p_wy
+    _tmp18 = -k_cy + m_v
+    _tmp19 = _tmp18*_tmp8
+    _tmp20 = _tmp10*_tmp7 + _tmp17*_tmp19 + _tmp4*p_f1
+    _tmp21 = -k_cy + m_v2
+    _tmp22 = _tmp0*p_qy
+    _tmp23 = 2*p_qx
+    _tmp24 = _tmp23*p_qz
+    _tmp25 = -_tmp22 + _tmp24 + p_tz*p_wx
+    _tmp26 = _tmp1 + _tmp3 + p_tz*p_wy
+    _tmp27 = -_tmp11
+    _tmp28 = _tmp12 + _tmp16 + _tmp27 + p_tz*p_wz
+    _tmp29 = _tmp10*_tmp25 + _tmp19*_tmp26 + _tmp28*p_f1
+    _tmp30 = _tmp22 + _tmp24 + p_tx*p_wz
+    _tmp31 = -_tmp5 + _tmp6 + p_tx*p_wy
+    _tmp32 = _tmp13 + _tmp14 + _tmp15 + _tmp27 + p_tx*p_wx
+    _tmp33 = _tmp10*_tmp32 + _tmp19*_tmp31 + _tmp30*p_f1
+    _tmp34 = -k_cx + m_u2
+    _tmp35 = _tmp29*_tmp8
+    _tmp36 = _tmp20*_tmp8
+    _tmp37 = _tmp33*_tmp8
+    _tmp54 = k_f0**(-2)
+    _tmp62 = _tmp34*_tmp54
+    _tmp64 = _tmp21*_tmp54
+    _tmp66 = _tmp8*p_f2
+    out[0] = -_tmp20*p_f2 + _tmp21*_tmp29*_tmp8
+    out[1] = _tmp33*p_f2 - _tmp34*_tmp35
+    out[2] = -_tmp21*_tmp37 + _tmp34*_tmp36
+    out[39] = _tmp21*_tmp25*_tmp54 - _tmp66*_tmp7
+    out[40] = -_tmp17*_tmp66 + _tmp21*_tmp26*_tmp54
+    out[41] = 0.0
+    out[42] = _tmp35
+    out[43] = -_tmp25*_tmp62 + _tmp32*_tmp66
+    out[44] = -_tmp26*_tmp62 + _tmp31*_tmp66
+    out[45] = -_tmp35
+    out[46] = 0.0
+    out[47] = -_tmp32*_tmp64 + _tmp62*_tmp7
+    out[48] = _tmp17*_tmp62 - _tmp31*_tmp64
+    out[49] = _tmp36
+    out[50] = -_tmp37
+
+
 def c0_none__reduced(r, k):
     """Remaining constraints c0(r) of model 'none' and their Jacobian: shapes (1,), (1, 1)."""
     p_qw = r[0]
@@ -1016,6 +1096,44 @@ def row_measure_match__none__reduced(r, m, k, out):
     out[3] = -_tmp0*_tmp11 + 2*_tmp1*_tmp4*p_qw
     out[4] = _tmp11*_tmp5 - _tmp11*_tmp6
     out[5] = 2*_tmp0*_tmp6*_tmp7*p_qw - _tmp10*_tmp4*_tmp5*_tmp7
+    out[6] = 0.0
+    out[7] = _tmp12
+    out[8] = 0.0
+    out[9] = _tmp3
+    out[10] = _tmp3
+    out[11] = 0.0
+    out[12] = _tmp12
+    out[13] = 0.0
+    out[14] = -_tmp9
+    out[15] = _tmp6*_tmp8
+    out[16] = _tmp0*_tmp8
+    out[17] = -_tmp5*_tmp8
+
+
+def row_values_measure_match__none__reduced(r, m, k, out):
+    """Values form of ``row_measure_match__none__reduced``: its statements that c, D need; ``out`` holds c (3,), D (3, 4) at their places in the row form's layout, the rest untouched."""
+    p_qw = r[0]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = -k_cy + m_v
+    _tmp1 = 1/k_f0
+    _tmp2 = p_qw**2
+    _tmp3 = _tmp1*_tmp2
+    _tmp4 = -k_cy + m_v2
+    _tmp5 = -k_cx + m_u
+    _tmp6 = -k_cx + m_u2
+    _tmp7 = k_f0**(-2)
+    _tmp8 = _tmp2*_tmp7
+    _tmp9 = _tmp4*_tmp8
+    _tmp12 = -_tmp3
+    out[0] = -_tmp0*_tmp3 + _tmp1*_tmp2*_tmp4
+    out[1] = _tmp3*_tmp5 - _tmp3*_tmp6
+    out[2] = _tmp0*_tmp2*_tmp6*_tmp7 - _tmp5*_tmp9
     out[6] = 0.0
     out[7] = _tmp12
     out[8] = 0.0
@@ -1340,6 +1458,47 @@ def row_measure_match__zoom__reduced(r, m, k, out):
     out[6] = -_tmp13*_tmp6 + _tmp14*_tmp7
     out[7] = 0.0
     out[8] = -_tmp12*_tmp2*_tmp7*_tmp9 + 2*_tmp3*_tmp6*_tmp9*p_qw
+    out[9] = 0.0
+    out[10] = -_tmp15
+    out[11] = 0.0
+    out[12] = _tmp4
+    out[13] = _tmp15
+    out[14] = 0.0
+    out[15] = -_tmp4
+    out[16] = 0.0
+    out[17] = -_tmp11
+    out[18] = _tmp10*_tmp6
+    out[19] = _tmp10*_tmp3
+    out[20] = -_tmp10*_tmp7
+
+
+def row_values_measure_match__zoom__reduced(r, m, k, out):
+    """Values form of ``row_measure_match__zoom__reduced``: its statements that c, D need; ``out`` holds c (3,), D (3, 4) at their places in the row form's layout, the rest untouched."""
+    p_f2 = r[0]
+    p_qw = r[1]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 1/k_f0
+    _tmp1 = p_qw**2
+    _tmp2 = -k_cy + m_v2
+    _tmp3 = -k_cy + m_v
+    _tmp4 = _tmp0*_tmp1
+    _tmp5 = _tmp3*_tmp4
+    _tmp6 = -k_cx + m_u2
+    _tmp7 = -k_cx + m_u
+    _tmp8 = _tmp4*_tmp7
+    _tmp9 = k_f0**(-2)
+    _tmp10 = _tmp1*_tmp9
+    _tmp11 = _tmp10*_tmp2
+    _tmp15 = _tmp4*p_f2
+    out[0] = _tmp0*_tmp1*_tmp2 - _tmp5*p_f2
+    out[1] = -_tmp4*_tmp6 + _tmp8*p_f2
+    out[2] = _tmp1*_tmp3*_tmp6*_tmp9 - _tmp11*_tmp7
     out[9] = 0.0
     out[10] = -_tmp15
     out[11] = 0.0
@@ -1745,6 +1904,79 @@ def row_measure_match__rotation__reduced(r, m, k, out):
     out[15] = _tmp43*_tmp50 + _tmp49
     out[16] = _tmp42 + _tmp53
     out[17] = -_tmp41*_tmp52 + _tmp46*_tmp50
+    out[18] = _tmp20*_tmp22*_tmp55 - _tmp54*_tmp6
+    out[19] = -_tmp15*_tmp54 + _tmp20*_tmp23*_tmp55
+    out[20] = 0.0
+    out[21] = _tmp35
+    out[22] = -_tmp22*_tmp56 + _tmp30*_tmp54
+    out[23] = -_tmp23*_tmp56 + _tmp31*_tmp54
+    out[24] = -_tmp35
+    out[25] = 0.0
+    out[26] = -_tmp30*_tmp57 + _tmp56*_tmp6
+    out[27] = _tmp15*_tmp56 - _tmp31*_tmp57
+    out[28] = _tmp36
+    out[29] = -_tmp37
+
+
+def row_values_measure_match__rotation__reduced(r, m, k, out):
+    """Values form of ``row_measure_match__rotation__reduced``: its statements that c, D need; ``out`` holds c (3,), D (3, 4) at their places in the row form's layout, the rest untouched."""
+    p_f1 = r[0]
+    p_qw = r[1]
+    p_qx = r[2]
+    p_qy = r[3]
+    p_qz = r[4]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 2*p_qw
+    _tmp1 = _tmp0*p_qx
+    _tmp2 = -_tmp1 + 2*p_qy*p_qz
+    _tmp3 = _tmp2*p_f1
+    _tmp4 = _tmp0*p_qz
+    _tmp5 = 2*p_qy
+    _tmp6 = _tmp4 + _tmp5*p_qx
+    _tmp7 = 1/k_f0
+    _tmp8 = _tmp7*(-k_cx + m_u)
+    _tmp9 = p_qy**2
+    _tmp10 = p_qz**2
+    _tmp11 = -_tmp10
+    _tmp12 = p_qw**2
+    _tmp13 = p_qx**2
+    _tmp14 = _tmp12 - _tmp13
+    _tmp15 = _tmp11 + _tmp14 + _tmp9
+    _tmp16 = -k_cy + m_v
+    _tmp17 = _tmp16*_tmp7
+    _tmp18 = _tmp15*_tmp17 + _tmp6*_tmp8
+    _tmp19 = _tmp18 + _tmp3
+    _tmp20 = -k_cy + m_v2
+    _tmp21 = _tmp0*p_qy
+    _tmp22 = -_tmp21 + 2*p_qx*p_qz
+    _tmp23 = _tmp1 + _tmp5*p_qz
+    _tmp24 = -_tmp9
+    _tmp25 = _tmp10 + _tmp14 + _tmp24
+    _tmp26 = _tmp17*_tmp23 + _tmp22*_tmp8 + _tmp25*p_f1
+    _tmp27 = 2*p_qx
+    _tmp28 = _tmp21 + _tmp27*p_qz
+    _tmp29 = _tmp28*p_f1
+    _tmp30 = _tmp11 + _tmp12 + _tmp13 + _tmp24
+    _tmp31 = -_tmp4 + 2*p_qx*p_qy
+    _tmp32 = _tmp17*_tmp31 + _tmp30*_tmp8
+    _tmp33 = _tmp29 + _tmp32
+    _tmp34 = -k_cx + m_u2
+    _tmp35 = _tmp26*_tmp7
+    _tmp36 = _tmp19*_tmp7
+    _tmp37 = _tmp33*_tmp7
+    _tmp54 = _tmp7*p_f1
+    _tmp55 = k_f0**(-2)
+    _tmp56 = _tmp34*_tmp55
+    _tmp57 = _tmp20*_tmp55
+    out[0] = -_tmp19*p_f1 + _tmp20*_tmp26*_tmp7
+    out[1] = _tmp33*p_f1 - _tmp34*_tmp35
+    out[2] = -_tmp20*_tmp37 + _tmp34*_tmp36
     out[18] = _tmp20*_tmp22*_tmp55 - _tmp54*_tmp6
     out[19] = -_tmp15*_tmp54 + _tmp20*_tmp23*_tmp55
     out[20] = 0.0
@@ -2208,6 +2440,80 @@ def row_measure_match(q, m, k, out):
     out[16] = _tmp44
 
 
+def row_values_measure_match(q, m, k, out):
+    """Values form of ``row_measure_match``: its statements that c, D need; ``out`` holds c (1,), D (1, 4) at their places in the row form's layout, the rest untouched."""
+    p_f1 = q[0]
+    p_f2 = q[1]
+    p_qw = q[2]
+    p_qx = q[3]
+    p_qy = q[4]
+    p_qz = q[5]
+    p_tx = q[6]
+    p_ty = q[7]
+    p_tz = q[8]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 2*p_qw
+    _tmp1 = _tmp0*p_qx
+    _tmp2 = 2*p_qz
+    _tmp3 = _tmp2*p_qy
+    _tmp4 = _tmp1 - _tmp3
+    _tmp5 = -_tmp4
+    _tmp6 = _tmp0*p_qy
+    _tmp7 = _tmp2*p_qx
+    _tmp8 = _tmp6 + _tmp7
+    _tmp9 = _tmp5*p_tx - _tmp8*p_ty
+    _tmp10 = _tmp0*p_qz
+    _tmp11 = 2*p_qx
+    _tmp12 = _tmp11*p_qy
+    _tmp13 = _tmp10 + _tmp12
+    _tmp14 = p_qx**2
+    _tmp15 = p_qy**2
+    _tmp16 = -_tmp15
+    _tmp17 = p_qw**2
+    _tmp18 = p_qz**2
+    _tmp19 = _tmp17 - _tmp18
+    _tmp20 = _tmp14 + _tmp16 + _tmp19
+    _tmp21 = _tmp13*p_tx - _tmp20*p_ty
+    _tmp22 = 1/k_f0
+    _tmp23 = _tmp22*(-k_cx + m_u)
+    _tmp24 = _tmp10 - _tmp12
+    _tmp25 = -_tmp24
+    _tmp26 = -_tmp14
+    _tmp27 = _tmp15 + _tmp19 + _tmp26
+    _tmp28 = -_tmp25*p_ty + _tmp27*p_tx
+    _tmp29 = _tmp22*(-k_cy + m_v)
+    _tmp30 = _tmp21*_tmp23 + _tmp28*_tmp29 + _tmp9*p_f1
+    _tmp31 = -k_cx + m_u2
+    _tmp32 = _tmp6 - _tmp7
+    _tmp33 = -_tmp32
+    _tmp34 = -_tmp13*p_tz + _tmp33*p_ty
+    _tmp35 = _tmp16 + _tmp17 + _tmp18 + _tmp26
+    _tmp36 = _tmp35*p_ty - _tmp5*p_tz
+    _tmp37 = _tmp1 + _tmp3
+    _tmp38 = -_tmp27*p_tz + _tmp37*p_ty
+    _tmp39 = _tmp22*(_tmp23*_tmp34 + _tmp29*_tmp38 + _tmp36*p_f1)
+    _tmp40 = -k_cy + m_v2
+    _tmp41 = _tmp25*p_tz - _tmp37*p_tx
+    _tmp42 = -_tmp35*p_tx + _tmp8*p_tz
+    _tmp43 = _tmp20*p_tz - _tmp33*p_tx
+    _tmp44 = _tmp22*(_tmp23*_tmp43 + _tmp29*_tmp41 + _tmp42*p_f1)
+    _tmp78 = k_f0**(-2)
+    _tmp79 = _tmp31*_tmp78
+    _tmp80 = _tmp22*p_f2
+    _tmp81 = _tmp40*_tmp78
+    out[0] = _tmp30*p_f2 + _tmp31*_tmp39 + _tmp40*_tmp44
+    out[13] = _tmp21*_tmp80 + _tmp34*_tmp79 + _tmp43*_tmp81
+    out[14] = _tmp28*_tmp80 + _tmp38*_tmp79 + _tmp41*_tmp81
+    out[15] = _tmp39
+    out[16] = _tmp44
+
+
 def c0_retinal_translation__reduced(r, k):
     """Remaining constraints c0(r) of model 'retinal_translation' and their Jacobian: shapes (2,), (2, 3)."""
     p_qw = r[0]
@@ -2315,6 +2621,37 @@ def row_measure_match__retinal_translation__reduced(r, m, k, out):
     out[1] = _tmp0*_tmp11 - _tmp11*_tmp6 + _tmp12*_tmp5 - _tmp12*_tmp8
     out[2] = _tmp4 - _tmp7
     out[3] = _tmp1*_tmp2*_tmp5 - _tmp9
+    out[4] = -_tmp13
+    out[5] = _tmp14
+    out[6] = _tmp13
+    out[7] = -_tmp14
+
+
+def row_values_measure_match__retinal_translation__reduced(r, m, k, out):
+    """Values form of ``row_measure_match__retinal_translation__reduced``: its statements that c, D need; ``out`` holds c (1,), D (1, 4) at their places in the row form's layout, the rest untouched."""
+    p_qw = r[0]
+    p_tx = r[1]
+    p_ty = r[2]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = -k_cy + m_v
+    _tmp1 = 1/k_f0
+    _tmp2 = p_qw**2
+    _tmp3 = _tmp1*_tmp2
+    _tmp4 = _tmp0*_tmp3
+    _tmp5 = -k_cx + m_u2
+    _tmp6 = -k_cy + m_v2
+    _tmp7 = _tmp3*_tmp6
+    _tmp8 = -k_cx + m_u
+    _tmp9 = _tmp3*_tmp8
+    _tmp13 = _tmp3*p_ty
+    _tmp14 = _tmp3*p_tx
+    out[0] = _tmp3*_tmp5*p_ty + _tmp4*p_tx - _tmp7*p_tx - _tmp9*p_ty
     out[4] = -_tmp13
     out[5] = _tmp14
     out[6] = _tmp13
@@ -2654,6 +2991,42 @@ def row_measure_match__retinal_displacement__reduced(r, m, k, out):
     out[8] = -_tmp4*p_tx
 
 
+def row_values_measure_match__retinal_displacement__reduced(r, m, k, out):
+    """Values form of ``row_measure_match__retinal_displacement__reduced``: its statements that c, D need; ``out`` holds c (1,), D (1, 4) at their places in the row form's layout, the rest untouched."""
+    p_qw = r[0]
+    p_qz = r[1]
+    p_tx = r[2]
+    p_ty = r[3]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = -k_cx + m_u2
+    _tmp1 = 1/k_f0
+    _tmp2 = p_qw**2
+    _tmp3 = p_qz**2
+    _tmp4 = _tmp1*(_tmp2 + _tmp3)
+    _tmp5 = _tmp0*_tmp4
+    _tmp6 = -k_cy + m_v2
+    _tmp7 = _tmp4*_tmp6
+    _tmp8 = -k_cy + m_v
+    _tmp9 = 2*p_qw
+    _tmp10 = _tmp9*p_ty
+    _tmp11 = _tmp2 - _tmp3
+    _tmp12 = _tmp1*(_tmp10*p_qz + _tmp11*p_tx)
+    _tmp13 = -k_cx + m_u
+    _tmp14 = _tmp9*p_tx
+    _tmp15 = _tmp1*(-_tmp11*p_ty + _tmp14*p_qz)
+    out[0] = _tmp12*_tmp8 + _tmp13*_tmp15 + _tmp5*p_ty - _tmp7*p_tx
+    out[5] = _tmp15
+    out[6] = _tmp12
+    out[7] = _tmp4*p_ty
+    out[8] = -_tmp4*p_tx
+
+
 def c0_translation(q, k):
     """Constraints c0(q) of model 'translation' and their Jacobian: shapes (10,), (10, 12)."""
     p_f1 = q[0]
@@ -2975,6 +3348,43 @@ def row_measure_match__translation__reduced(r, m, k, out):
     out[2] = _tmp10 - _tmp18*_tmp2
     out[3] = _tmp1*_tmp2*_tmp8 - _tmp5*_tmp9
     out[4] = -_tmp0*_tmp21 + _tmp12*_tmp20*_tmp5
+    out[5] = _tmp12*_tmp19*_tmp2*p_tz - _tmp7
+    out[6] = -_tmp21*p_tz + _tmp4
+    out[7] = _tmp11
+    out[8] = _tmp13
+
+
+def row_values_measure_match__translation__reduced(r, m, k, out):
+    """Values form of ``row_measure_match__translation__reduced``: its statements that c, D need; ``out`` holds c (1,), D (1, 4) at their places in the row form's layout, the rest untouched."""
+    p_qw = r[0]
+    p_tx = r[1]
+    p_ty = r[2]
+    p_tz = r[3]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = -k_cy + m_v
+    _tmp1 = 1/k_f0
+    _tmp2 = p_qw**2
+    _tmp3 = _tmp2*p_tx
+    _tmp4 = _tmp1*_tmp3
+    _tmp5 = -k_cx + m_u
+    _tmp6 = _tmp2*p_ty
+    _tmp7 = _tmp1*_tmp6
+    _tmp8 = -k_cx + m_u2
+    _tmp9 = _tmp1*_tmp2
+    _tmp10 = _tmp0*_tmp9
+    _tmp11 = _tmp1*(-_tmp10*p_tz + _tmp6)
+    _tmp12 = -k_cy + m_v2
+    _tmp13 = _tmp1*(_tmp1*_tmp2*_tmp5*p_tz - _tmp3)
+    _tmp19 = k_f0**(-2)
+    _tmp20 = _tmp19*_tmp2
+    _tmp21 = _tmp20*_tmp8
+    out[0] = _tmp0*_tmp4 + _tmp11*_tmp8 + _tmp12*_tmp13 - _tmp5*_tmp7
     out[5] = _tmp12*_tmp19*_tmp2*p_tz - _tmp7
     out[6] = -_tmp21*p_tz + _tmp4
     out[7] = _tmp11
@@ -3390,6 +3800,84 @@ def row_measure_match__planar__reduced(r, m, k, out):
     out[44] = -_tmp38
 
 
+def row_values_measure_match__planar__reduced(r, m, k, out):
+    """Values form of ``row_measure_match__planar__reduced``: its statements that c, D need; ``out`` holds c (3,), D (3, 4) at their places in the row form's layout, the rest untouched."""
+    p_qw = r[0]
+    p_qx = r[1]
+    p_qy = r[2]
+    p_qz = r[3]
+    p_tx = r[4]
+    p_ty = r[5]
+    p_tz = r[6]
+    p_wx = r[7]
+    p_wy = r[8]
+    p_wz = r[9]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 1/k_f0
+    _tmp1 = -k_cy + m_v2
+    _tmp2 = p_qw**2
+    _tmp3 = p_qz**2
+    _tmp4 = p_qx**2
+    _tmp5 = -_tmp4
+    _tmp6 = p_qy**2
+    _tmp7 = -_tmp6
+    _tmp8 = 2*p_qw
+    _tmp9 = _tmp8*p_qy
+    _tmp10 = 2*p_qx
+    _tmp11 = _tmp10*p_qz
+    _tmp12 = _tmp11 - _tmp9 + p_tz*p_wx
+    _tmp13 = -k_cx + m_u
+    _tmp14 = _tmp0*_tmp13
+    _tmp15 = _tmp10*p_qw
+    _tmp16 = 2*p_qz
+    _tmp17 = _tmp16*p_qy
+    _tmp18 = _tmp15 + _tmp17 + p_tz*p_wy
+    _tmp19 = -k_cy + m_v
+    _tmp20 = _tmp0*_tmp19
+    _tmp21 = _tmp12*_tmp14 + _tmp18*_tmp20 + _tmp2 + _tmp3 + _tmp5 + _tmp7 + p_tz*p_wz
+    _tmp22 = _tmp8*p_qz
+    _tmp23 = _tmp10*p_qy
+    _tmp24 = _tmp22 + _tmp23 + p_ty*p_wx
+    _tmp25 = _tmp0*_tmp24
+    _tmp26 = _tmp2 - _tmp3
+    _tmp27 = _tmp26 + _tmp5 + _tmp6 + p_ty*p_wy
+    _tmp28 = _tmp0*_tmp27
+    _tmp29 = _tmp13*_tmp25 - _tmp15 + _tmp17 + _tmp19*_tmp28 + p_ty*p_wz
+    _tmp30 = -k_cx + m_u2
+    _tmp31 = _tmp0*_tmp21
+    _tmp32 = -_tmp22 + _tmp23 + p_tx*p_wy
+    _tmp33 = _tmp0*_tmp32
+    _tmp34 = _tmp26 + _tmp4 + _tmp7 + p_tx*p_wx
+    _tmp35 = _tmp0*_tmp34
+    _tmp36 = _tmp11 + _tmp13*_tmp35 + _tmp19*_tmp33 + _tmp9 + p_tx*p_wz
+    _tmp37 = _tmp0*_tmp29
+    _tmp38 = _tmp0*_tmp36
+    _tmp52 = k_f0**(-2)
+    _tmp57 = _tmp30*_tmp52
+    _tmp59 = _tmp1*_tmp52
+    out[0] = _tmp0*_tmp1*_tmp21 - _tmp29
+    out[1] = -_tmp30*_tmp31 + _tmp36
+    out[2] = -_tmp1*_tmp38 + _tmp30*_tmp37
+    out[33] = _tmp1*_tmp12*_tmp52 - _tmp25
+    out[34] = _tmp1*_tmp18*_tmp52 - _tmp28
+    out[35] = 0.0
+    out[36] = _tmp31
+    out[37] = -_tmp12*_tmp57 + _tmp35
+    out[38] = -_tmp18*_tmp57 + _tmp33
+    out[39] = -_tmp31
+    out[40] = 0.0
+    out[41] = _tmp24*_tmp57 - _tmp34*_tmp59
+    out[42] = _tmp27*_tmp57 - _tmp32*_tmp59
+    out[43] = _tmp37
+    out[44] = -_tmp38
+
+
 def c0_general(q, k):
     """Constraints c0(q) of model 'general' and their Jacobian: shapes (5,), (5, 12)."""
     p_qw = q[2]
@@ -3791,6 +4279,80 @@ def row_measure_match__general__reduced(r, m, k, out):
     out[7] = _tmp46*(_tmp23*_tmp32 - _tmp29*_tmp37 - _tmp35*p_f1) + p_f2*(_tmp13*_tmp23 + _tmp27*_tmp29 + _tmp5*p_f1)
     out[8] = _tmp45*(_tmp23*_tmp33 + _tmp29*_tmp37 + _tmp35*p_f1) + p_f2*(-_tmp20*_tmp23 + _tmp24*_tmp29 - _tmp8*p_f1)
     out[9] = _tmp45*(-_tmp13*_tmp23 - _tmp27*_tmp29 + _tmp4*p_f1) + _tmp46*(_tmp20*_tmp23 + _tmp25*_tmp29 + _tmp8*p_f1)
+    out[10] = _tmp21*_tmp80 + _tmp34*_tmp79 + _tmp43*_tmp81
+    out[11] = _tmp28*_tmp80 + _tmp38*_tmp79 + _tmp41*_tmp81
+    out[12] = _tmp39
+    out[13] = _tmp44
+
+
+def row_values_measure_match__general__reduced(r, m, k, out):
+    """Values form of ``row_measure_match__general__reduced``: its statements that c, D need; ``out`` holds c (1,), D (1, 4) at their places in the row form's layout, the rest untouched."""
+    p_f1 = r[0]
+    p_f2 = r[1]
+    p_qw = r[2]
+    p_qx = r[3]
+    p_qy = r[4]
+    p_qz = r[5]
+    p_tx = r[6]
+    p_ty = r[7]
+    p_tz = r[8]
+    k_cx = k[0]
+    k_cy = k[1]
+    k_f0 = k[2]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 2*p_qw
+    _tmp1 = _tmp0*p_qx
+    _tmp2 = 2*p_qz
+    _tmp3 = _tmp2*p_qy
+    _tmp4 = _tmp1 - _tmp3
+    _tmp5 = -_tmp4
+    _tmp6 = _tmp0*p_qy
+    _tmp7 = _tmp2*p_qx
+    _tmp8 = _tmp6 + _tmp7
+    _tmp9 = _tmp5*p_tx - _tmp8*p_ty
+    _tmp10 = _tmp0*p_qz
+    _tmp11 = 2*p_qx
+    _tmp12 = _tmp11*p_qy
+    _tmp13 = _tmp10 + _tmp12
+    _tmp14 = p_qx**2
+    _tmp15 = p_qy**2
+    _tmp16 = -_tmp15
+    _tmp17 = p_qw**2
+    _tmp18 = p_qz**2
+    _tmp19 = _tmp17 - _tmp18
+    _tmp20 = _tmp14 + _tmp16 + _tmp19
+    _tmp21 = _tmp13*p_tx - _tmp20*p_ty
+    _tmp22 = 1/k_f0
+    _tmp23 = _tmp22*(-k_cx + m_u)
+    _tmp24 = _tmp10 - _tmp12
+    _tmp25 = -_tmp24
+    _tmp26 = -_tmp14
+    _tmp27 = _tmp15 + _tmp19 + _tmp26
+    _tmp28 = -_tmp25*p_ty + _tmp27*p_tx
+    _tmp29 = _tmp22*(-k_cy + m_v)
+    _tmp30 = _tmp21*_tmp23 + _tmp28*_tmp29 + _tmp9*p_f1
+    _tmp31 = -k_cx + m_u2
+    _tmp32 = _tmp6 - _tmp7
+    _tmp33 = -_tmp32
+    _tmp34 = -_tmp13*p_tz + _tmp33*p_ty
+    _tmp35 = _tmp16 + _tmp17 + _tmp18 + _tmp26
+    _tmp36 = _tmp35*p_ty - _tmp5*p_tz
+    _tmp37 = _tmp1 + _tmp3
+    _tmp38 = -_tmp27*p_tz + _tmp37*p_ty
+    _tmp39 = _tmp22*(_tmp23*_tmp34 + _tmp29*_tmp38 + _tmp36*p_f1)
+    _tmp40 = -k_cy + m_v2
+    _tmp41 = _tmp25*p_tz - _tmp37*p_tx
+    _tmp42 = -_tmp35*p_tx + _tmp8*p_tz
+    _tmp43 = _tmp20*p_tz - _tmp33*p_tx
+    _tmp44 = _tmp22*(_tmp23*_tmp43 + _tmp29*_tmp41 + _tmp42*p_f1)
+    _tmp78 = k_f0**(-2)
+    _tmp79 = _tmp31*_tmp78
+    _tmp80 = _tmp22*p_f2
+    _tmp81 = _tmp40*_tmp78
+    out[0] = _tmp30*p_f2 + _tmp31*_tmp39 + _tmp40*_tmp44
     out[10] = _tmp21*_tmp80 + _tmp34*_tmp79 + _tmp43*_tmp81
     out[11] = _tmp28*_tmp80 + _tmp38*_tmp79 + _tmp41*_tmp81
     out[12] = _tmp39
@@ -4598,6 +5160,20 @@ ROWS = {
     "c0_general": row_c0_general,
     "c0_general__reduced": row_c0_general__reduced,
     "measure_match__general__reduced": row_measure_match__general__reduced,
+}
+#: The values forms of the measurement functions' row forms (their ``c`` and ``D`` at the
+#: same places, nothing else: runtime/engine/rows.py), by the name of the function.
+VALUES = {
+    "measure_match__none": row_values_measure_match__none,
+    "measure_match__none__reduced": row_values_measure_match__none__reduced,
+    "measure_match__zoom__reduced": row_values_measure_match__zoom__reduced,
+    "measure_match__rotation__reduced": row_values_measure_match__rotation__reduced,
+    "measure_match": row_values_measure_match,
+    "measure_match__retinal_translation__reduced": row_values_measure_match__retinal_translation__reduced,
+    "measure_match__retinal_displacement__reduced": row_values_measure_match__retinal_displacement__reduced,
+    "measure_match__translation__reduced": row_values_measure_match__translation__reduced,
+    "measure_match__planar__reduced": row_values_measure_match__planar__reduced,
+    "measure_match__general__reduced": row_values_measure_match__general__reduced,
 }
 #: The measurement functions whose equations are linear in the parameter (their Jacobian
 #: ``C`` free of it): the profile's exact Hessian takes no differences along the parameter

@@ -6,7 +6,7 @@ Model family "two_view_calibrated": equations, their Jacobians and their row for
 
 import numpy as np
 
-FORMAT = 3
+FORMAT = 4
 SPEC_SOURCE = "two_view_calibrated.yaml"
 SPEC_SHA256 = "3a31b6b393e236cafbbd9122303651b5397b5f7692be36ee4e84520b2d479016"
 FAMILY = {'name': 'two_view_calibrated',
@@ -747,6 +747,88 @@ def row_measure_match__none(q, m, k, out):
     out[44] = -_tmp38
 
 
+def row_values_measure_match__none(q, m, k, out):
+    """Values form of ``row_measure_match__none``: its statements that c, D need; ``out`` holds c (3,), D (3, 4) at their places in the row form's layout, the rest untouched."""
+    p_qw = q[0]
+    p_qx = q[1]
+    p_qy = q[2]
+    p_qz = q[3]
+    p_tx = q[4]
+    p_ty = q[5]
+    p_tz = q[6]
+    p_wx = q[7]
+    p_wy = q[8]
+    p_wz = q[9]
+    k_fx1 = k[0]
+    k_fy1 = k[1]
+    k_cx1 = k[2]
+    k_cy1 = k[3]
+    k_fx2 = k[4]
+    k_fy2 = k[5]
+    k_cx2 = k[6]
+    k_cy2 = k[7]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 1/k_fy2
+    _tmp1 = -k_cy2 + m_v2
+    _tmp2 = p_qw**2
+    _tmp3 = p_qz**2
+    _tmp4 = p_qx**2
+    _tmp5 = -_tmp4
+    _tmp6 = p_qy**2
+    _tmp7 = -_tmp6
+    _tmp8 = 2*p_qw
+    _tmp9 = _tmp8*p_qy
+    _tmp10 = 2*p_qx
+    _tmp11 = _tmp10*p_qz
+    _tmp12 = _tmp11 - _tmp9 + p_tz*p_wx
+    _tmp13 = 1/k_fx1
+    _tmp14 = -k_cx1 + m_u
+    _tmp15 = _tmp13*_tmp14
+    _tmp16 = _tmp10*p_qw
+    _tmp17 = 2*p_qz
+    _tmp18 = _tmp17*p_qy
+    _tmp19 = _tmp16 + _tmp18 + p_tz*p_wy
+    _tmp20 = 1/k_fy1
+    _tmp21 = -k_cy1 + m_v
+    _tmp22 = _tmp20*_tmp21
+    _tmp23 = _tmp12*_tmp15 + _tmp19*_tmp22 + _tmp2 + _tmp3 + _tmp5 + _tmp7 + p_tz*p_wz
+    _tmp24 = _tmp8*p_qz
+    _tmp25 = _tmp10*p_qy
+    _tmp26 = _tmp24 + _tmp25 + p_ty*p_wx
+    _tmp27 = _tmp13*_tmp26
+    _tmp28 = _tmp2 - _tmp3
+    _tmp29 = _tmp28 + _tmp5 + _tmp6 + p_ty*p_wy
+    _tmp30 = _tmp20*_tmp29
+    _tmp31 = _tmp14*_tmp27 - _tmp16 + _tmp18 + _tmp21*_tmp30 + p_ty*p_wz
+    _tmp32 = -k_cx2 + m_u2
+    _tmp33 = 1/k_fx2
+    _tmp34 = _tmp23*_tmp33
+    _tmp35 = _tmp20*(-_tmp24 + _tmp25 + p_tx*p_wy)
+    _tmp36 = _tmp13*(_tmp28 + _tmp4 + _tmp7 + p_tx*p_wx)
+    _tmp37 = _tmp11 + _tmp14*_tmp36 + _tmp21*_tmp35 + _tmp9 + p_tx*p_wz
+    _tmp38 = _tmp0*_tmp37
+    _tmp43 = _tmp0*_tmp1
+    _tmp52 = _tmp32*_tmp33
+    out[0] = _tmp0*_tmp1*_tmp23 - _tmp31
+    out[1] = -_tmp32*_tmp34 + _tmp37
+    out[2] = -_tmp1*_tmp38 + _tmp31*_tmp32*_tmp33
+    out[33] = _tmp0*_tmp1*_tmp12*_tmp13 - _tmp27
+    out[34] = _tmp0*_tmp1*_tmp19*_tmp20 - _tmp30
+    out[35] = 0.0
+    out[36] = _tmp0*_tmp23
+    out[37] = -_tmp12*_tmp13*_tmp52 + _tmp36
+    out[38] = -_tmp19*_tmp20*_tmp52 + _tmp35
+    out[39] = -_tmp34
+    out[40] = 0.0
+    out[41] = _tmp13*_tmp26*_tmp32*_tmp33 - _tmp36*_tmp43
+    out[42] = _tmp20*_tmp29*_tmp32*_tmp33 - _tmp35*_tmp43
+    out[43] = _tmp31*_tmp33
+    out[44] = -_tmp38
+
+
 def c0_none__reduced(r, k):
     """Remaining constraints c0(r) of model 'none' and their Jacobian: shapes (1,), (1, 1)."""
     p_qw = r[0]
@@ -863,6 +945,54 @@ def row_measure_match__none__reduced(r, m, k, out):
     out[3] = -_tmp17 + _tmp18
     out[4] = 2*_tmp12*_tmp13*p_qw - _tmp14*_tmp16
     out[5] = _tmp14*_tmp17 - _tmp15*_tmp18
+    out[6] = 0.0
+    out[7] = -_tmp7
+    out[8] = 0.0
+    out[9] = _tmp3
+    out[10] = _tmp12*_tmp2
+    out[11] = 0.0
+    out[12] = -_tmp11
+    out[13] = 0.0
+    out[14] = -_tmp12*_tmp4
+    out[15] = _tmp14*_tmp7
+    out[16] = _tmp10*_tmp8
+    out[17] = -_tmp15*_tmp3
+
+
+def row_values_measure_match__none__reduced(r, m, k, out):
+    """Values form of ``row_measure_match__none__reduced``: its statements that c, D need; ``out`` holds c (3,), D (3, 4) at their places in the row form's layout, the rest untouched."""
+    p_qw = r[0]
+    k_fx1 = k[0]
+    k_fy1 = k[1]
+    k_cx1 = k[2]
+    k_cy1 = k[3]
+    k_fx2 = k[4]
+    k_fy2 = k[5]
+    k_cx2 = k[6]
+    k_cy2 = k[7]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = -k_cy2 + m_v2
+    _tmp1 = 1/k_fy2
+    _tmp2 = p_qw**2
+    _tmp3 = _tmp1*_tmp2
+    _tmp4 = _tmp0*_tmp3
+    _tmp5 = -k_cy1 + m_v
+    _tmp6 = 1/k_fy1
+    _tmp7 = _tmp2*_tmp6
+    _tmp8 = _tmp5*_tmp7
+    _tmp9 = -k_cx2 + m_u2
+    _tmp10 = 1/k_fx2
+    _tmp11 = _tmp10*_tmp2
+    _tmp12 = 1/k_fx1
+    _tmp13 = -k_cx1 + m_u
+    _tmp14 = _tmp10*_tmp9
+    _tmp15 = _tmp12*_tmp13
+    out[0] = _tmp4 - _tmp8
+    out[1] = -_tmp11*_tmp9 + _tmp12*_tmp13*_tmp2
+    out[2] = _tmp14*_tmp8 - _tmp15*_tmp4
     out[6] = 0.0
     out[7] = -_tmp7
     out[8] = 0.0
@@ -1221,6 +1351,80 @@ def row_measure_match__rotation__reduced(r, m, k, out):
     out[12] = -_tmp30*_tmp31*_tmp40 - _tmp47
     out[13] = -_tmp42 + _tmp50
     out[14] = _tmp30*_tmp31*_tmp44 + _tmp41*_tmp43
+    out[15] = _tmp0*_tmp1*_tmp10*_tmp11 - _tmp25
+    out[16] = _tmp0*_tmp1*_tmp18*_tmp19 - _tmp28
+    out[17] = 0.0
+    out[18] = _tmp0*_tmp22
+    out[19] = -_tmp10*_tmp11*_tmp48 + _tmp34
+    out[20] = -_tmp18*_tmp19*_tmp48 + _tmp33
+    out[21] = -_tmp32
+    out[22] = 0.0
+    out[23] = _tmp11*_tmp24*_tmp30*_tmp31 - _tmp34*_tmp41
+    out[24] = _tmp19*_tmp27*_tmp30*_tmp31 - _tmp33*_tmp41
+    out[25] = _tmp29*_tmp31
+    out[26] = -_tmp36
+
+
+def row_values_measure_match__rotation__reduced(r, m, k, out):
+    """Values form of ``row_measure_match__rotation__reduced``: its statements that c, D need; ``out`` holds c (3,), D (3, 4) at their places in the row form's layout, the rest untouched."""
+    p_qw = r[0]
+    p_qx = r[1]
+    p_qy = r[2]
+    p_qz = r[3]
+    k_fx1 = k[0]
+    k_fy1 = k[1]
+    k_cx1 = k[2]
+    k_cy1 = k[3]
+    k_fx2 = k[4]
+    k_fy2 = k[5]
+    k_cx2 = k[6]
+    k_cy2 = k[7]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 1/k_fy2
+    _tmp1 = -k_cy2 + m_v2
+    _tmp2 = p_qw**2
+    _tmp3 = p_qz**2
+    _tmp4 = p_qx**2
+    _tmp5 = -_tmp4
+    _tmp6 = p_qy**2
+    _tmp7 = -_tmp6
+    _tmp8 = 2*p_qw
+    _tmp9 = _tmp8*p_qy
+    _tmp10 = -_tmp9 + 2*p_qx*p_qz
+    _tmp11 = 1/k_fx1
+    _tmp12 = -k_cx1 + m_u
+    _tmp13 = _tmp11*_tmp12
+    _tmp14 = 2*p_qx
+    _tmp15 = _tmp14*p_qw
+    _tmp16 = 2*p_qz
+    _tmp17 = _tmp16*p_qy
+    _tmp18 = _tmp15 + _tmp17
+    _tmp19 = 1/k_fy1
+    _tmp20 = -k_cy1 + m_v
+    _tmp21 = _tmp19*_tmp20
+    _tmp22 = _tmp10*_tmp13 + _tmp18*_tmp21 + _tmp2 + _tmp3 + _tmp5 + _tmp7
+    _tmp23 = _tmp8*p_qz
+    _tmp24 = _tmp14*p_qy + _tmp23
+    _tmp25 = _tmp11*_tmp24
+    _tmp26 = _tmp2 - _tmp3
+    _tmp27 = _tmp26 + _tmp5 + _tmp6
+    _tmp28 = _tmp19*_tmp27
+    _tmp29 = _tmp12*_tmp25 - _tmp15 + _tmp17 + _tmp20*_tmp28
+    _tmp30 = -k_cx2 + m_u2
+    _tmp31 = 1/k_fx2
+    _tmp32 = _tmp22*_tmp31
+    _tmp33 = _tmp19*(-_tmp23 + 2*p_qx*p_qy)
+    _tmp34 = _tmp11*(_tmp26 + _tmp4 + _tmp7)
+    _tmp35 = _tmp12*_tmp34 + _tmp14*p_qz + _tmp20*_tmp33 + _tmp9
+    _tmp36 = _tmp0*_tmp35
+    _tmp41 = _tmp0*_tmp1
+    _tmp48 = _tmp30*_tmp31
+    out[0] = _tmp0*_tmp1*_tmp22 - _tmp29
+    out[1] = -_tmp30*_tmp32 + _tmp35
+    out[2] = -_tmp1*_tmp36 + _tmp29*_tmp30*_tmp31
     out[15] = _tmp0*_tmp1*_tmp10*_tmp11 - _tmp25
     out[16] = _tmp0*_tmp1*_tmp18*_tmp19 - _tmp28
     out[17] = 0.0
@@ -1634,6 +1838,84 @@ def row_measure_match(q, m, k, out):
     out[14] = _tmp47
 
 
+def row_values_measure_match(q, m, k, out):
+    """Values form of ``row_measure_match``: its statements that c, D need; ``out`` holds c (1,), D (1, 4) at their places in the row form's layout, the rest untouched."""
+    p_qw = q[0]
+    p_qx = q[1]
+    p_qy = q[2]
+    p_qz = q[3]
+    p_tx = q[4]
+    p_ty = q[5]
+    p_tz = q[6]
+    k_fx1 = k[0]
+    k_fy1 = k[1]
+    k_cx1 = k[2]
+    k_cy1 = k[3]
+    k_fx2 = k[4]
+    k_fy2 = k[5]
+    k_cx2 = k[6]
+    k_cy2 = k[7]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 2*p_qw
+    _tmp1 = _tmp0*p_qx
+    _tmp2 = 2*p_qz
+    _tmp3 = _tmp2*p_qy
+    _tmp4 = _tmp1 - _tmp3
+    _tmp5 = -_tmp4
+    _tmp6 = _tmp0*p_qy
+    _tmp7 = _tmp2*p_qx
+    _tmp8 = _tmp6 + _tmp7
+    _tmp9 = -k_cx1 + m_u
+    _tmp10 = 1/k_fx1
+    _tmp11 = _tmp0*p_qz
+    _tmp12 = 2*p_qx
+    _tmp13 = _tmp12*p_qy
+    _tmp14 = _tmp11 + _tmp13
+    _tmp15 = p_qw**2
+    _tmp16 = p_qy**2
+    _tmp17 = _tmp15 - _tmp16
+    _tmp18 = p_qx**2
+    _tmp19 = p_qz**2
+    _tmp20 = -_tmp19
+    _tmp21 = _tmp18 + _tmp20
+    _tmp22 = _tmp17 + _tmp21
+    _tmp23 = _tmp10*(_tmp14*p_tx - _tmp22*p_ty)
+    _tmp24 = -k_cy1 + m_v
+    _tmp25 = 1/k_fy1
+    _tmp26 = _tmp11 - _tmp13
+    _tmp27 = -_tmp26
+    _tmp28 = -_tmp18
+    _tmp29 = _tmp15 + _tmp16 + _tmp20 + _tmp28
+    _tmp30 = _tmp25*(-_tmp27*p_ty + _tmp29*p_tx)
+    _tmp31 = -k_cx2 + m_u2
+    _tmp32 = 1/k_fx2
+    _tmp33 = _tmp17 + _tmp19 + _tmp28
+    _tmp34 = -_tmp7
+    _tmp35 = _tmp34 + _tmp6
+    _tmp36 = -_tmp35
+    _tmp37 = -_tmp14*p_tz + _tmp36*p_ty
+    _tmp38 = _tmp10*_tmp9
+    _tmp39 = _tmp1 + _tmp3
+    _tmp40 = -_tmp29*p_tz + _tmp39*p_ty
+    _tmp41 = _tmp24*_tmp25
+    _tmp42 = _tmp32*(_tmp33*p_ty + _tmp37*_tmp38 + _tmp40*_tmp41 - _tmp5*p_tz)
+    _tmp43 = -k_cy2 + m_v2
+    _tmp44 = 1/k_fy2
+    _tmp45 = _tmp27*p_tz - _tmp39*p_tx
+    _tmp46 = _tmp22*p_tz - _tmp36*p_tx
+    _tmp47 = _tmp44*(-_tmp33*p_tx + _tmp38*_tmp46 + _tmp41*_tmp45 + _tmp8*p_tz)
+    _tmp67 = _tmp31*_tmp32
+    _tmp74 = _tmp43*_tmp44
+    out[0] = _tmp23*_tmp9 + _tmp24*_tmp30 + _tmp31*_tmp42 + _tmp43*_tmp47 + _tmp5*p_tx - _tmp8*p_ty
+    out[11] = _tmp10*_tmp37*_tmp67 + _tmp10*_tmp46*_tmp74 + _tmp23
+    out[12] = _tmp25*_tmp40*_tmp67 + _tmp25*_tmp45*_tmp74 + _tmp30
+    out[13] = _tmp42
+    out[14] = _tmp47
+
+
 def c0_retinal_translation__reduced(r, k):
     """Remaining constraints c0(r) of model 'retinal_translation' and their Jacobian: shapes (2,), (2, 3)."""
     p_qw = r[0]
@@ -1751,6 +2033,44 @@ def row_measure_match__retinal_translation__reduced(r, m, k, out):
     out[1] = -_tmp0*_tmp13*_tmp2*p_ty + 2*_tmp10*_tmp9*p_qw*p_ty + 2*_tmp11*_tmp12*p_qw*p_tx - _tmp13*_tmp5*_tmp6*p_tx
     out[2] = _tmp1*_tmp11*_tmp12 - _tmp8
     out[3] = _tmp10*_tmp14 - _tmp4
+    out[4] = -_tmp3*p_ty
+    out[5] = _tmp1*_tmp11*p_tx
+    out[6] = _tmp14*p_ty
+    out[7] = -_tmp7*p_tx
+
+
+def row_values_measure_match__retinal_translation__reduced(r, m, k, out):
+    """Values form of ``row_measure_match__retinal_translation__reduced``: its statements that c, D need; ``out`` holds c (1,), D (1, 4) at their places in the row form's layout, the rest untouched."""
+    p_qw = r[0]
+    p_tx = r[1]
+    p_ty = r[2]
+    k_fx1 = k[0]
+    k_fy1 = k[1]
+    k_cx1 = k[2]
+    k_cy1 = k[3]
+    k_fx2 = k[4]
+    k_fy2 = k[5]
+    k_cx2 = k[6]
+    k_cy2 = k[7]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = -k_cx1 + m_u
+    _tmp1 = p_qw**2
+    _tmp2 = 1/k_fx1
+    _tmp3 = _tmp1*_tmp2
+    _tmp4 = _tmp0*_tmp3
+    _tmp5 = -k_cy2 + m_v2
+    _tmp6 = 1/k_fy2
+    _tmp7 = _tmp1*_tmp6
+    _tmp8 = _tmp5*_tmp7
+    _tmp9 = 1/k_fx2
+    _tmp10 = -k_cx2 + m_u2
+    _tmp11 = 1/k_fy1
+    _tmp12 = -k_cy1 + m_v
+    _tmp14 = _tmp1*_tmp9
+    out[0] = _tmp1*_tmp10*_tmp9*p_ty + _tmp1*_tmp11*_tmp12*p_tx - _tmp4*p_ty - _tmp8*p_tx
     out[4] = -_tmp3*p_ty
     out[5] = _tmp1*_tmp11*p_tx
     out[6] = _tmp14*p_ty
@@ -2038,6 +2358,49 @@ def row_measure_match__translation__reduced(r, m, k, out):
     out[2] = _tmp0*_tmp2*_tmp3 - _tmp0*_tmp20
     out[3] = -_tmp0*_tmp8 + _tmp21
     out[4] = _tmp0*_tmp13*_tmp14*_tmp6*_tmp7 - _tmp11*_tmp19
+    out[5] = _tmp0*_tmp13*_tmp14*_tmp6*p_tz - _tmp5*_tmp6
+    out[6] = _tmp1*_tmp2 - _tmp2*_tmp21*p_tz
+    out[7] = _tmp12
+    out[8] = _tmp15
+
+
+def row_values_measure_match__translation__reduced(r, m, k, out):
+    """Values form of ``row_measure_match__translation__reduced``: its statements that c, D need; ``out`` holds c (1,), D (1, 4) at their places in the row form's layout, the rest untouched."""
+    p_qw = r[0]
+    p_tx = r[1]
+    p_ty = r[2]
+    p_tz = r[3]
+    k_fx1 = k[0]
+    k_fy1 = k[1]
+    k_cx1 = k[2]
+    k_cy1 = k[3]
+    k_fx2 = k[4]
+    k_fy2 = k[5]
+    k_cx2 = k[6]
+    k_cy2 = k[7]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = p_qw**2
+    _tmp1 = _tmp0*p_tx
+    _tmp2 = 1/k_fy1
+    _tmp3 = -k_cy1 + m_v
+    _tmp4 = _tmp2*_tmp3
+    _tmp5 = _tmp0*p_ty
+    _tmp6 = 1/k_fx1
+    _tmp7 = -k_cx1 + m_u
+    _tmp8 = _tmp6*_tmp7
+    _tmp9 = -k_cx2 + m_u2
+    _tmp10 = 1/k_fx2
+    _tmp11 = _tmp0*_tmp4
+    _tmp12 = _tmp10*(-_tmp11*p_tz + _tmp5)
+    _tmp13 = -k_cy2 + m_v2
+    _tmp14 = 1/k_fy2
+    _tmp15 = _tmp14*(_tmp0*_tmp6*_tmp7*p_tz - _tmp1)
+    _tmp19 = _tmp10*_tmp9
+    _tmp21 = _tmp0*_tmp19
+    out[0] = _tmp1*_tmp4 + _tmp12*_tmp9 + _tmp13*_tmp15 - _tmp5*_tmp8
     out[5] = _tmp0*_tmp13*_tmp14*_tmp6*p_tz - _tmp5*_tmp6
     out[6] = _tmp1*_tmp2 - _tmp2*_tmp21*p_tz
     out[7] = _tmp12
@@ -2341,6 +2704,52 @@ def row_measure_match__retinal_displacement__reduced(r, m, k, out):
     out[2] = _tmp21*_tmp26 - _tmp22*_tmp25*p_tx + _tmp23*_tmp28 + _tmp24*_tmp27
     out[3] = -_tmp10 + _tmp15*_tmp28 + _tmp24*_tmp29
     out[4] = -_tmp15*_tmp24 + _tmp28*_tmp29 + _tmp6
+    out[5] = _tmp20
+    out[6] = _tmp16
+    out[7] = _tmp5*p_ty
+    out[8] = -_tmp9*p_tx
+
+
+def row_values_measure_match__retinal_displacement__reduced(r, m, k, out):
+    """Values form of ``row_measure_match__retinal_displacement__reduced``: its statements that c, D need; ``out`` holds c (1,), D (1, 4) at their places in the row form's layout, the rest untouched."""
+    p_qw = r[0]
+    p_qz = r[1]
+    p_tx = r[2]
+    p_ty = r[3]
+    k_fx1 = k[0]
+    k_fy1 = k[1]
+    k_cx1 = k[2]
+    k_cy1 = k[3]
+    k_fx2 = k[4]
+    k_fy2 = k[5]
+    k_cx2 = k[6]
+    k_cy2 = k[7]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = -k_cx2 + m_u2
+    _tmp1 = p_qw**2
+    _tmp2 = p_qz**2
+    _tmp3 = _tmp1 + _tmp2
+    _tmp4 = 1/k_fx2
+    _tmp5 = _tmp3*_tmp4
+    _tmp6 = _tmp0*_tmp5
+    _tmp7 = -k_cy2 + m_v2
+    _tmp8 = 1/k_fy2
+    _tmp9 = _tmp3*_tmp8
+    _tmp10 = _tmp7*_tmp9
+    _tmp11 = -k_cy1 + m_v
+    _tmp12 = 1/k_fy1
+    _tmp13 = 2*p_qw
+    _tmp14 = _tmp13*p_ty
+    _tmp15 = _tmp1 - _tmp2
+    _tmp16 = _tmp12*(_tmp14*p_qz + _tmp15*p_tx)
+    _tmp17 = -k_cx1 + m_u
+    _tmp18 = 1/k_fx1
+    _tmp19 = _tmp13*p_tx
+    _tmp20 = _tmp18*(-_tmp15*p_ty + _tmp19*p_qz)
+    out[0] = -_tmp10*p_tx + _tmp11*_tmp16 + _tmp17*_tmp20 + _tmp6*p_ty
     out[5] = _tmp20
     out[6] = _tmp16
     out[7] = _tmp5*p_ty
@@ -2793,6 +3202,84 @@ def row_measure_match__general__reduced(r, m, k, out):
     out[5] = -_tmp1 + _tmp14*_tmp38 + _tmp29*_tmp41 + _tmp3 + _tmp74*(-_tmp15 + _tmp16 + _tmp21 + _tmp35*_tmp38 - _tmp39*_tmp41)
     out[6] = -_tmp22*_tmp38 + _tmp26*_tmp41 + _tmp34 - _tmp6 + _tmp67*(_tmp33 + _tmp36*_tmp38 + _tmp39*_tmp41)
     out[7] = _tmp67*(-_tmp14*_tmp38 - _tmp29*_tmp41 + _tmp4) + _tmp74*(_tmp22*_tmp38 + _tmp27*_tmp41 + _tmp8)
+    out[8] = _tmp10*_tmp37*_tmp67 + _tmp10*_tmp46*_tmp74 + _tmp23
+    out[9] = _tmp25*_tmp40*_tmp67 + _tmp25*_tmp45*_tmp74 + _tmp30
+    out[10] = _tmp42
+    out[11] = _tmp47
+
+
+def row_values_measure_match__general__reduced(r, m, k, out):
+    """Values form of ``row_measure_match__general__reduced``: its statements that c, D need; ``out`` holds c (1,), D (1, 4) at their places in the row form's layout, the rest untouched."""
+    p_qw = r[0]
+    p_qx = r[1]
+    p_qy = r[2]
+    p_qz = r[3]
+    p_tx = r[4]
+    p_ty = r[5]
+    p_tz = r[6]
+    k_fx1 = k[0]
+    k_fy1 = k[1]
+    k_cx1 = k[2]
+    k_cy1 = k[3]
+    k_fx2 = k[4]
+    k_fy2 = k[5]
+    k_cx2 = k[6]
+    k_cy2 = k[7]
+    m_u = m[0]
+    m_v = m[1]
+    m_u2 = m[2]
+    m_v2 = m[3]
+    _tmp0 = 2*p_qw
+    _tmp1 = _tmp0*p_qx
+    _tmp2 = 2*p_qz
+    _tmp3 = _tmp2*p_qy
+    _tmp4 = _tmp1 - _tmp3
+    _tmp5 = -_tmp4
+    _tmp6 = _tmp0*p_qy
+    _tmp7 = _tmp2*p_qx
+    _tmp8 = _tmp6 + _tmp7
+    _tmp9 = -k_cx1 + m_u
+    _tmp10 = 1/k_fx1
+    _tmp11 = _tmp0*p_qz
+    _tmp12 = 2*p_qx
+    _tmp13 = _tmp12*p_qy
+    _tmp14 = _tmp11 + _tmp13
+    _tmp15 = p_qw**2
+    _tmp16 = p_qy**2
+    _tmp17 = _tmp15 - _tmp16
+    _tmp18 = p_qx**2
+    _tmp19 = p_qz**2
+    _tmp20 = -_tmp19
+    _tmp21 = _tmp18 + _tmp20
+    _tmp22 = _tmp17 + _tmp21
+    _tmp23 = _tmp10*(_tmp14*p_tx - _tmp22*p_ty)
+    _tmp24 = -k_cy1 + m_v
+    _tmp25 = 1/k_fy1
+    _tmp26 = _tmp11 - _tmp13
+    _tmp27 = -_tmp26
+    _tmp28 = -_tmp18
+    _tmp29 = _tmp15 + _tmp16 + _tmp20 + _tmp28
+    _tmp30 = _tmp25*(-_tmp27*p_ty + _tmp29*p_tx)
+    _tmp31 = -k_cx2 + m_u2
+    _tmp32 = 1/k_fx2
+    _tmp33 = _tmp17 + _tmp19 + _tmp28
+    _tmp34 = -_tmp7
+    _tmp35 = _tmp34 + _tmp6
+    _tmp36 = -_tmp35
+    _tmp37 = -_tmp14*p_tz + _tmp36*p_ty
+    _tmp38 = _tmp10*_tmp9
+    _tmp39 = _tmp1 + _tmp3
+    _tmp40 = -_tmp29*p_tz + _tmp39*p_ty
+    _tmp41 = _tmp24*_tmp25
+    _tmp42 = _tmp32*(_tmp33*p_ty + _tmp37*_tmp38 + _tmp40*_tmp41 - _tmp5*p_tz)
+    _tmp43 = -k_cy2 + m_v2
+    _tmp44 = 1/k_fy2
+    _tmp45 = _tmp27*p_tz - _tmp39*p_tx
+    _tmp46 = _tmp22*p_tz - _tmp36*p_tx
+    _tmp47 = _tmp44*(-_tmp33*p_tx + _tmp38*_tmp46 + _tmp41*_tmp45 + _tmp8*p_tz)
+    _tmp67 = _tmp31*_tmp32
+    _tmp74 = _tmp43*_tmp44
+    out[0] = _tmp23*_tmp9 + _tmp24*_tmp30 + _tmp31*_tmp42 + _tmp43*_tmp47 + _tmp5*p_tx - _tmp8*p_ty
     out[8] = _tmp10*_tmp37*_tmp67 + _tmp10*_tmp46*_tmp74 + _tmp23
     out[9] = _tmp25*_tmp40*_tmp67 + _tmp25*_tmp45*_tmp74 + _tmp30
     out[10] = _tmp42
@@ -3627,6 +4114,18 @@ ROWS = {
     "c0_general": row_c0_general,
     "c0_general__reduced": row_c0_general__reduced,
     "measure_match__general__reduced": row_measure_match__general__reduced,
+}
+#: The values forms of the measurement functions' row forms (their ``c`` and ``D`` at the
+#: same places, nothing else: runtime/engine/rows.py), by the name of the function.
+VALUES = {
+    "measure_match__none": row_values_measure_match__none,
+    "measure_match__none__reduced": row_values_measure_match__none__reduced,
+    "measure_match__rotation__reduced": row_values_measure_match__rotation__reduced,
+    "measure_match": row_values_measure_match,
+    "measure_match__retinal_translation__reduced": row_values_measure_match__retinal_translation__reduced,
+    "measure_match__translation__reduced": row_values_measure_match__translation__reduced,
+    "measure_match__retinal_displacement__reduced": row_values_measure_match__retinal_displacement__reduced,
+    "measure_match__general__reduced": row_values_measure_match__general__reduced,
 }
 #: The measurement functions whose equations are linear in the parameter (their Jacobian
 #: ``C`` free of it): the profile's exact Hessian takes no differences along the parameter

@@ -8,7 +8,7 @@ channel) and the derived quantities, with their Jacobians. Load it with
 
 import casadi as ca
 
-FORMAT = 3
+FORMAT = 4
 BACKEND = "casadi"
 SPEC_SOURCE = "two_view_calibrated.yaml"
 SPEC_SHA256 = "3a31b6b393e236cafbbd9122303651b5397b5f7692be36ee4e84520b2d479016"

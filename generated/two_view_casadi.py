@@ -8,7 +8,7 @@ channel) and the derived quantities, with their Jacobians. Load it with
 
 import casadi as ca
 
-FORMAT = 3
+FORMAT = 4
 BACKEND = "casadi"
 SPEC_SOURCE = "two_view.yaml"
 SPEC_SHA256 = "0c6228e18bb92e65daf1155cc3b3565e7f8744b10061497f0591c5f01f762998"

@@ -147,6 +147,54 @@ def test_the_engines_per_measure_algebra_equals_the_reference(p, k):
     assert ref_kept[7].sum() == min(p - 1, k) if p > 1 else True
 
 
+def _measure_functions(module):
+    """Every measurement function of a generated module's models (and reduced forms) with
+    its parameter's size and its channel's data width."""
+    for entry in module.MODELS.values():
+        for table in (entry, entry.get("reduced")):
+            if table is None:
+                continue
+            n = np.asarray(table["c0"](np.zeros(64), np.ones(64))[1]).shape[1]
+            for name, function in table["channels"].items():
+                yield function, n, len(module.FAMILY["channels"][name]["components"])
+
+
+@pytest.mark.parametrize("spec", SPECS, ids=lambda p: p.name)
+def test_row_forms_are_the_functions_and_values_forms_their_c_and_d(spec):
+    """A measurement function's row form (one measure, every entry written: the engine's)
+    gives the vectorised function's ``c, C, D``; its values form (``VALUES``: the row form's
+    statements that ``c`` and ``D`` need) the row form's ``c`` and ``D`` bit for bit, at
+    the same places, and writes nothing else."""
+    import importlib
+
+    module = importlib.import_module(f"kanagen.generated.{spec.stem}")
+    rng = np.random.default_rng(7)
+    k = rng.uniform(0.5, 2.0, size=len(module.FAMILY["constants"]))
+    seen = set()
+    for function, n, width in _measure_functions(module):
+        name = function.__name__
+        row, values = module.ROWS[name], module.VALUES[name]
+        q = rng.normal(size=n)
+        m = rng.normal(size=(5, width))
+        c, C, D = function(q, m, k)
+        p, d = c.shape[1], D.shape[2]
+        size = p + p * n + p * d
+        for i in range(m.shape[0]):
+            full, part = np.full(size, np.nan), np.full(size, np.nan)
+            row(q, m[i], k, full)
+            values(q, m[i], k, part)
+            np.testing.assert_allclose(full[:p], c[i], rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(full[p:p + p * n].reshape(p, n), C[i], rtol=1e-12,
+                                       atol=1e-12)
+            np.testing.assert_allclose(full[p + p * n:].reshape(p, d), D[i], rtol=1e-12,
+                                       atol=1e-12)
+            written = np.r_[np.arange(p), np.arange(p + p * n, size)]
+            np.testing.assert_array_equal(part[written], full[written])
+            assert np.isnan(np.delete(part, written)).all()
+        seen.add(name)
+    assert seen == set(module.VALUES)
+
+
 def test_render_depends_only_on_spec(tmp_path):
     text = (ROOT / "examples" / "line.yaml").read_text()
     copy = tmp_path / "line.yaml"

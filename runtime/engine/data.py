@@ -27,9 +27,10 @@ _SCHEMA = (
     ("c0_addr", "i"), ("r", "i"),  # the parameter constraints' kernel and their number
     # per measure: channel, data row, observed values, metric and its inverse root
     ("chan", "i1"), ("X", "f2"), ("m", "f2"), ("Q", "f3"), ("G", "f3"),
-    # per channel: corrected columns, equations, corrected count, data width, row kernel,
-    # equations linear in the parameter (1: their Jacobian C free of it)
-    ("col", "i2"), ("P", "i1"), ("Dn", "i1"), ("W", "i1"), ("meas_addr", "i1"), ("linear", "i1"),
+    # per channel: corrected columns, equations, corrected count, data width, row kernel and
+    # its values form (c and D only), equations linear in the parameter (1: C free of it)
+    ("col", "i2"), ("P", "i1"), ("Dn", "i1"), ("W", "i1"), ("meas_addr", "i1"),
+    ("vals_addr", "i1"), ("linear", "i1"),
     ("scale", "f1"), ("size", "i1"), ("start", "i1"),
     # inequality relations (appendix F), strict relations' slacks (component, power)
     ("slack_addr", "i"), ("kinds", "i1"), ("clauses", "b2"), ("T", "f2"), ("t", "f1"),
@@ -93,8 +94,9 @@ else:  # interpreted: a plain record
     Arrays = namedtuple("Arrays", _FIELDS)
 
 
-def _row_address(module, function, arity: int) -> int:
-    rows = getattr(module, "ROWS", None)
+def _row_address(module, function, arity: int, table: str = "ROWS") -> int:
+    """The compiled row form of ``function`` (or its values form: ``table="VALUES"``)."""
+    rows = getattr(module, table, None)
     name = getattr(function, "__name__", None)
     if rows is None or name not in rows:
         raise ValueError(f"the generated module of family {module.FAMILY['name']!r} has no "
@@ -109,7 +111,8 @@ class RowKernels:
 
     c0: int
     r: int
-    measures: dict  # channel name -> (address, equations per measure, linear in q: 0/1)
+    #: channel name -> (address, its values form's, equations per measure, linear in q: 0/1)
+    measures: dict
     slack: int
     kinds: np.ndarray
     clauses: np.ndarray
@@ -132,7 +135,8 @@ def row_kernels(fam, model: str, reduced=None) -> RowKernels:
         for name, function in table["channels"].items():
             width = len(fam.channel(name).components)
             p = function(np.zeros(n), np.zeros((0, width)), k)[0].shape[1]
-            measures[name] = (_row_address(module, function, 4), int(p),
+            measures[name] = (_row_address(module, function, 4),
+                              _row_address(module, function, 4, "VALUES"), int(p),
                               int(getattr(function, "__name__", None) in linear))
     slack, kinds, clauses = 0, np.zeros(0, dtype=np.int64), np.zeros((0, 0), np.bool_)
     own = module.FAMILY.get("slack_clauses", {}).get(model) or []
@@ -201,7 +205,8 @@ def arrays(problem) -> Arrays:
         _of_kind(problem.Q0, *_LAYOUT[_INDEX["Q0"]]),
         _of_kind(problem.k, *_LAYOUT[_INDEX["k"]]), float(problem.eps),
         int(rows.c0), int(rows.r), chan, X, m, Q, G,
-        shape.col, shape.P, shape.Dn, shape.W, shape.addr, shape.linear, scale, size, start,
+        shape.col, shape.P, shape.Dn, shape.W, shape.addr, shape.values, shape.linear, scale,
+        size, start,
         int(rows.slack), rows.kinds, rows.clauses, rows.T, rows.t,
         shape.strict_idx, shape.strict_pow,
     )  # the fields made here of their kinds (RowKernels' and _Shape's too: made so)
@@ -235,6 +240,7 @@ class _Shape:
     Dn: np.ndarray
     W: np.ndarray
     addr: np.ndarray
+    values: np.ndarray
     linear: np.ndarray
     strict_idx: np.ndarray
     strict_pow: np.ndarray
@@ -267,13 +273,13 @@ def _shape(rows: RowKernels, channels, strict) -> _Shape:
         dmax = max(dims, default=1)
         col = np.full((nch, dmax), -1, dtype=np.int64)
         P, addr = np.zeros(nch, dtype=np.int64), np.zeros(nch, dtype=np.int64)
-        linear = np.zeros(nch, dtype=np.int64)
+        values, linear = np.zeros(nch, dtype=np.int64), np.zeros(nch, dtype=np.int64)
         for j, ch in enumerate(channels):
             col[j, :dims[j]] = ch.index
-            addr[j], P[j], linear[j] = rows.measures[ch.name]
+            addr[j], values[j], P[j], linear[j] = rows.measures[ch.name]
         out = cache[key] = _Shape(
             max(widths, default=1), dmax, col, P, np.array(dims, dtype=np.int64),
-            np.array(widths, dtype=np.int64), addr, linear,
+            np.array(widths, dtype=np.int64), addr, values, linear,
             np.array([i for i, _ in strict], dtype=np.int64),
             np.array([p for _, p in strict], dtype=np.int64))
     return out

@@ -47,11 +47,12 @@ def c0_eval(A, q):
 @jit(inline=True)
 def fields(A):
     """The per-measure arrays of ``A`` that the loops over the measures read — ``(chan, P,
-    Dn, W, X, col, meas_addr, k, G, Q, m)`` — borrowed (kanagen.common.borrow): a field read
-    from ``A`` and each view of it are otherwise counted up and down, atomically, at every
-    use, which cost more than a measure's arithmetic. Valid while ``A`` (the kernel's
-    argument) is."""
-    return borrow((A.chan, A.P, A.Dn, A.W, A.X, A.col, A.meas_addr, A.k, A.G, A.Q, A.m))
+    Dn, W, X, col, meas_addr, k, G, Q, m, vals_addr)`` — borrowed (kanagen.common.borrow): a
+    field read from ``A`` and each view of it are otherwise counted up and down, atomically,
+    at every use, which cost more than a measure's arithmetic. Valid while ``A`` (the
+    kernel's argument) is."""
+    return borrow((A.chan, A.P, A.Dn, A.W, A.X, A.col, A.meas_addr, A.k, A.G, A.Q, A.m,
+                   A.vals_addr))
 
 
 @jit(inline=True)
@@ -68,21 +69,45 @@ def eval_shaped(F, i, q, mt_i, c, C, D, x, p, d):
     in the loops specialised to the shipped shapes — (1, 2), (1, 4), (3, 4), in that order
     in :func:`project_all`, ``curvature.profile_hessian``, ``sample.observed_all`` and
     ``sample.errors_at`` (docs/engine.md) — the sizes read elsewhere."""
-    chan, W, X, col, addr, k = F[0], F[3], F[4], F[5], F[6], F[7]
-    ch = chan[i]
-    n, w = q.size, W[ch]
-    for j in range(w):
-        x[j] = X[i, j]
-    for j in range(d):
-        x[col[ch, j]] = mt_i[j]
-    out = x[w:]
-    call4(addr[ch], q, x[:w], k, out)
+    n = q.size
+    out = call_row(F, i, q, mt_i, x, d, F[6])
     for a in range(p):
         c[a] = out[a]
         for j in range(n):
             C[a, j] = out[p + a * n + j]
         for j in range(d):
             D[a, j] = out[p + p * n + a * d + j]
+
+
+@jit(inline=True)
+def eval_values(F, i, q, mt_i, c, D, x, p, d):
+    """:func:`eval_shaped`'s ``c`` and ``D`` alone, from the row form's values form (the
+    generated module's ``VALUES``: the row form's statements that they need, in its order —
+    the same numbers, without the Jacobian in the parameter ``C``, most of a row form's
+    work where the parameter is large)."""
+    n = q.size
+    out = call_row(F, i, q, mt_i, x, d, F[11])
+    for a in range(p):
+        c[a] = out[a]
+        for j in range(d):
+            D[a, j] = out[p + p * n + a * d + j]
+
+
+@jit(inline=True)
+def call_row(F, i, q, mt_i, x, d, addresses):
+    """Measure ``i``'s data row, its corrected components ``mt_i`` in place, into ``x``, and
+    the row kernel of its channel in ``addresses`` called on it: its outputs (a view of
+    ``x``, in the row form's layout)."""
+    chan, W, X, col, k = F[0], F[3], F[4], F[5], F[7]
+    ch = chan[i]
+    w = W[ch]
+    for j in range(w):
+        x[j] = X[i, j]
+    for j in range(d):
+        x[col[ch, j]] = mt_i[j]
+    out = x[w:]
+    call4(addresses[ch], q, x[:w], k, out)
+    return out
 
 
 @jit
@@ -386,7 +411,10 @@ def project_measure(args, p, d):
     F, i, q, m, iterations, tol, eps, c, C, D, E, L, inv, kept, y, rbar, cbar, dm, step, cand, \
         moved, x = args
     G, Q, m_obs = F[8][i], F[9][i], F[10][i]
-    eval_shaped(F, i, q, m, c, C, D, x, p, d)
+    if iterations <= 1:  # no step: the point returned
+        eval_shaped(F, i, q, m, c, C, D, x, p, d)
+    else:  # a step at least, whose point is returned (halving)
+        eval_values(F, i, q, m, c, D, x, p, d)
     viol, rank = 0.0, 0
     active = True
     for it in range(iterations):
@@ -402,20 +430,28 @@ def project_measure(args, p, d):
             finite = finite and np.isfinite(step[j])
         if not finite:
             step[:d] = 0.0
-        halving(F, i, q, m, c, C, D, step, p, d, cand, moved, x)
-        seen = quad(moved, Q, d) > tol ** 2
-        unseen = False
-        for j in range(d):
-            unseen = unseen or abs(moved[j]) > ROUNDING * (1.0 + abs(m[j]))
-        active = seen or unseen
+        halving(F, i, q, m, c, C, D, step, p, d, cand, moved, x, Q, tol, it == iterations - 2)
+        active = moving(moved, m, Q, tol, d)
     return viol, rank
 
 
 @jit(inline=True)
-def halving(F, i, q, m, c, C, D, step, p, d, cand, moved, x):
+def moving(moved, m, Q, tol, d):
+    """A measure's projection goes on after the move ``moved`` to ``m``: the move is seen in
+    its metric, or above rounding in a component the metric does not see."""
+    unseen = False
+    for j in range(d):
+        unseen = unseen or abs(moved[j]) > ROUNDING * (1.0 + abs(m[j]))
+    return quad(moved, Q, d) > tol ** 2 or unseen
+
+
+@jit(inline=True)
+def halving(F, i, q, m, c, C, D, step, p, d, cand, moved, x, Q, tol, last):
     """Eq. 18 for one measure: ``m + α step`` with α halved while the violation grows (four
     times at most), else no move; updates ``m, c, C, D`` in place, writes the move into
-    ``moved``."""
+    ``moved``. ``C`` is made only at a candidate that would end the projection — its last
+    step (``last``), or a move :func:`moving` stops at — the others need only ``c`` and
+    ``D`` (:func:`eval_values`); so ``C`` is the returned point's."""
     worst = worst_abs(c, p)
     alpha = 1.0
     for attempt in range(_PROJECT_HALVINGS + 1):
@@ -423,13 +459,16 @@ def halving(F, i, q, m, c, C, D, step, p, d, cand, moved, x):
             alpha = 0.0
         for j in range(d):
             cand[j] = m[j] + alpha * step[j]
-        eval_shaped(F, i, q, cand, c, C, D, x, p, d)
+            moved[j] = cand[j] - m[j]
+        if last or not moving(moved, cand, Q, tol, d):
+            eval_shaped(F, i, q, cand, c, C, D, x, p, d)
+        else:
+            eval_values(F, i, q, cand, c, D, x, p, d)
         new_worst = worst_abs(c, p) if p else worst
         if new_worst <= worst + 1e-9 * (1.0 + worst) or attempt == _PROJECT_HALVINGS:
             break
         alpha /= 2
-    for j in range(d):
-        moved[j] = cand[j] - m[j]
+    for j in range(d):  # moved: the candidate taken's move
         m[j] = cand[j]
 
 

@@ -29,7 +29,7 @@ from kanagen.common.borrow import alive, borrow
 from kanagen.common.jit import NUMBA, jit
 
 from ..linalg import row_svd, triangular_rows
-from .measures import c0_eval, eval_measure, eval_shaped, fields, row_buffer, scratch, whitened
+from .measures import c0_eval, eval_measure, eval_values, fields, row_buffer, scratch, whitened
 
 #: Values per candidate of a closed-form initialiser, and candidates at most.
 WIDTH, CANDIDATES = 12, 4
@@ -287,12 +287,12 @@ def minimal_solve(A, rows, target, max_iter, xtol, eps):
 # -- eq. 24: every measure's error at a solution -----------------------------------------
 
 @jit(inline=True)
-def observed_error(F, i, q, eps, c, C, D, E, L, inv, kept, w, x, p, d):
+def observed_error(F, i, q, eps, c, D, E, L, inv, kept, w, x, p, d):
     """Measure ``i`` (``p`` equations, ``d`` components) at ``q`` where it was observed: its
     whitened violation ``‖c‖²_{(D Q⁺ Dᵀ)⁻}`` and the equations kept (``F``:
     :func:`~.measures.fields`; the rest: buffers of :func:`~.measures.scratch`, borrowed by
     the caller's loop: kanagen.common.borrow)."""
-    eval_shaped(F, i, q, F[10][i], c, C, D, x, p, d)
+    eval_values(F, i, q, F[10][i], c, D, x, p, d)
     return whitened(c, D, F[8][i], p, d, eps, E, L, inv, kept, w)
 
 
@@ -301,8 +301,7 @@ def _buffers(A, n):
     """The buffers of :func:`observed_error` for the largest channel of ``A``."""
     E, L, inv, kept, y, w, _, _, _, _, _, x = scratch(A, n)
     pmax = E.shape[0]
-    return (np.zeros(pmax), np.zeros((pmax, n)), np.zeros((pmax, A.m.shape[1])), E, L, inv,
-            kept, w, x)
+    return np.zeros(pmax), np.zeros((pmax, A.m.shape[1])), E, L, inv, kept, w, x
 
 
 @jit
@@ -311,7 +310,7 @@ def observed_all(A, q):
     24 at one projection step (:func:`kanagen.runtime.minimal.coherence_errors`)."""
     q = np.ascontiguousarray(q)
     buffers = _buffers(A, q.size)
-    c, C, D, E, L, inv, kept, w, x = borrow(buffers)
+    c, D, E, L, inv, kept, w, x = borrow(buffers)
     viol, rank = np.empty(A.chan.size), np.empty(A.chan.size, dtype=np.int64)
     F = fields(A)
     eps = A.eps
@@ -319,13 +318,13 @@ def observed_all(A, q):
         ch = F[0][i]
         p, d = F[1][ch], F[2][ch]
         if p == 1 and d == 2:  # the shipped families' shapes: their loops unrolled
-            viol[i], rank[i] = observed_error(F, i, q, eps, c, C, D, E, L, inv, kept, w, x, 1, 2)
+            viol[i], rank[i] = observed_error(F, i, q, eps, c, D, E, L, inv, kept, w, x, 1, 2)
         elif p == 1 and d == 4:
-            viol[i], rank[i] = observed_error(F, i, q, eps, c, C, D, E, L, inv, kept, w, x, 1, 4)
+            viol[i], rank[i] = observed_error(F, i, q, eps, c, D, E, L, inv, kept, w, x, 1, 4)
         elif p == 3 and d == 4:
-            viol[i], rank[i] = observed_error(F, i, q, eps, c, C, D, E, L, inv, kept, w, x, 3, 4)
+            viol[i], rank[i] = observed_error(F, i, q, eps, c, D, E, L, inv, kept, w, x, 3, 4)
         else:
-            viol[i], rank[i] = observed_error(F, i, q, eps, c, C, D, E, L, inv, kept, w, x, p, d)
+            viol[i], rank[i] = observed_error(F, i, q, eps, c, D, E, L, inv, kept, w, x, p, d)
     alive(buffers)
     return viol, rank
 
@@ -334,12 +333,12 @@ def observed_all(A, q):
 def channel_errors(args, ch, p, d, score, seen):
     """:func:`errors_at` over the measures of channel ``ch`` (``p`` equations, ``d``
     components): ``(complete, score, seen)``, not complete when the solution is abandoned."""
-    A, F, q, caps, scale, best, errors, c, C, D, E, L, inv, kept, w, x = args
+    A, F, q, caps, scale, best, errors, c, D, E, L, inv, kept, w, x = args
     total = A.chan.size
     eps = A.eps
     cap, start, size = caps[ch], A.start[ch], A.size[ch]
     for i in range(start, start + size):
-        viol, rank = observed_error(F, i, q, eps, c, C, D, E, L, inv, kept, w, x, p, d)
+        viol, rank = observed_error(F, i, q, eps, c, D, E, L, inv, kept, w, x, p, d)
         err = viol / max(min(rank, cap), 1)
         err = err if np.isfinite(err) else np.inf
         errors[i] = err
@@ -362,9 +361,9 @@ def errors_at(A, q, caps, scale, best, errors):
     :data:`CHUNK` measures of a channel, an exact bound with a margin far above the
     rounding of the sum. Returns ``(complete, relevance)``."""
     buffers = _buffers(A, q.size)
-    c, C, D, E, L, inv, kept, w, x = borrow(buffers)
+    c, D, E, L, inv, kept, w, x = borrow(buffers)
     F = fields(A)
-    args = (A, F, q, caps, scale, best, errors, c, C, D, E, L, inv, kept, w, x)
+    args = (A, F, q, caps, scale, best, errors, c, D, E, L, inv, kept, w, x)
     total = A.chan.size
     score = 0.0
     seen = 0
