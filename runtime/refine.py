@@ -5,6 +5,7 @@ final threshold-and-refine rounds of :meth:`~kanagen.runtime.robust.ModelSearch.
 
 from __future__ import annotations
 
+import bisect
 import functools
 import itertools
 from collections.abc import Callable
@@ -294,7 +295,7 @@ class Refinement:
             drops = np.where(np.isnan(drops), -np.inf, drops)
             if drops.size <= self.min_rows + 2:
                 break
-            ends = np.cumsum([0] + [r.size for r in rows])
+            ends = np.cumsum([0] + [r.size for r in rows]).tolist()
             place = functools.partial(_place, ends)
             out = [int(np.argmax(drops))]
             if not drops[out[0]] > threshold:
@@ -423,13 +424,13 @@ def _same(a, b) -> bool:
 def _without(rows, positions) -> tuple[np.ndarray, ...]:
     """``rows`` (index arrays per channel) less the measures at ``positions`` (numbered
     channel after channel)."""
-    ends = np.cumsum([0] + [r.size for r in rows])
+    ends = np.cumsum([0] + [r.size for r in rows]).tolist()
     gone = [_place(ends, j) for j in positions]
     return tuple(np.delete(r, [i for c, i in gone if c == k]) for k, r in enumerate(rows))
 
 
-def _place(ends: np.ndarray, j: int) -> tuple[int, int]:
+def _place(ends: list[int], j: int) -> tuple[int, int]:
     """``(channel, index in it)`` of measure ``j`` of measures numbered channel after
-    channel (``ends``: the cumulated channel sizes from 0)."""
-    c = int(np.searchsorted(ends, j, side="right")) - 1
+    channel (``ends``: the cumulated channel sizes from 0, a list)."""
+    c = bisect.bisect_right(ends, j) - 1
     return c, int(j - ends[c])

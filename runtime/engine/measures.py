@@ -430,8 +430,8 @@ def project_measure(args, p, d):
             finite = finite and np.isfinite(step[j])
         if not finite:
             step[:d] = 0.0
-        halving(F, i, q, m, c, C, D, step, p, d, cand, moved, x, Q, tol, it == iterations - 2)
-        active = moving(moved, m, Q, tol, d)
+        active = halving(F, i, q, m, c, C, D, step, p, d, cand, moved, x, Q, tol,
+                         it == iterations - 2)
     return viol, rank
 
 
@@ -449,18 +449,21 @@ def moving(moved, m, Q, tol, d):
 def halving(F, i, q, m, c, C, D, step, p, d, cand, moved, x, Q, tol, last):
     """Eq. 18 for one measure: ``m + α step`` with α halved while the violation grows (four
     times at most), else no move; updates ``m, c, C, D`` in place, writes the move into
-    ``moved``. ``C`` is made only at a candidate that would end the projection — its last
-    step (``last``), or a move :func:`moving` stops at — the others need only ``c`` and
-    ``D`` (:func:`eval_values`); so ``C`` is the returned point's."""
+    ``moved``; returns whether the projection goes on after the move (:func:`moving`).
+    ``C`` is made only at a candidate that would end the projection — its last step
+    (``last``), or a move :func:`moving` stops at — the others need only ``c`` and ``D``
+    (:func:`eval_values`); so ``C`` is the returned point's."""
     worst = worst_abs(c, p)
     alpha = 1.0
+    goes_on = False
     for attempt in range(_PROJECT_HALVINGS + 1):
         if attempt == _PROJECT_HALVINGS:
             alpha = 0.0
         for j in range(d):
             cand[j] = m[j] + alpha * step[j]
             moved[j] = cand[j] - m[j]
-        if last or not moving(moved, cand, Q, tol, d):
+        goes_on = moving(moved, cand, Q, tol, d)
+        if last or not goes_on:
             eval_shaped(F, i, q, cand, c, C, D, x, p, d)
         else:
             eval_values(F, i, q, cand, c, D, x, p, d)
@@ -470,6 +473,7 @@ def halving(F, i, q, m, c, C, D, step, p, d, cand, moved, x, Q, tol, last):
         alpha /= 2
     for j in range(d):  # moved: the candidate taken's move
         m[j] = cand[j]
+    return goes_on
 
 
 @linked("A f1 f2 i f -> f2 f1 i1 f2 f3 f3", python=True)
