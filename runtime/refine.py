@@ -295,8 +295,7 @@ class Refinement:
             drops = np.where(np.isnan(drops), -np.inf, drops)
             if drops.size <= self.min_rows + 2:
                 break
-            ends = np.cumsum([0] + [r.size for r in rows]).tolist()
-            place = functools.partial(_place, ends)
+            place = functools.partial(_place, _ends(rows))
             out = [int(np.argmax(drops))]
             if not drops[out[0]] > threshold:
                 best, out = 2.0 * threshold, None
@@ -424,9 +423,15 @@ def _same(a, b) -> bool:
 def _without(rows, positions) -> tuple[np.ndarray, ...]:
     """``rows`` (index arrays per channel) less the measures at ``positions`` (numbered
     channel after channel)."""
-    ends = np.cumsum([0] + [r.size for r in rows]).tolist()
+    ends = _ends(rows)
     gone = [_place(ends, j) for j in positions]
     return tuple(np.delete(r, [i for c, i in gone if c == k]) for k, r in enumerate(rows))
+
+
+def _ends(rows) -> list[int]:
+    """The cumulated channel sizes of ``rows`` (index arrays per channel), from 0: where
+    each channel's measures start when numbered channel after channel, and their total."""
+    return np.cumsum([0] + [r.size for r in rows]).tolist()
 
 
 def _place(ends: list[int], j: int) -> tuple[int, int]:

@@ -67,16 +67,14 @@ def eval_measure(F, i, q, mt_i, c, C, D, x):
 def eval_shaped(F, i, q, mt_i, c, C, D, x, p, d):
     """:func:`eval_measure` for a measure of ``p`` equations and ``d`` components: constants
     in the loops specialised to the shipped shapes — (1, 2), (1, 4), (3, 4), in that order
-    in :func:`project_all`, ``curvature.profile_hessian``, ``sample.observed_all`` and
-    ``sample.errors_at`` (docs/engine.md) — the sizes read elsewhere."""
+    in :func:`eval_all`, :func:`project_all` and ``curvature.profile_hessian``
+    (docs/engine.md) — the sizes read elsewhere."""
     n = q.size
     out = call_row(F, i, q, mt_i, x, d, F[6])
+    take_values(out, c, D, p, n, d)
     for a in range(p):
-        c[a] = out[a]
         for j in range(n):
             C[a, j] = out[p + a * n + j]
-        for j in range(d):
-            D[a, j] = out[p + p * n + a * d + j]
 
 
 @jit(inline=True)
@@ -84,9 +82,15 @@ def eval_values(F, i, q, mt_i, c, D, x, p, d):
     """:func:`eval_shaped`'s ``c`` and ``D`` alone, from the row form's values form (the
     generated module's ``VALUES``: the row form's statements that they need, in its order —
     the same numbers, without the Jacobian in the parameter ``C``, most of a row form's
-    work where the parameter is large)."""
-    n = q.size
-    out = call_row(F, i, q, mt_i, x, d, F[11])
+    work where the parameter is large); its loops specialised as :func:`eval_shaped`'s in
+    :func:`project_all`, ``sample.observed_all`` and ``sample.errors_at``."""
+    take_values(call_row(F, i, q, mt_i, x, d, F[11]), c, D, p, q.size, d)
+
+
+@jit(inline=True)
+def take_values(out, c, D, p, n, d):
+    """``c`` and ``D`` from a row kernel's outputs ``out`` (the row form's layout: ``c``,
+    ``C``, ``D``; ``n`` the parameter's size)."""
     for a in range(p):
         c[a] = out[a]
         for j in range(d):
