@@ -8,10 +8,13 @@ generator's) are imported only when a spec is (:func:`_module_for`), and CasADi 
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import importlib
 import os
 import tempfile
 import warnings
+from dataclasses import fields
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -90,10 +93,12 @@ def load(spec: str | Path | Family, *, backend: str | None = None,
     else:
         path = Path(spec)
         if path.suffix in (".yaml", ".yml") or path.exists():
-            from .modelspec.parse import load_spec
-            from .runtime.initializers import INITIALIZERS
+            family, module = None, _shipped_for_text(path, limits)
+            if module is None:
+                from .modelspec.parse import load_spec
+                from .runtime.initializers import INITIALIZERS
 
-            family = load_spec(path, limits, INITIALIZERS)
+                family = load_spec(path, limits, INITIALIZERS)
         else:
             family = None
             module = _shipped_by_name(str(spec))
@@ -181,6 +186,56 @@ def _is_family(spec) -> bool:
     from .modelspec.ir import Family
 
     return isinstance(spec, Family)
+
+
+def _shipped_for_text(path: Path, limits: Limits):
+    """The committed module generated from this file's very text (a shipped example loaded
+    by its path: ``kanagen fit examples/conic_lattice.yaml ...``), or None. Its text was
+    read, checked and generated from when it was committed — under the default limits, so
+    not when ``limits`` tightens one — and the spec reader and SymPy (half a second of such
+    a command) are not imported. Any other text, or one that cannot be read, goes to the
+    reader (:func:`~kanagen.modelspec.parse.load_spec`: its errors name the file)."""
+    if any(getattr(limits, f.name) < getattr(DEFAULT, f.name) for f in fields(Limits)):
+        return None
+    try:
+        if path.stat().st_size > DEFAULT.max_bytes:
+            return None
+        text = path.read_text(encoding="utf-8")  # as the reader reads it
+    except (OSError, UnicodeDecodeError):
+        return None
+    digest = hashlib.sha256(text.encode("utf-8")).hexdigest()  # the reader's spec digest
+    stems = _shipped_digests().get(digest, ())
+    name = next((stem for stem in stems if f"{stem}_casadi" in stems), None)
+    if name is None:  # a family's two modules, both from this text
+        return None
+    from .codegen.version import FORMAT
+
+    return shipped_module(name, digest, FORMAT)
+
+
+@functools.lru_cache(maxsize=1)
+def _shipped_digests() -> dict[str, tuple[str, ...]]:
+    """The committed modules by the digest of the spec text each was generated from (their
+    ``SPEC_SHA256`` line, read from their header without importing them)."""
+    from . import generated
+
+    out: dict[str, tuple[str, ...]] = {}
+    for file in sorted(Path(generated.__file__).parent.glob("*.py")):
+        try:
+            with file.open(encoding="utf-8") as lines:
+                head = [next(lines, "") for _ in range(_HEADER_LINES)]
+        except OSError:
+            continue
+        for line in head:
+            if line.startswith("SPEC_SHA256 = "):
+                digest = line.partition("=")[2].strip().strip("\"'")
+                out[digest] = out.get(digest, ()) + (file.stem,)
+                break
+    return out
+
+
+#: The lines of a generated module's header that hold its ``SPEC_SHA256``.
+_HEADER_LINES = 20
 
 
 def _shipped_by_name(name: str):

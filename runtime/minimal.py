@@ -15,9 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from .engine.data import arrays, per_channel
+from .engine.measures import projected_errors
 from .engine.sample import minimal_solve as solve_sample
 from .engine.sample import observed_all
-from .projector import Problem, project_measures, quadratic
+from .projector import Problem, project_measures
 from .sqrt import EPS, reduced_sqrt
 
 
@@ -36,12 +37,11 @@ def coherence_errors(problem: Problem, q: np.ndarray, iterations: int | None = N
             A = arrays(problem)
             violations, kept = observed_all(A, np.asarray(q, dtype=float))
             totals, kept = per_channel(A, violations), per_channel(A, kept)
-        else:
-            mt, violations, kept, _ = project_measures(
-                problem, q, tuple(ch.m for ch in problem.channels), iterations, tol)
-            totals = [quadratic(m - ch.m, ch.Q) + violation
-                      for ch, m, violation in zip(problem.channels, mt, violations,
-                                                  strict=True)]
+        else:  # projected from where they were observed: ‖m̃ − m‖²_Q plus the violation
+            A = arrays(problem)
+            totals, kept = projected_errors(A, np.ascontiguousarray(q, dtype=float),
+                                            int(iterations), float(tol))
+            totals, kept = per_channel(A, totals), per_channel(A, kept)
         if ranks is None and iterations == 1 and any(r.size and r.max() > 1 for r in kept):
             ranks = manifold_ranks(problem, q)
     out = []

@@ -111,13 +111,6 @@ class Projection:
     residual: float  # E² (eq. 13/17) at the linearisation point
 
 
-def quadratic(v: np.ndarray, Q: np.ndarray) -> np.ndarray:
-    """``vᵀ Q v`` per measure for v (M, k) and Q (k, k) or (M, k, k)."""
-    if Q.ndim == 2:
-        return np.einsum("mk,kl,ml->m", v, Q, v)
-    return np.einsum("mk,mkl,ml->m", v, Q, v)
-
-
 def total_quadratic(v: np.ndarray, Q: np.ndarray) -> float:
     """``Σ vᵢᵀ Q vᵢ`` over the measures."""
     return float(np.einsum("mk,kl,ml->", v, Q, v) if Q.ndim == 2 else

@@ -30,6 +30,7 @@ _LEVERAGE = 3.0  # a measure of leverage above this many times the mean is cross
 _FEW = 0.1  # ... when the mean leverage is at most this (ten measures a parameter or more)
 _CHECKS = 4  # cross-checks at most: one outlier's pull can hide another's leverage
 _TIE = 1e-9  # fits whose costs differ by less than this (relative) are equally good
+_SAMPLES = 32  # subsets of a refinement's problem kept (Refinement.sample)
 #: a refinement that only its inliers' number can make matter (ModelSearch.finish's
 #: short_of) runs in laps of this many iterations, and stops after a lap that lowered its
 #: cost by less than _PROGRESS of itself
@@ -116,6 +117,21 @@ class Refinement:
         self.min_rows = min_rows
         self.max_threshold = max_threshold
         self.admit = admit
+        self._samples: dict = {}  # rows -> the problem on them (sample)
+
+    def sample(self, rows) -> Problem:
+        """The problem on the measures ``rows`` (per channel, index arrays), made once per
+        set of rows: the rounds, the deletion tests and the verification fit the same
+        inliers several times (half a two-view search's subsets are repeats), and a subset
+        and its engine arrays are only read."""
+        key = tuple((r.dtype.char, r.tobytes()) for r in rows)
+        samples = self._samples
+        out = samples.get(key)
+        if out is None:
+            if len(samples) >= _SAMPLES:
+                del samples[next(iter(samples))]  # the oldest
+            out = samples[key] = self.problem.subset(rows)
+        return out
 
     def errors(self, q: np.ndarray, **options) -> tuple[np.ndarray, ...]:
         """Every measure's coherence error at ``q`` (eq. 24, per channel; ``options`` those
@@ -144,7 +160,7 @@ class Refinement:
         rows = self.split(self.admitted(q, errors))[1]
         if sum(r.size for r in rows) <= self.min_rows:
             return None
-        fit = fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=q,
+        fit = fit_problem(self.fam, self.model, self.sample(rows), q_start=q,
                           max_iter=max_iter, verify=False, brief=True)  # its estimate alone
         if not np.all(np.isfinite(fit.q)):
             return None
@@ -195,7 +211,7 @@ class Refinement:
         is checked where it stopped — as a verified fit's cap is; any other end is kept."""
         if fit.status not in (UNVERIFIED, MAX_ITER):
             return fit
-        return fit_problem(self.fam, self.model, self.problem.subset(rows), q_start=fit.q,
+        return fit_problem(self.fam, self.model, self.sample(rows), q_start=fit.q,
                            q0=q0, Q0=Q0, max_iter=max_iter if fit.status == UNVERIFIED else 0)
 
     def _rounds(self, q: np.ndarray, errors, q0: np.ndarray, Q0: np.ndarray,
@@ -223,7 +239,7 @@ class Refinement:
             errors = self.errors(q)
             threshold, new = self.split(errors, window)
             if _same(new, rows):
-                result = self._go_on(result, self.problem.subset(rows), q0, Q0, per_round,
+                result = self._go_on(result, self.sample(rows), q0, Q0, per_round,
                                      max_iter, short(rows))
                 if result.q is not q and np.all(np.isfinite(result.q)):
                     errors = self.errors(result.q)  # at the reported q
@@ -232,7 +248,7 @@ class Refinement:
             rows = new
             per_round = min(max_iter, _ROUND_ITER)
         else:
-            result = self._fit(self.problem.subset(rows), q, q0, Q0, max_iter)
+            result = self._fit(self.sample(rows), q, q0, Q0, max_iter)
             if np.all(np.isfinite(result.q)):
                 errors = self.errors(result.q)
                 threshold = self.split(errors, window)[0]
@@ -259,7 +275,7 @@ class Refinement:
                 new = _less(new, out)
                 if _same(new, rows):
                     break
-                fit = self._fit(self.problem.subset(new), result.q, q0, Q0, max_iter)
+                fit = self._fit(self.sample(new), result.q, q0, Q0, max_iter)
                 if not np.all(np.isfinite(fit.q)):
                     break
                 result, rows, errors = fit, new, self.errors(fit.q)
@@ -288,7 +304,7 @@ class Refinement:
 
         total = truncated(errors)
         changed = False
-        sample = self.problem.subset(rows)
+        sample = self.sample(rows)
         for _ in range(_PRUNE):
             influence = Influence(sample, fit)
             drops = np.concatenate(influence.drops())
@@ -307,7 +323,7 @@ class Refinement:
                 if out is None:
                     break
             trial_rows = _without(rows, out)
-            trial_sample = self.problem.subset(trial_rows)
+            trial_sample = self.sample(trial_rows)
             trial = self._fit(trial_sample, fit.q, q0, Q0, max_iter)
             if not np.all(np.isfinite(trial.q)):
                 break
@@ -345,7 +361,7 @@ class Refinement:
         takes in (a circle fitted to a hyperbola's arc: each check took out one measure
         and the rounds took in ten, until the circle no longer beat the line and the
         lattice stopped there)."""
-        levels = np.concatenate(Influence(self.problem.subset(rows), fit).leverages())
+        levels = np.concatenate(Influence(self.sample(rows), fit).leverages())
         n = levels.size
         if not np.all(np.isfinite(levels)) or n <= self.min_rows + 2 or \
                 levels.mean() > _FEW:
@@ -355,7 +371,7 @@ class Refinement:
         if suspects.size == 0:
             return None
         rest = _without(rows, suspects)
-        others = self._fit(self.problem.subset(rest), fit.q, q0, Q0, max_iter)
+        others = self._fit(self.sample(rest), fit.q, q0, Q0, max_iter)
         if not np.all(np.isfinite(others.q)):
             return None
         errors = self.errors(others.q)
@@ -366,7 +382,7 @@ class Refinement:
             return None
         if len(out) < suspects.size:
             rest = _without(rows, out)
-            others = self._fit(self.problem.subset(rest), others.q, q0, Q0, max_iter)
+            others = self._fit(self.sample(rest), others.q, q0, Q0, max_iter)
             if not np.all(np.isfinite(others.q)):
                 return None
             errors = self.errors(others.q)
@@ -377,7 +393,7 @@ class Refinement:
         :data:`_ROUND_ITER` iterations, and the cheapest goes on to ``max_iter`` in all — a
         start in a degenerate valley (focal lengths running off to the affine limit) crawls
         on without the others waiting for it. ``laps``: see :meth:`_go_on`."""
-        sample = self.problem.subset(rows)
+        sample = self.sample(rows)
         lap = min(max_iter, _ROUND_ITER) if len(starts) > 1 else max_iter
         if laps:
             lap = min(lap, _LAP)

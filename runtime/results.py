@@ -227,9 +227,9 @@ class ResultProtocol:
         nu, chi2 = self.chi2_dof, self.chi2
         if nu <= 0 or not np.isfinite(chi2):
             return float("nan")
-        from scipy.stats import chi2 as chi2_law  # lazily: import kanagen stays light
+        from .chisquare import tail  # lazily: import kanagen stays light
 
-        return float(chi2_law.sf(chi2, nu))
+        return tail(chi2, nu)
 
     def goodness_of_fit(self) -> dict[str, float]:
         """The costs and χ² statistics as a dict (the JSON records carry them)."""

@@ -45,9 +45,9 @@ def default_scale(equations: int, quantile: float | None = None) -> float:
 
 @functools.lru_cache(maxsize=32)
 def _chi2_scale(equations: int, quantile: float) -> float:
-    from scipy.stats import chi2  # lazily: `import kanagen` stays light
+    from .chisquare import quantile as chi2_quantile  # lazily: import kanagen stays light
 
-    return float(chi2.ppf(quantile, equations) / equations)
+    return chi2_quantile(quantile, equations) / equations
 
 
 def relevance(errors: np.ndarray, scale: float) -> float:

@@ -9,8 +9,8 @@ from dataclasses import replace
 
 import numpy as np
 from scipy.cluster.vq import kmeans2
-from scipy.stats import chi2
 
+from .chisquare import quantile as chi2_quantile
 from .estimator import Estimator
 from .family import ModelFamily
 from .fit import fit_problem, make_problem
@@ -506,7 +506,7 @@ def _equations(problem, q: np.ndarray) -> int:
 def _noise(errors: np.ndarray, p: int) -> float:
     """``s²``, the noise variance of measures of ``p`` equations in units of their
     information: the median of their errors over that of an inlier's (``χ²_p / p``)."""
-    return float(np.median(errors)) / (chi2.median(p) / p)
+    return float(np.median(errors)) / (chi2_quantile(0.5, p) / p)
 
 
 def _per_channel(rows: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, ...]:

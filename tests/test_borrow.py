@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scenarios import TWOCHAN, twochan_data
+from scenarios import TWOCHAN, close, twochan_data
 
 import kanagen
 from kanagen.common.borrow import alive, borrow
@@ -112,7 +112,9 @@ def test_a_fit_reports_the_projector_at_its_point(case):
 def test_the_outcome_makes_its_point_when_read(case):
     """An outcome holds its returned point's q, m̃, cost and violation; the whole point,
     cut from the kernel's layout when first read, has the same numbers and the equations
-    the NumPy path's evaluation at (q, m̃) gives, bit for bit; the verdict is the checks'
+    the NumPy path's evaluation at (q, m̃) gives — bit for bit for rational equations (the
+    conic's); to rounding for twochan's ``exp(-b t)``, whose NumPy (SIMD code on AVX-512
+    processors) and C library versions may differ by an ulp —; the verdict is the checks'
     (a minimum)."""
     fam, model, problem = _problems()[case]
     out = iterate(problem, problem.q0, report=True)
@@ -127,9 +129,13 @@ def test_the_outcome_makes_its_point_when_read(case):
     np.testing.assert_array_equal(x.C0, y.C0)
     for mine, theirs in zip(x.evals, y.evals, strict=True):
         for a, b in zip(mine, theirs, strict=True):
-            np.testing.assert_array_equal(a, b)
+            if fam.name == "conic":
+                np.testing.assert_array_equal(a, b)
+            else:
+                close(a, b, rtol=1e-14)
     # the NumPy path sums the cost in its own order: to rounding
-    assert x.delta == y.delta and x.cost == pytest.approx(y.cost, rel=1e-13)
+    assert x.delta == (y.delta if fam.name == "conic" else pytest.approx(y.delta, abs=1e-12))
+    assert x.cost == pytest.approx(y.cost, rel=1e-13)
     assert out.verdict is out.verdict and out.verdict.minimum
 
 

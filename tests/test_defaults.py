@@ -3,6 +3,7 @@ adaptive sample budgets, and a progress total that follows them."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from scenes import arc
 from scipy.stats import chi2
@@ -31,6 +32,20 @@ def test_default_scale_is_the_documented_quantile():
     assert default_scale(1, 0.95) == pytest.approx(3.8415, abs=1e-4)
     with pytest.raises(ValueError):
         default_scale(0)
+
+
+def test_the_chi_square_law_is_scipy_stats_bit_for_bit():
+    """runtime/chisquare.py computes what ``scipy.stats.chi2`` does, from scipy.special
+    alone (importing scipy.stats costs a first search half a second): the same numbers."""
+    from kanagen.runtime import chisquare
+
+    rng = np.random.default_rng(0)
+    for dof in [*range(1, 41), 100, 1001]:
+        for p in (0.999, 0.99, 0.95, 0.5, 1e-3, 0.9999):
+            assert chisquare.quantile(p, dof) == float(chi2.ppf(p, dof))
+        for x in np.r_[rng.uniform(0.0, 3.0 * dof, 20), 0.0, 1e6]:
+            assert chisquare.tail(x, dof) == float(chi2.sf(x, dof))
+    assert default_scale(3) == float(chi2.ppf(SCALE_QUANTILE, 3) / 3)
 
 
 def test_each_model_takes_the_quantile_of_its_equations(lattice, two_view):

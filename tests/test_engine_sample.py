@@ -72,6 +72,30 @@ def test_errors_at_a_solution_as_the_reference(twochan, two_view):
         assert score == pytest.approx(relevance(errors, 9.0), rel=1e-12, abs=1e-15)
 
 
+def test_projected_errors_are_the_projection_and_its_distance(twochan, two_view):
+    """``coherence_errors`` with projection steps (:func:`.measures.projected_errors`, one
+    kernel, the values forms alone) gives what the projection of every measure gives —
+    ``project_measures``, ``‖m̃ − m‖²_Q`` by NumPy's ``einsum`` plus the violation, over the
+    equations kept — bit for bit."""
+    from kanagen.runtime.projector import project_measures
+
+    for problem, q, caps in _cases(twochan, two_view):
+        for iterations in (2, 5, 50):
+            with np.errstate(all="ignore"):
+                mt, violations, kept, _ = project_measures(
+                    problem, q, tuple(ch.m for ch in problem.channels), iterations, 1e-10)
+                for ch, m, v, r, got, cap in zip(
+                        problem.channels, mt, violations, kept,
+                        coherence_errors(problem, q, iterations, ranks=caps), caps,
+                        strict=True):
+                    Q = ch.Q if ch.Q.ndim == 3 else np.broadcast_to(ch.Q, (ch.size,) +
+                                                                     ch.Q.shape)
+                    want = (np.einsum("mk,mkl,ml->m", m - ch.m, Q, m - ch.m) + v) / \
+                        np.maximum(np.minimum(r, cap), 1)
+                    np.testing.assert_array_equal(got, np.where(np.isfinite(want), want,
+                                                                np.inf))
+
+
 def test_a_hopeless_solution_is_abandoned_exactly(two_view):
     """With the best relevance so far, a solution is abandoned only when the measures left
     could not lift it there: below the best (by more than rounding) it is, at or above

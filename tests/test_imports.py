@@ -92,6 +92,30 @@ def test_loading_a_spec_still_reads_it(tmp_path):
     assert imported_after(code, SPEC_AND_GENERATOR) == list(SPEC_AND_GENERATOR)
 
 
+def test_a_shipped_example_loaded_by_its_path_reads_no_spec(tmp_path):
+    """The text a committed module was generated from is that module (``kanagen fit
+    examples/...``): no spec reader, the committed modules — a copy of the file elsewhere
+    too; not under limits tighter than the default's (the reader checks those)."""
+    copy = tmp_path / "copy.yaml"
+    copy.write_bytes((ROOT / "examples" / "conic_lattice.yaml").read_bytes())
+    for path in ("examples/conic_lattice.yaml", str(copy)):
+        code = (f"import kanagen\nfam = kanagen.load({path!r}, backend='casadi')\n"
+                "assert fam.module.__name__ == 'kanagen.generated.conic_lattice', "
+                "fam.module.__name__")
+        assert imported_after(code, SPEC_AND_GENERATOR) == []
+    code = ("import kanagen\nfrom kanagen.modelspec import Limits\n"
+            "fam = kanagen.load('examples/conic_lattice.yaml', limits=Limits(max_depth=63))\n"
+            "assert fam.module.__name__ == 'kanagen.generated.conic_lattice'")
+    assert "sympy" in imported_after(code, SPEC_AND_GENERATOR)
+
+
+def test_a_spec_within_a_tighter_limit_is_still_refused():
+    from kanagen.modelspec import Limits, SpecError
+
+    with pytest.raises(SpecError, match="max_nodes"):
+        kanagen.load(ROOT / "examples" / "conic_lattice.yaml", limits=Limits(max_nodes=5))
+
+
 def test_public_names_resolve():
     for name in kanagen.__all__:
         assert getattr(kanagen, name) is not None, name

@@ -246,3 +246,34 @@ def test_a_second_build_starts_from_the_users_kernels_of_the_same_sources(tmp_pa
     shutil.rmtree(xdg)
     assert precompile._into(tmp_path / "ship") == 0
     assert seen[1] == []
+
+
+def test_a_process_with_a_warm_cache_compiles_nothing():
+    """Every kernel a fit and a robust search run comes from the cache once it holds them —
+    the engine's records included (numba's own constructor of a structure is a closure it
+    compiles anew in every process: half a second of each first fit; kanagen's is a
+    cached kernel). Run twice in fresh processes: the first may fill the cache, the second
+    compiles nothing (numba's ``numba:compile`` events)."""
+    code = (
+        "from numba.core import event\n"
+        "compiled = []\n"
+        "class Count(event.Listener):\n"
+        "    def on_start(self, e): compiled.append(str(e.data.get('dispatcher')))\n"
+        "    def on_end(self, e): pass\n"
+        "event.register('numba:compile', Count())\n"
+        "import numpy as np, kanagen\n"
+        "rng = np.random.default_rng(0)\n"
+        "t = rng.uniform(0.0, 3.0, 60)\n"
+        "xy = np.c_[320 + 120 * np.cos(t), 240 + 70 * np.sin(t)] + rng.normal(0, .5, (60, 2))\n"
+        "fam = kanagen.load('conic_lattice', backend='numpy')\n"
+        "assert kanagen.fit(fam, 'ellipse', data={'point': xy}).success\n"
+        "est = kanagen.Estimator(fam, seed=0)\n"
+        "est.add_measures('point', xy)\n"
+        "est.run(max_samples=100)\n"
+        "print(len(compiled), compiled[:3])\n")
+    env = dict(os.environ, KANAGEN_BACKEND="numpy")
+    for _ in range(2):
+        out = subprocess.run([sys.executable, "-c", code], env=env, cwd=ROOT,
+                             capture_output=True, text=True, timeout=900)
+        assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.split()[0] == "0", out.stdout

@@ -142,3 +142,24 @@ def test_free_dof_of_a_model_is_its_generic_rank(spec):
         for _ in range(3):
             q = fam.with_slacks(fam.q0 + rng.normal(0, 0.5, fam.n), k, model)
             assert fam.free_dof(model) == generic_free_dof(lambda x, m=model: fam.c0(m, x, k)[1], q)
+
+
+def test_a_refinement_makes_each_subset_once():
+    """The rounds, the deletion tests and the verification fit the same inliers several
+    times: :meth:`Refinement.sample` makes the problem on a set of rows once (the subset
+    and its engine arrays are only read), a bounded number of them."""
+    from kanagen.runtime import refine
+    from kanagen.runtime.fit import make_problem
+
+    fam = kanagen.load("conic_lattice")
+    rng = np.random.default_rng(0)
+    problem = make_problem(fam, "ellipse", {"point": rng.normal(size=(40, 2))})
+    ref = refine.Refinement(fam, "ellipse", problem, 1.0, relevance, (1,), 5)
+    rows = (np.arange(0, 40, 2),)
+    first = ref.sample(rows)
+    assert ref.sample((rows[0].copy(),)) is first
+    assert ref.sample((np.arange(1, 40, 2),)) is not first
+    np.testing.assert_array_equal(first.channels[0].X, problem.channels[0].X[rows[0]])
+    for k in range(refine._SAMPLES + 5):
+        ref.sample((np.arange(k % 7, 40 - k // 7),))
+    assert len(ref._samples) <= refine._SAMPLES

@@ -118,17 +118,20 @@ def degenerate_samples() -> dict[str, np.ndarray]:
 def _degenerate(name: str, rows: np.ndarray) -> bool:
     """Has the closed form's linear system more null vectors than it takes (NumPy's SVD,
     singular values below 1e-6 of the largest)? The eight-point (one) and seven-point (two)
-    systems of ``two_view_fundamental``, the DLT's of ``two_view_homography`` (one); no
-    motion for ``two_view_rotation`` on four matches or more (the DLT's homography is the
-    identity: no rotation fixes the focal length)."""
+    systems of ``two_view_fundamental``, the DLT's of ``two_view_homography`` (one) and of
+    ``two_view_rotation`` on four matches or more (its homography: a repeated match leaves
+    the DLT more null vectors, and LAPACK's choice among them decides whether the
+    reference's focal length is in range); no motion for ``two_view_rotation`` either (the
+    DLT's homography is the identity: no rotation fixes the focal length)."""
     if len(rows) < 2 or not np.all(np.isfinite(rows)):
         return False
     x1, x2 = rows[:, :2], rows[:, 2:]
-    if name == "two_view_rotation":
-        return len(rows) >= 4 and np.allclose(x1, x2, rtol=0, atol=1e-9)
+    if name == "two_view_rotation" and len(rows) >= 4 and \
+            np.allclose(x1, x2, rtol=0, atol=1e-9):
+        return True
     if name == "two_view_fundamental" and len(rows) >= 7:
         A, takes = ref._epipolar_rows(x1, x2)[0], 2 if len(rows) == 7 else 1
-    elif name == "two_view_homography" and len(rows) >= 4:
+    elif name in ("two_view_homography", "two_view_rotation") and len(rows) >= 4:
         p1, p2, _, _ = ref._normalised(x1, x2)
         zero = np.zeros_like(p1)
         A = np.concatenate([np.concatenate([zero, -p2[:, 2:] * p1, p2[:, 1:2] * p1], axis=1),

@@ -74,6 +74,11 @@ if NUMBA is not None and not jit.disabled:
         structure); the Python side reads the same arrays as its attributes (each field
         put there when made, :func:`Arrays`; else from its record)."""
 
+        def __new__(cls, *values):
+            # numba's own constructor is a closure compiled in every process (half a second
+            # of a process's first fit); this one is a kernel, cached like the others
+            return _construct(*values)
+
         def __getattr__(self, name):
             try:
                 return self.__dict__["_record"][_INDEX[name]]
@@ -81,6 +86,12 @@ if NUMBA is not None and not jit.disabled:
                 raise AttributeError(name) from None
 
     structref.define_proxy(_Proxy, ArraysType, _FIELDS)
+
+    @jit
+    def _construct(*values):
+        """A new record of :data:`_SCHEMA`'s fields ``values`` (numba's constructor of
+        :class:`_Proxy`)."""
+        return _Proxy(*values)
     kind("A", lambda: ArraysType([(name, KINDS[k]()) for name, k in _SCHEMA]))
 
     def Arrays(*values):  # noqa: N802 - the record's constructor

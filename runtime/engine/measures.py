@@ -409,13 +409,15 @@ def all_finite(v):
 def project_measure(args, p, d):
     """Project measure ``i`` onto ``c_i(q, ·) = 0`` from ``m`` (updated in place) in its
     ``Q_i`` metric (eq. 22 with eq. 18's halving; ``F``: :func:`fields`). ``iterations``
-    counts projector steps plus one. Writes ``c, C, D`` at the returned point; returns
-    ``(violation, rank)``. ``args``: ``(F, i, q, m, iterations, tol, eps, c, C, D)`` and the
-    buffers of :func:`scratch`; ``p, d`` the measure's equations and components."""
-    F, i, q, m, iterations, tol, eps, c, C, D, E, L, inv, kept, y, rbar, cbar, dm, step, cand, \
-        moved, x = args
+    counts projector steps plus one. Writes ``c, C, D`` at the returned point (``C`` only
+    with ``jacobian``: else the values forms alone, the same ``c`` and ``D``); returns
+    ``(violation, rank)``. ``args``: ``(F, i, q, m, iterations, tol, eps, c, C, D,
+    jacobian)`` and the buffers of :func:`scratch`; ``p, d`` the measure's equations and
+    components."""
+    F, i, q, m, iterations, tol, eps, c, C, D, jacobian, E, L, inv, kept, y, rbar, cbar, dm, \
+        step, cand, moved, x = args
     G, Q, m_obs = F[8][i], F[9][i], F[10][i]
-    if iterations <= 1:  # no step: the point returned
+    if iterations <= 1 and jacobian:  # no step: the point returned
         eval_shaped(F, i, q, m, c, C, D, x, p, d)
     else:  # a step at least, whose point is returned (halving)
         eval_values(F, i, q, m, c, D, x, p, d)
@@ -435,7 +437,7 @@ def project_measure(args, p, d):
         if not finite:
             step[:d] = 0.0
         active = halving(F, i, q, m, c, C, D, step, p, d, cand, moved, x, Q, tol,
-                         it == iterations - 2)
+                         it == iterations - 2, jacobian)
     return viol, rank
 
 
@@ -450,13 +452,13 @@ def moving(moved, m, Q, tol, d):
 
 
 @jit(inline=True)
-def halving(F, i, q, m, c, C, D, step, p, d, cand, moved, x, Q, tol, last):
+def halving(F, i, q, m, c, C, D, step, p, d, cand, moved, x, Q, tol, last, jacobian):
     """Eq. 18 for one measure: ``m + α step`` with α halved while the violation grows (four
     times at most), else no move; updates ``m, c, C, D`` in place, writes the move into
     ``moved``; returns whether the projection goes on after the move (:func:`moving`).
     ``C`` is made only at a candidate that would end the projection — its last step
     (``last``), or a move :func:`moving` stops at — the others need only ``c`` and ``D``
-    (:func:`eval_values`); so ``C`` is the returned point's."""
+    (:func:`eval_values`); so ``C`` is the returned point's. Without ``jacobian``, never."""
     worst = worst_abs(c, p)
     alpha = 1.0
     goes_on = False
@@ -467,7 +469,7 @@ def halving(F, i, q, m, c, C, D, step, p, d, cand, moved, x, Q, tol, last):
             cand[j] = m[j] + alpha * step[j]
             moved[j] = cand[j] - m[j]
         goes_on = moving(moved, cand, Q, tol, d)
-        if last or not goes_on:
+        if jacobian and (last or not goes_on):
             eval_shaped(F, i, q, cand, c, C, D, x, p, d)
         else:
             eval_values(F, i, q, cand, c, D, x, p, d)
@@ -489,26 +491,67 @@ def project_all(A, q, mt, iterations, tol):
     out = mt.copy()
     viol = np.zeros(M)
     rank = np.zeros(M, dtype=np.int64)
+    project_each(A, q, out, iterations, tol, c, C, D, True, viol, rank)
+    return out, viol, rank, c, C, D
+
+
+@jit
+def projected_errors(A, q, iterations, tol):
+    """Every measure projected onto its equations for ``q`` from where it was observed
+    (:func:`project_measure`, its values forms alone: nothing reads the Jacobians) and its
+    error there before eq. 24's division: ``(‖m̃ − m‖²_Q + violation, equations kept)``
+    (:func:`kanagen.runtime.minimal.coherence_errors`; the quadratic summed as NumPy's
+    ``einsum("mk,mkl,ml->m")`` sums it, the same numbers)."""
+    q = np.ascontiguousarray(q)
+    M, pmax = A.chan.size, equations_max(A)
+    out = A.m.copy()
+    viol = np.zeros(M)
+    rank = np.zeros(M, dtype=np.int64)
+    c, C, D = np.zeros((1, pmax)), np.zeros((1, pmax, q.size)), np.zeros((1, pmax, A.m.shape[1]))
+    project_each(A, q, out, iterations, tol, c, C, D, False, viol, rank)
+    totals = np.empty(M)
+    F = fields(A)
+    for i in range(M):
+        d, Q, m_obs = F[2][F[0][i]], F[9][i], F[10][i]
+        acc = 0.0
+        for u in range(d):
+            for v in range(d):
+                acc += (out[i, u] - m_obs[u]) * Q[u, v] * (out[i, v] - m_obs[v])
+        totals[i] = acc + viol[i]
+    return totals, rank
+
+
+@jit(inline=True)
+def project_each(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank):
+    """:func:`project_measure` for every measure of ``A`` from ``out`` (updated in place),
+    its violation and rank into ``viol, rank``; its equations into the rows of ``c, C, D``
+    (its own row each, or one row for all when they have one)."""
     work = scratch(A, q.size)
     E, L, inv, kept, y, rbar, cbar, dm, step, cand, moved, x = borrow(work)
     bq, bout, bc, bC, bD = borrow((q, out, c, C, D))
     F = fields(A)
     eps = A.eps
-    for i in range(M):
+    own = c.shape[0] == out.shape[0]
+    for i in range(out.shape[0]):
         ch = F[0][i]
-        p, d = F[1][ch], F[2][ch]
-        args = (F, i, bq, bout[i], iterations, tol, eps, bc[i], bC[i], bD[i], E, L, inv, kept,
-                y, rbar, cbar, dm, step, cand, moved, x)
-        if p == 1 and d == 2:  # the shipped families' shapes: their loops unrolled
-            viol[i], rank[i] = project_measure(args, 1, 2)
-        elif p == 1 and d == 4:
-            viol[i], rank[i] = project_measure(args, 1, 4)
-        elif p == 3 and d == 4:
-            viol[i], rank[i] = project_measure(args, 3, 4)
-        else:
-            viol[i], rank[i] = project_measure(args, p, d)
-    alive((q, work))
-    return out, viol, rank, c, C, D
+        r = i if own else 0
+        args = (F, i, bq, bout[i], iterations, tol, eps, bc[r], bC[r], bD[r], jacobian, E, L,
+                inv, kept, y, rbar, cbar, dm, step, cand, moved, x)
+        viol[i], rank[i] = project_shaped(args, F[1][ch], F[2][ch])
+    alive((q, out, c, C, D, work))
+
+
+@jit(inline=True)
+def project_shaped(args, p, d):
+    """:func:`project_measure` of a measure of ``p`` equations and ``d`` components: the
+    shipped families' shapes as constants, their loops unrolled."""
+    if p == 1 and d == 2:
+        return project_measure(args, 1, 2)
+    if p == 1 and d == 4:
+        return project_measure(args, 1, 4)
+    if p == 3 and d == 4:
+        return project_measure(args, 3, 4)
+    return project_measure(args, p, d)
 
 
 # -- the restoration: measures the projector's steps leave off ---------------------------
