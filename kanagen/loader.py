@@ -72,7 +72,10 @@ def load(spec: str | Path | Family, *, backend: str | None = None,
     The committed modules under ``kanagen.generated`` are used when they were generated from
     the same spec text; otherwise the spec is built into a cache directory
     (``$KANAGEN_CACHE``, default ``~/.cache/kanagen``) keyed by the spec hash and the
-    generator, and imported.
+    generator, and imported. A spec file whose text a committed module was generated from,
+    or that an earlier load read and built (within the same limits, initialiser registry,
+    spec reader and generator: ``texts/`` in the cache), is not read again: its modules
+    are imported as they are (no SymPy, no jinja2).
 
     Examples
     --------
@@ -87,18 +90,23 @@ def load(spec: str | Path | Family, *, backend: str | None = None,
     backend = default_backend() if by_default else backend
     if backend not in LOAD_BACKENDS:
         raise ValueError(f"unknown backend {backend!r} (choose from {', '.join(LOAD_BACKENDS)})")
+    casadi_module = None  # made below unless a known text gives it
+    read = False  # a spec file read here: its text is remembered once its modules are made
     if _is_family(spec):
         family = spec
         _check_initializers(family)
     else:
         path = Path(spec)
         if path.suffix in (".yaml", ".yml") or path.exists():
-            family, module = None, _shipped_for_text(path, limits)
-            if module is None:
+            family, module = None, None
+            known = _generated_from_text(path, limits, backend != "numpy")
+            if known is not None:
+                module, casadi_module = known
+            else:
                 from .modelspec.parse import load_spec
                 from .runtime.initializers import INITIALIZERS
 
-                family = load_spec(path, limits, INITIALIZERS)
+                family, read = load_spec(path, limits, INITIALIZERS), True
         else:
             family = None
             module = _shipped_by_name(str(spec))
@@ -106,14 +114,17 @@ def load(spec: str | Path | Family, *, backend: str | None = None,
         module = _module_for(family, "numpy")
     functions = None
     if backend != "numpy":
-        casadi_module = _module_for(family, "casadi") if family is not None else \
-            _shipped_by_name(f"{module.FAMILY['name']}_casadi")
+        if casadi_module is None:
+            casadi_module = _module_for(family, "casadi") if family is not None else \
+                _shipped_by_name(f"{module.FAMILY['name']}_casadi")
         if backend == "compiled":
             functions = _compiled(casadi_module, module, by_default)
             if functions is None and by_default:
                 return ModelFamily(module, None, eliminate_linear)
         if functions is None:
             functions = CasadiFunctions(casadi_module, module.FAMILY["derived"])
+    if read:
+        _remember_text(family, limits)
     return ModelFamily(module, functions, eliminate_linear)
 
 
@@ -188,29 +199,100 @@ def _is_family(spec) -> bool:
     return isinstance(spec, Family)
 
 
-def _shipped_for_text(path: Path, limits: Limits):
-    """The committed module generated from this file's very text (a shipped example loaded
-    by its path: ``kanagen fit examples/conic_lattice.yaml ...``), or None. Its text was
-    read, checked and generated from when it was committed — under the default limits, so
-    not when ``limits`` tightens one — and the spec reader and SymPy (half a second of such
-    a command) are not imported. Any other text, or one that cannot be read, goes to the
-    reader (:func:`~kanagen.modelspec.parse.load_spec`: its errors name the file)."""
-    if any(getattr(limits, f.name) < getattr(DEFAULT, f.name) for f in fields(Limits)):
-        return None
+def _generated_from_text(path: Path, limits: Limits, casadi: bool):
+    """The modules generated from this file's very text, ``(numpy module, casadi module or
+    None)``, or None: the committed ones (a shipped example loaded by its path, ``kanagen fit
+    examples/conic_lattice.yaml ...``), else those a load of the same text built into the
+    cache before (:func:`_remember_text`) — with ``casadi``, only when both are there. The
+    text was read and checked when they were made: the spec reader, SymPy and the generator
+    (half a second to two seconds a process) are not imported. A committed module was
+    checked under the default limits (not when ``limits`` tightens one); a built one under
+    the same limits, registry of initialisers, reader and generator (:func:`_text_key`).
+    Any other text, or one that cannot be read, goes to the reader
+    (:func:`~kanagen.modelspec.parse.load_spec`: its errors name the file)."""
     try:
-        if path.stat().st_size > DEFAULT.max_bytes:
+        if path.stat().st_size > min(limits.max_bytes, DEFAULT.max_bytes):
             return None
         text = path.read_text(encoding="utf-8")  # as the reader reads it
     except (OSError, UnicodeDecodeError):
         return None
     digest = hashlib.sha256(text.encode("utf-8")).hexdigest()  # the reader's spec digest
+    from .codegen.version import FORMAT, generator_fingerprint
+
     stems = _shipped_digests().get(digest, ())
     name = next((stem for stem in stems if f"{stem}_casadi" in stems), None)
-    if name is None:  # a family's two modules, both from this text
+    if name is not None and not any(getattr(limits, f.name) < getattr(DEFAULT, f.name)
+                                    for f in fields(Limits)):
+        module = shipped_module(name, digest, FORMAT)
+        if module is not None:
+            return module, _shipped_by_name(f"{name}_casadi") if casadi else None
+    try:
+        name = (_texts_dir() / _text_key(digest, limits)).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
         return None
-    from .codegen.version import FORMAT
+    key = cache_key(digest, generator_fingerprint())
+    paths = [cache_dir() / key / f"{stem}.py" for stem in
+             (name, f"{name}_casadi")[:2 if casadi else 1]]
+    if not name.isidentifier() or not all(p.is_file() for p in paths):
+        return None
+    modules = [import_file(p, f"kanagen_cache_{p.stem}_{key}") for p in paths]
+    return modules[0], modules[1] if casadi else None
 
-    return shipped_module(name, digest, FORMAT)
+
+def _remember_text(family: Family, limits: Limits) -> None:
+    """Note that the text of ``family`` reads, within ``limits``, as the family its cached
+    modules were built from (:func:`_generated_from_text`). Never raises: a cache that cannot
+    be written only means the next load reads the text again."""
+    try:
+        folder = _texts_dir()
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".text.", suffix=".tmp")
+    except OSError:
+        return
+    try:  # a file of this process's own, then an atomic rename (as _module_for writes)
+        with os.fdopen(fd, "w", encoding="utf-8") as out:
+            out.write(family.name)
+        os.replace(tmp, folder / _text_key(family.sha256, limits))
+    except OSError:
+        Path(tmp).unlink(missing_ok=True)
+
+
+def _texts_dir() -> Path:
+    return cache_dir() / "texts"
+
+
+def _text_key(digest: str, limits: Limits) -> str:
+    """What a text's reading depends on besides the text (its ``digest``): the limits, the
+    registry's names (an initialiser a model names must be registered), the reader's and the
+    generator's own files, and the versions of what shapes the generated text."""
+    from importlib import metadata
+
+    from .codegen.version import generator_fingerprint
+    from .runtime.initializers import INITIALIZERS
+
+    versions = []
+    for package in ("sympy", "jinja2", "pyyaml"):
+        try:
+            versions.append(f"{package} {metadata.version(package)}")
+        except metadata.PackageNotFoundError:
+            versions.append(f"{package} -")
+    parts = (digest, repr(limits), ",".join(sorted(INITIALIZERS)), _reader_fingerprint(),
+             generator_fingerprint(), *versions)
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:32]
+
+
+@functools.lru_cache(maxsize=1)
+def _reader_fingerprint() -> str:
+    """A hash of the spec reader's own files (``kanagen.modelspec``), found without
+    importing it."""
+    import importlib.util
+
+    folder = Path(importlib.util.find_spec("kanagen.modelspec").submodule_search_locations[0])
+    digest = hashlib.sha256()
+    for file in sorted(folder.glob("*.py")):
+        digest.update(file.name.encode())
+        digest.update(file.read_bytes())
+    return digest.hexdigest()
 
 
 @functools.lru_cache(maxsize=1)

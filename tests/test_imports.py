@@ -27,13 +27,13 @@ HEAVY = SPEC_AND_GENERATOR + ("casadi", "matplotlib", "dask", "distributed", "pa
                               "scipy")
 
 
-def imported_after(code: str, watched: tuple[str, ...]) -> list[str]:
+def imported_after(code: str, watched: tuple[str, ...], env: dict | None = None) -> list[str]:
     """The modules of ``watched`` in ``sys.modules`` after running ``code`` in a fresh
-    interpreter."""
+    interpreter (``env``: environment variables set besides this process's)."""
     probe = (f"{code}\nimport json, sys\n"
              f"print(json.dumps([m for m in {list(watched)!r} if m in sys.modules]))")
     done = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, capture_output=True,
-                          text=True, env=dict(os.environ), timeout=300)
+                          text=True, env=dict(os.environ, **(env or {})), timeout=300)
     assert done.returncode == 0, done.stderr
     return json.loads(done.stdout.strip().splitlines()[-1])
 
@@ -89,7 +89,56 @@ def test_loading_a_spec_still_reads_it(tmp_path):
     path = tmp_path / "myline.yaml"
     path.write_text(spec.replace("name: line", "name: myline"), encoding="utf-8")
     code = f"import kanagen\nfam = kanagen.load({str(path)!r})\nassert fam.name == 'myline'"
-    assert imported_after(code, SPEC_AND_GENERATOR) == list(SPEC_AND_GENERATOR)
+    env = {"KANAGEN_CACHE": str(tmp_path / "cache")}
+    assert imported_after(code, SPEC_AND_GENERATOR, env) == list(SPEC_AND_GENERATOR)
+
+
+def test_a_spec_read_and_built_once_is_not_read_again(tmp_path):
+    """The next process that loads the same text (the same limits, registry of initialisers,
+    spec reader and generator) imports the modules built from it: neither the reader nor the
+    generator; the casadi module only once it is built. An edited text, or tighter limits,
+    are read again."""
+    spec = (ROOT / "examples" / "line.yaml").read_text(encoding="utf-8")
+    path = tmp_path / "myline.yaml"
+    path.write_text(spec.replace("name: line", "name: myline"), encoding="utf-8")
+    env = {"KANAGEN_CACHE": str(tmp_path / "cache")}
+
+    def load(options: str = "") -> list[str]:
+        code = (f"import kanagen\nfam = kanagen.load({str(path)!r}{options})\n"
+                "assert fam.name == 'myline' and fam.module.__name__.startswith("
+                "'kanagen_cache_myline_'), fam.module.__name__")
+        return imported_after(code, SPEC_AND_GENERATOR, env)
+
+    assert load(", backend='numpy'") == list(SPEC_AND_GENERATOR)
+    assert load(", backend='numpy'") == []
+    assert load(", backend='casadi'") == list(SPEC_AND_GENERATOR)  # its module not built yet
+    assert load(", backend='casadi'") == []
+    assert load(", backend='numpy', limits=kanagen.modelspec.Limits(max_depth=63)") == \
+        list(SPEC_AND_GENERATOR)
+    path.write_text(path.read_text(encoding="utf-8") + "\n# edited\n", encoding="utf-8")
+    assert load(", backend='numpy'") == list(SPEC_AND_GENERATOR)
+
+
+def test_a_spec_refused_once_is_refused_again(tmp_path, monkeypatch):
+    """Only a text that was read is remembered: a refused one is read (and refused, naming
+    its file) at every load; the key of a text changes with the limits, the registry and
+    the reader."""
+    from kanagen import loader
+    from kanagen.modelspec import Limits, SpecError
+
+    monkeypatch.setenv("KANAGEN_CACHE", str(tmp_path / "cache"))
+    path = tmp_path / "bad.yaml"
+    path.write_text("name: bad\nparameter: {a: 1.0}\nchannels:\n  pts:\n"
+                    "    components: [x, y]\n    equations: [y - a*x - zz]\n"
+                    "models:\n  m: {}\n", encoding="utf-8")
+    for _ in range(2):
+        with pytest.raises(SpecError, match="bad.yaml"):
+            kanagen.load(path, backend="numpy")
+    assert not (tmp_path / "cache" / "texts").exists()
+    key = loader._text_key("0" * 64, Limits())
+    assert loader._text_key("0" * 64, Limits(max_depth=63)) != key
+    monkeypatch.setattr(loader, "_reader_fingerprint", lambda: "another reader")
+    assert loader._text_key("0" * 64, Limits()) != key
 
 
 def test_a_shipped_example_loaded_by_its_path_reads_no_spec(tmp_path):
