@@ -18,6 +18,7 @@ from dataclasses import fields
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from .modelspec.digest import sha256_text
 from .modelspec.limits import DEFAULT, Limits
 from .runtime.backends import CasadiFunctions, CompiledFunctions
 from .runtime.family import ModelFamily, cache_dir, cache_key, import_file, shipped_module
@@ -216,7 +217,7 @@ def _generated_from_text(path: Path, limits: Limits, casadi: bool):
         text = path.read_text(encoding="utf-8")  # as the reader reads it
     except (OSError, UnicodeDecodeError):
         return None
-    digest = hashlib.sha256(text.encode("utf-8")).hexdigest()  # the reader's spec digest
+    digest = sha256_text(text)  # as the reader names the family it reads
     from .codegen.version import FORMAT, generator_fingerprint
 
     stems = _shipped_digests().get(digest, ())

@@ -8,7 +8,6 @@ equations ``c_i(q, m_i) = 0``, and models that differ by their parameter constra
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass
 
 import sympy as sp
@@ -111,7 +110,3 @@ class Family:
     def equations(self, model: str, channel: str) -> tuple[sp.Expr, ...]:
         """The measurement equations of ``channel`` under ``model`` (its override, if any)."""
         return dict(self.model(model).equations).get(channel, self.channel(channel).equations)
-
-
-def sha256_text(text: str) -> str:
-    return hashlib.sha256(text.encode("utf-8")).hexdigest()

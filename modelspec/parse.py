@@ -15,6 +15,7 @@ from pathlib import Path
 import sympy as sp
 
 from .constructs import compile_formula, is_formula, parse_formula, slack_start
+from .digest import sha256_text
 from .errors import SpecError
 from .expressions import (
     CONSTANTS,
@@ -25,7 +26,7 @@ from .expressions import (
     shape_text,
 )
 from .guards import tree_size
-from .ir import Alternative, Channel, Derived, Family, Model, sha256_text, symbol
+from .ir import Alternative, Channel, Derived, Family, Model, symbol
 from .limits import DEFAULT, Limits
 from .yamlsrc import Located, read_yaml
 
