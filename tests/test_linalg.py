@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from kanagen.runtime.linalg import null_basis, right_singular, small_svd
+from kanagen.runtime.linalg import certified_solve, null_basis, right_singular, small_svd
 
 _SHAPES = dict(m=st.integers(1, 9), n=st.integers(1, 9), rank=st.integers(0, 9),
                seed=st.integers(0, 2**32 - 1), scale=st.sampled_from([1e-150, 1.0, 1e150]))
@@ -119,3 +119,39 @@ def test_one_pinned_components_complement_is_exact(value):
     cov = constrained_covariance(info, c[None, :])
     assert np.all(cov[2] == 0.0) and np.all(cov[:, 2] == 0.0)
     assert np.array_equal(complement(np.zeros(4)), np.eye(4))
+
+
+@given(n=st.integers(1, 12), digits=st.floats(0.0, 17.0), seed=st.integers(0, 2**32 - 1),
+       scale=st.sampled_from([1e-200, 1e-3, 1.0, 1e200]), floor=st.sampled_from([1e-8, 1e-4]))
+@settings(max_examples=200, deadline=None)
+def test_certified_solve_certifies_only_what_an_svd_keeps_whole(n, digits, seed, scale, floor):
+    """:func:`certified_solve` solves ``T x = b`` only for a matrix whose singular values
+    all lie above ``floor`` times the largest — the solution LAPACK's gives, to its
+    condition number's rounding — and certifies every matrix well inside that (a condition
+    number ``κ`` with ``n κ`` under ``1 / (4 floor)``); matrices of every condition number
+    up to singular, at scales near over- and underflow."""
+    rng = np.random.default_rng(seed)
+    U = np.linalg.qr(rng.standard_normal((n, n)))[0]
+    V = np.linalg.qr(rng.standard_normal((n, n)))[0]
+    S = np.logspace(0.0, -digits, n) if n > 1 else np.ones(1)
+    T = scale * (U * S) @ V.T
+    b = scale * rng.standard_normal(n)
+    x = np.empty(n)
+    ok = certified_solve(T, b, floor, np.empty((n, n)), np.empty((n, n + 1)), x)
+    values = np.linalg.svd(T, compute_uv=False)
+    kappa = values[0] / values[-1] if values[-1] > 0 else np.inf
+    if ok:
+        assert values[-1] > floor * values[0]
+        reference = np.linalg.solve(T, b)
+        np.testing.assert_allclose(x, reference, rtol=0,
+                                   atol=1e-13 * n * kappa * np.abs(reference).max())
+    else:
+        assert not 4.0 * n * kappa * floor < 1.0
+
+
+def test_certified_solve_refuses_singular_and_non_finite_matrices():
+    """A singular matrix, a zero one and one with a non-finite entry are never certified."""
+    x = np.empty(3)
+    for T in (np.ones((3, 3)), np.zeros((3, 3)), np.diag([1.0, np.nan, 1.0]),
+              np.diag([1.0, np.inf, 1.0])):
+        assert not certified_solve(T, np.ones(3), 1e-8, np.empty((3, 3)), np.empty((3, 4)), x)

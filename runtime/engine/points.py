@@ -14,7 +14,7 @@ from kanagen.common.jit import jit
 from kanagen.common.link import linked, record_kind
 
 from ..lapack import least_squares
-from ..linalg import matmul, row_svd, sym_eigh
+from ..linalg import certified_solve, matmul, row_svd, sym_eigh, triangular_rows
 from ..sqrt import EPS, REDUNDANT, closest_root
 from .linear import corrected, linearise, parameter_block, retraction_step, whitened_violation
 from .measures import (
@@ -259,11 +259,23 @@ def multipliers(x, gradient):
         return np.zeros(0)
     if not (np.all(np.isfinite(x.C0)) and np.all(np.isfinite(gradient))):
         return np.full(r, np.nan)
-    # independent constraints (the usual case): the least-squares solution from C0's SVD
-    # (one-sided Jacobi: C0 = Wᵀ R, R's rows orthogonal) — LAPACK's fixed costs were most
-    # of the time on such sizes; dependent ones (a singular value under NumPy's lstsq
-    # cut-off, ε·max(n, r) of the largest): its minimum-norm solution, as lstsq gives it
+    # independent constraints (the usual case): the least-squares solution, from the
+    # Householder triangle of C0ᵀ (C0ᵀ = Q [T; 0], T λ0 = −(Qᵀ ∇F)₁..ᵣ) when its rank is
+    # certified (:func:`certified_solve`: a singular value at least 1e3 times NumPy's lstsq
+    # cut-off, ε·max(n, r) of the largest), else from C0's SVD (one-sided Jacobi: C0 = Wᵀ
+    # R, R's rows orthogonal) — LAPACK's fixed costs were most of the time on such sizes;
+    # dependent ones (a singular value under the cut-off): the minimum-norm solution, as
+    # lstsq gives it
     cut = np.finfo(np.float64).eps * max(n, r)
+    if r <= n:
+        T, g = np.empty((r, r)), np.empty(r)
+        triangular_rows(np.ascontiguousarray(x.C0.T), gradient, np.empty((n, r + 1)),
+                        np.empty((n, r)), T, g)
+        lam = np.empty(r)
+        if certified_solve(T, g, 1e3 * cut, np.empty((r, r)), np.empty((r, r + 1)), lam):
+            for a in range(r):
+                lam[a] = -lam[a]
+            return lam
     R, W, S = np.empty((r, n)), np.empty((r, r)), np.empty(r)
     if r > n or row_svd(x.C0, R, W, S) < 0 or not S.min() > 1e3 * cut * S.max():
         return least_squares(np.ascontiguousarray(x.C0.T), -gradient, cut)

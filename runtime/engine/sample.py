@@ -28,7 +28,7 @@ import numpy as np
 from kanagen.common.borrow import alive, borrow
 from kanagen.common.jit import NUMBA, jit
 
-from ..linalg import row_svd, triangular_rows
+from ..linalg import certified_solve, row_svd, triangular_rows
 from .measures import c0_eval, eval_measure, eval_values, fields, row_buffer, scratch, whitened
 
 #: Values per candidate of a closed-form initialiser, and candidates at most.
@@ -190,10 +190,11 @@ def minimal_solve(A, rows, target, max_iter, xtol, eps):
     steps to the nearest point of the linearised equations, from the SVD of their Jacobian
     (:func:`~kanagen.runtime.linalg.row_svd`, of its triangular factor when it has more
     rows than columns: :func:`~kanagen.runtime.linalg.triangular_rows`; not ``J Jᵀ``,
-    whose condition number is squared), each equation in units of the parameter (scaled by
-    its gradient's norm at the start), with a watchdog (full steps may raise the violation
-    a few times: far from the solution a curved equation needs it) and a line search after
-    it. Returns ``(q, solved, rank, iterations, violation)``."""
+    whose condition number is squared; a square Jacobian of certified full rank by Gaussian
+    elimination instead, the same step: :func:`_newton_step`), each equation in units of
+    the parameter (scaled by its gradient's norm at the start), with a watchdog (full steps
+    may raise the violation a few times: far from the solution a curved equation needs it)
+    and a line search after it. Returns ``(q, solved, rank, iterations, violation)``."""
     n = target.size
     rows_eq, pmax = A.r, 1
     for s in range(rows.size):
@@ -218,31 +219,17 @@ def minimal_solve(A, rows, target, max_iter, xtol, eps):
     R, W, S = np.empty((k, n)), np.empty((k, k)), np.empty(k)
     T, g = np.empty((k, n)), np.empty(k)
     work, U = np.empty((rows_eq, n + 1)), np.empty((rows_eq, n))  # triangular_rows' scratch
+    K, X = np.empty((n, n)), np.empty((n, n + 1))  # _newton_step's
     for it in range(1, max_iter + 1):
         if rows_eq == 0 or not (np.all(np.isfinite(J)) and np.all(np.isfinite(c))):
             return q, False, rank, it, delta
-        triangular_rows(J, c, work, U, T, g)
-        if row_svd(T, R, W, S) < 0:
-            return q, False, rank, it, delta
-        # J = Qₖ Wᵀ diag(S) V with V's rows R's divided by S and g = Qₖᵀ c: step = r −
-        # V_k (V_kᵀ r + S_k⁻¹ W_k g) over the kept singular values
-        top = np.max(S)
-        rank = 0
-        for j in range(n):
-            step[j] = target[j] - q[j]
-        r = step.copy()
-        for u in range(k):
-            if not (top > 0 and S[u] > np.sqrt(eps) * top):
-                continue
-            rank += 1
-            along = 0.0
-            for j in range(n):
-                along += R[u, j] * r[j]
-            for a in range(k):
-                along += W[u, a] * g[a]
-            along /= S[u] * S[u]
-            for j in range(n):
-                step[j] -= R[u, j] * along
+        if rows_eq == n and _newton_step(J, c, eps, K, X, step):
+            rank = n
+        else:
+            triangular_rows(J, c, work, U, T, g)
+            if row_svd(T, R, W, S) < 0:
+                return q, False, rank, it, delta
+            rank = _svd_step(R, W, S, g, target, q, eps, step)
         if not np.all(np.isfinite(step)):
             return q, False, rank, it, delta
         for j in range(n):
@@ -282,6 +269,48 @@ def minimal_solve(A, rows, target, max_iter, xtol, eps):
         if moved <= xtol * size or _solved(delta, q) and moved <= 1e-8 * size:
             return q, _solved(delta, q), rank, it, delta
     return q, _solved(delta, q), rank, max_iter, delta
+
+
+@jit
+def _newton_step(J, c, eps, K, X, step):
+    """``step = −J⁻¹ c`` for a square ``J`` every singular value of which
+    :func:`_svd_step` keeps (above ``√eps`` of the largest: certified,
+    :func:`~kanagen.runtime.linalg.certified_solve`) — its step then, in exact arithmetic,
+    at a fraction of an SVD's cost. False, ``step`` undefined, when not certified (``K,
+    X``: scratch, n × n and n × (n + 1))."""
+    if not certified_solve(J, c, np.sqrt(eps), K, X, step):
+        return False
+    for a in range(c.size):
+        step[a] = -step[a]
+    return True
+
+
+@jit
+def _svd_step(R, W, S, g, target, q, eps, step):
+    """The step of least norm from ``q`` towards ``target`` onto the linearised equations,
+    from :func:`~kanagen.runtime.linalg.row_svd` of their rows: with ``J = Qₖ Wᵀ diag(S)
+    V``, V's rows R's divided by S, and ``g = Qₖᵀ c``, ``step = r − V_k (V_kᵀ r + S_k⁻¹
+    W_k g)``, ``r = target − q``, over the singular values above ``√eps`` of the largest
+    (their number returned)."""
+    n, k = q.size, S.size
+    top = np.max(S)
+    rank = 0
+    for j in range(n):
+        step[j] = target[j] - q[j]
+    r = step.copy()
+    for u in range(k):
+        if not (top > 0 and S[u] > np.sqrt(eps) * top):
+            continue
+        rank += 1
+        along = 0.0
+        for j in range(n):
+            along += R[u, j] * r[j]
+        for a in range(k):
+            along += W[u, a] * g[a]
+        along /= S[u] * S[u]
+        for j in range(n):
+            step[j] -= R[u, j] * along
+    return rank
 
 
 # -- eq. 24: every measure's error at a solution -----------------------------------------
