@@ -190,7 +190,7 @@ def minimal_solve(A, rows, target, max_iter, xtol, eps):
     steps to the nearest point of the linearised equations, from the SVD of their Jacobian
     (:func:`~kanagen.runtime.linalg.row_svd`, of its triangular factor when it has more
     rows than columns: :func:`~kanagen.runtime.linalg.triangular_rows`; not ``J Jᵀ``,
-    whose condition number is squared; a square Jacobian of certified full rank by Gaussian
+    whose condition number is squared; a square factor of certified full rank by Gaussian
     elimination instead, the same step: :func:`_newton_step`), each equation in units of
     the parameter (scaled by its gradient's norm at the start), with a watchdog (full steps
     may raise the violation a few times: far from the solution a curved equation needs it)
@@ -223,10 +223,10 @@ def minimal_solve(A, rows, target, max_iter, xtol, eps):
     for it in range(1, max_iter + 1):
         if rows_eq == 0 or not (np.all(np.isfinite(J)) and np.all(np.isfinite(c))):
             return q, False, rank, it, delta
-        if rows_eq == n and _newton_step(J, c, eps, K, X, step):
+        triangular_rows(J, c, work, U, T, g)
+        if k == n and _newton_step(T, g, eps, K, X, step):
             rank = n
         else:
-            triangular_rows(J, c, work, U, T, g)
             if row_svd(T, R, W, S) < 0:
                 return q, False, rank, it, delta
             rank = _svd_step(R, W, S, g, target, q, eps, step)
@@ -273,11 +273,13 @@ def minimal_solve(A, rows, target, max_iter, xtol, eps):
 
 @jit
 def _newton_step(J, c, eps, K, X, step):
-    """``step = −J⁻¹ c`` for a square ``J`` every singular value of which
+    """``step = −J⁻¹ c`` for a square ``J`` (the rows of the linearised equations, or the
+    triangular factor of more of them, ``c`` then ``Qᵀ c``'s first n entries:
+    :func:`~kanagen.runtime.linalg.triangular_rows`) every singular value of which
     :func:`_svd_step` keeps (above ``√eps`` of the largest: certified,
-    :func:`~kanagen.runtime.linalg.certified_solve`) — its step then, in exact arithmetic,
-    at a fraction of an SVD's cost. False, ``step`` undefined, when not certified (``K,
-    X``: scratch, n × n and n × (n + 1))."""
+    :func:`~kanagen.runtime.linalg.certified_solve`) — its step then, in exact arithmetic
+    (the target drops out: no direction is free), at a fraction of an SVD's cost. False,
+    ``step`` undefined, when not certified (``K, X``: scratch, n × n and n × (n + 1))."""
     if not certified_solve(J, c, np.sqrt(eps), K, X, step):
         return False
     for a in range(c.size):
