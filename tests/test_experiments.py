@@ -102,3 +102,34 @@ def test_stewart_deterministic_per_setting():
     one = stewart.simulate(settings=stewart.SETTINGS[-1:], reps=5, n=200)
     both = stewart.simulate(settings=stewart.SETTINGS[-2:], reps=5, n=200)
     assert one[0] == both[1]
+
+
+def test_perf_map_names_the_kernels_a_run_used(tmp_path):
+    """``experiments/perf_map.py`` runs a script and leaves ``perf``'s map of numba's
+    compiled kernels: the engine's functions, at distinct addresses, with their sizes."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = tmp_path / "fit.py"
+    script.write_text(
+        "import numpy as np, kanagen\n"
+        "t = np.linspace(0.0, 6.0, 30)\n"
+        "xy = np.c_[3 * np.cos(t), 2 * np.sin(t)]\n"
+        "print(kanagen.fit(kanagen.load('conic'), 'conic', data={'point': xy}).success)\n")
+    tool = Path(__file__).resolve().parents[1] / "experiments" / "perf_map.py"
+    run = subprocess.run([sys.executable, str(tool), str(script)], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip() == "True"
+    found = re.search(r"perf map: (\S+) \((\d+) functions\)", run.stderr)
+    assert found and int(found.group(2)) > 10
+    path = Path(found.group(1))
+    try:
+        rows = [line.split(" ", 2) for line in path.read_text().splitlines()]
+    finally:
+        path.unlink()
+    addresses = [int(a, 16) for a, _, _ in rows]
+    assert addresses == sorted(set(addresses))
+    assert all(int(size, 16) > 0 for _, size, _ in rows)
+    assert any("kanagen" in name and "run_flat" in name for *_, name in rows)
