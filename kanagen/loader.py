@@ -18,7 +18,7 @@ from dataclasses import fields
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .modelspec.digest import sha256_text
+from .modelspec.digest import files_digest, sha256_text
 from .modelspec.limits import DEFAULT, Limits
 from .runtime.backends import CasadiFunctions, CompiledFunctions
 from .runtime.family import ModelFamily, cache_dir, cache_key, import_file, shipped_module
@@ -218,7 +218,7 @@ def _generated_from_text(path: Path, limits: Limits, casadi: bool):
     except (OSError, UnicodeDecodeError):
         return None
     digest = sha256_text(text)  # as the reader names the family it reads
-    from .codegen.version import FORMAT, generator_fingerprint
+    from .codegen.version import FORMAT
 
     stems = _shipped_digests().get(digest, ())
     name = next((stem for stem in stems if f"{stem}_casadi" in stems), None)
@@ -231,12 +231,10 @@ def _generated_from_text(path: Path, limits: Limits, casadi: bool):
         name = (_texts_dir() / _text_key(digest, limits)).read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError):
         return None
-    key = cache_key(digest, generator_fingerprint())
-    paths = [cache_dir() / key / f"{stem}.py" for stem in
-             (name, f"{name}_casadi")[:2 if casadi else 1]]
-    if not name.isidentifier() or not all(p.is_file() for p in paths):
+    places = [_cached(digest, stem) for stem in (name, f"{name}_casadi")[:2 if casadi else 1]]
+    if not name.isidentifier() or not all(path.is_file() for path, _ in places):
         return None
-    modules = [import_file(p, f"kanagen_cache_{p.stem}_{key}") for p in paths]
+    modules = [import_file(*place) for place in places]
     return modules[0], modules[1] if casadi else None
 
 
@@ -247,15 +245,9 @@ def _remember_text(family: Family, limits: Limits) -> None:
     try:
         folder = _texts_dir()
         folder.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".text.", suffix=".tmp")
+        _write_atomically(folder / _text_key(family.sha256, limits), family.name)
     except OSError:
-        return
-    try:  # a file of this process's own, then an atomic rename (as _module_for writes)
-        with os.fdopen(fd, "w", encoding="utf-8") as out:
-            out.write(family.name)
-        os.replace(tmp, folder / _text_key(family.sha256, limits))
-    except OSError:
-        Path(tmp).unlink(missing_ok=True)
+        pass
 
 
 def _texts_dir() -> Path:
@@ -289,11 +281,7 @@ def _reader_fingerprint() -> str:
     import importlib.util
 
     folder = Path(importlib.util.find_spec("kanagen.modelspec").submodule_search_locations[0])
-    digest = hashlib.sha256()
-    for file in sorted(folder.glob("*.py")):
-        digest.update(file.name.encode())
-        digest.update(file.read_bytes())
-    return digest.hexdigest()
+    return files_digest(folder, folder.glob("*.py"))
 
 
 @functools.lru_cache(maxsize=1)
@@ -332,7 +320,7 @@ def _shipped_by_name(name: str):
 def _module_for(family: Family, backend: str):
     """The generated module of ``family`` for ``backend``: the shipped one when current,
     else built into the cache."""
-    from .codegen.version import FORMAT, generator_fingerprint
+    from .codegen.version import FORMAT
 
     stem = f"{family.name}_{backend}" if backend != "numpy" else family.name
     module = shipped_module(stem, family.sha256, FORMAT)
@@ -342,25 +330,37 @@ def _module_for(family: Family, backend: str):
 
     target = BACKENDS[backend].templates["module.py.jinja"].format(name=family.name)
     assert target == f"{stem}.py", target
-    key = cache_key(family.sha256, generator_fingerprint())
-    folder = cache_dir() / key
+    path, name = _cached(family.sha256, stem)
     text = render_spec(family, [backend])[target]
-    path = folder / target
     if not path.exists() or path.read_text(encoding="utf-8") != text:
         try:
-            folder.mkdir(parents=True, exist_ok=True)
+            path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise OSError(f"cannot write the generated module of {family.name!r} into "
-                          f"{folder}: {exc} (set KANAGEN_CACHE to a writable folder)") \
+                          f"{path.parent}: {exc} (set KANAGEN_CACHE to a writable folder)") \
                 from None
-        # a temporary file of this process's own, then an atomic rename: concurrent first
-        # loads never share a partial file, and a loader never sees half a module
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{stem}.", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as out:
-                out.write(text)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-    return import_file(path, f"kanagen_cache_{stem}_{key}")
+        _write_atomically(path, text)
+    return import_file(path, name)
+
+
+def _cached(sha256: str, stem: str) -> tuple[Path, str]:
+    """Where the module ``stem`` generated from the spec text of digest ``sha256`` is built
+    in the cache (keyed by the text and the generator), and the name it is imported as."""
+    from .codegen.version import generator_fingerprint
+
+    key = cache_key(sha256, generator_fingerprint())
+    return cache_dir() / key / f"{stem}.py", f"kanagen_cache_{stem}_{key}"
+
+
+def _write_atomically(path: Path, text: str) -> None:
+    """``text`` into ``path`` (its folder exists) through a temporary file of this
+    process's own and an atomic rename: concurrent first loads never share a partial file,
+    and a reader never sees half of one."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as out:
+            out.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
