@@ -18,7 +18,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .projector import Problem, evaluate, linearise
+from .engine.data import arrays, pack_measures
+from .engine.points import evaluate_flat
+from .iterate import unpack_point
+from .projector import Problem, linearise
 from .results import FitResult
 
 
@@ -30,8 +33,11 @@ class Influence:
 
     def __init__(self, problem: Problem, fit: FitResult):
         mt = tuple(np.asarray(fit.measures[ch.name])[:, ch.index] for ch in problem.channels)
-        with np.errstate(all="ignore"):
-            lin = linearise(problem, evaluate(problem, fit.q, mt))
+        A = arrays(problem)
+        with np.errstate(all="ignore"):  # the point as the fit's kernels evaluate it
+            x = unpack_point(A, *evaluate_flat(A, np.ascontiguousarray(fit.q, dtype=float),
+                                               pack_measures(A, mt)))[0]
+            lin = linearise(problem, x)
         self.S = np.asarray(fit.covariance, dtype=float)
         self.blind = not np.isfinite(self.S).all()
         self.parts = [None if w is None else (w[0], w[1], np.maximum(rank, 1))
@@ -74,6 +80,12 @@ class Influence:
         out = np.full(len(groups), np.nan)
         if self.blind or not groups:
             return out
+        stacked = self._one_channel(groups)
+        if stacked is not None:  # the usual case: the stack gathered at once
+            A, r, p = stacked
+            with np.errstate(all="ignore"):
+                K = np.eye(A.shape[1]) - _sandwich(A, self.S)
+                return _quadratic_or_inf(K, r) / p
         shapes: dict = {}
         for g, measures in enumerate(groups):
             A = np.concatenate([self.parts[c][0][i] for c, i in measures])  # (P, n)
@@ -90,6 +102,20 @@ class Influence:
                 out[g] = drop / p
         return out
 
+    def _one_channel(self, groups):
+        """:meth:`joints`' stack ``(A, r, p)`` when every group has as many measures, all of
+        one channel with equations: gathered by one index (the same arrays, in the same
+        order, as joining each group's); None otherwise."""
+        channel, size = groups[0][0][0], len(groups[0])
+        if self.parts[channel] is None or any(
+                len(g) != size or any(c != channel for c, _ in g) for g in groups):
+            return None
+        Cbar, rbar, rank = self.parts[channel]
+        index = np.array([[i for _, i in g] for g in groups], dtype=np.intp)
+        G, (p, n) = index.shape[0], Cbar.shape[1:]
+        return (Cbar[index].reshape(G, size * p, n), rbar[index].reshape(G, size * p),
+                rank[index].sum(axis=1) / size)
+
 
 def _sandwich(A: np.ndarray, S: np.ndarray) -> np.ndarray:
     """``A_m S A_mᵀ`` for each matrix of the stack ``A`` (m, p, n): two matrix products
@@ -102,6 +128,8 @@ def _quadratic_or_inf(K: np.ndarray, r: np.ndarray) -> np.ndarray:
     singular: the measures alone hold a direction of the parameter."""
     singular = ~(np.linalg.det(K) > 1e-12)
     K = np.where(singular[:, None, None], np.eye(K.shape[1]), K)
+    if K.shape[1] == 1:  # one equation a measure: LAPACK's solve is this division, and
+        return np.where(singular, np.inf, (r * (r / K[:, :, 0]))[:, 0])  # the same numbers
     z = np.linalg.solve(K, r[..., None])[..., 0]
     return np.where(singular, np.inf, np.einsum("mp,mp->m", r, z))
 

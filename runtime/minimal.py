@@ -32,25 +32,23 @@ def coherence_errors(problem: Problem, q: np.ndarray, iterations: int | None = N
     ``iterations`` is 1 and a channel has several equations).
     """
     iterations = iterations if iterations is not None else 50
-    with np.errstate(all="ignore"):
+    A = arrays(problem)
+    with np.errstate(all="ignore"):  # once: a search asks for the errors a thousand times
         if iterations == 1:  # where the measures were observed: no projection step
-            A = arrays(problem)
             violations, kept = observed_all(A, np.asarray(q, dtype=float))
             totals, kept = per_channel(A, violations), per_channel(A, kept)
         else:  # projected from where they were observed: ‖m̃ − m‖²_Q plus the violation
-            A = arrays(problem)
             totals, kept = projected_errors(A, np.ascontiguousarray(q, dtype=float),
                                             int(iterations), float(tol))
             totals, kept = per_channel(A, totals), per_channel(A, kept)
         if ranks is None and iterations == 1 and any(r.size and r.max() > 1 for r in kept):
             ranks = manifold_ranks(problem, q)
-    out = []
-    for i, (total, rank) in enumerate(zip(totals, kept, strict=True)):
-        if ranks is not None:
-            rank = np.minimum(rank, ranks[i])
-        with np.errstate(all="ignore"):
+        out = []
+        for i, (total, rank) in enumerate(zip(totals, kept, strict=True)):
+            if ranks is not None:
+                rank = np.minimum(rank, ranks[i])
             errors = total / np.maximum(rank, 1)
-        out.append(np.where(np.isfinite(errors), errors, np.inf))
+            out.append(np.where(np.isfinite(errors), errors, np.inf))
     return tuple(out)
 
 

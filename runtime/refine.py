@@ -427,8 +427,21 @@ class Refinement:
 
 
 def _less(a, b) -> tuple[np.ndarray, ...]:
-    """The measures of ``a`` not in ``b``, per channel (index arrays)."""
-    return tuple(np.setdiff1d(x, y) for x, y in zip(a, b, strict=True))
+    """The measures of ``a`` not in ``b``, per channel (index arrays): ``np.setdiff1d``'s
+    result (sorted, unique)."""
+    return tuple(_setdiff(x, y) for x, y in zip(a, b, strict=True))
+
+
+def _setdiff(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``np.setdiff1d(x, y)`` for index arrays; where ``x`` is increasing already (the rounds'
+    inliers always are) by a table of ``y``'s indices — setdiff1d sorts both, ~20 times the
+    cost on a few hundred measures."""
+    if not (x.dtype.kind == y.dtype.kind == "i" and x.size and (x.size == 1 or np.all(
+            x[1:] > x[:-1])) and x[0] >= 0 and (y.size == 0 or y.min() >= 0)):
+        return np.setdiff1d(x, y)
+    table = np.zeros(int(max(x[-1], y.max() if y.size else 0)) + 1, dtype=bool)
+    table[y] = True
+    return x[~table[x]]
 
 
 def _same(a, b) -> bool:

@@ -133,3 +133,17 @@ def test_perf_map_names_the_kernels_a_run_used(tmp_path):
     assert addresses == sorted(set(addresses))
     assert all(int(size, 16) > 0 for _, size, _ in rows)
     assert any("kanagen" in name and "run_flat" in name for *_, name in rows)
+
+
+def test_two_view_parts_times_the_fits_by_role_and_the_samples_by_size():
+    """``experiments/two_view_parts.py`` on one scene: the fits the refinement asked for,
+    by role (LO-RANSAC's refinement among them), and the samples of the search."""
+    from experiments import two_view_parts
+
+    total, fits, bursts = two_view_parts.measure(1)
+    assert total > 0.0
+    assert "refined" in fits and all(calls > 0 and seconds > 0.0
+                                     for calls, seconds, _ in fits.values())
+    assert bursts and all(samples >= none for samples, none, _ in bursts.values())
+    text = two_view_parts.report(1, total, fits, bursts)
+    assert "refined" in text and "samples (n, k)" in text and "% of the search" in text

@@ -139,3 +139,86 @@ def test_the_cross_check_stops_when_the_inliers_grow_back():
     est = kanagen.Estimator(fam, seed=3291)
     est.add_measures("point", xy, info=1.0)
     assert est.run(max_samples=5000).model == LATTICE_MODEL["hyperbola"]
+
+
+def _reference_joints(influence: Influence, groups) -> np.ndarray:
+    """:meth:`Influence.joints` group by group: each group's rows joined, its drop
+    ``r̄ᵀ (I − C̄ Σ C̄ᵀ)⁻¹ r̄`` by LAPACK's solve, per equation kept."""
+    out = []
+    for measures in groups:
+        A = np.concatenate([influence.parts[c][0][i] for c, i in measures])
+        r = np.concatenate([influence.parts[c][1][i] for c, i in measures])
+        p = sum(int(influence.parts[c][2][i]) for c, i in measures) / len(measures)
+        K = np.eye(A.shape[0]) - A @ influence.S @ A.T
+        out.append(r @ np.linalg.solve(K, r) / p if np.linalg.det(K) > 1e-12 else np.inf)
+    return np.array(out)
+
+
+def test_joint_drops_of_groups_gathered_at_once_are_each_groups_own():
+    # the stack of pairs of one channel gathered by one index, and the drops of one measure
+    # (one equation: the solve a division), give each group's own numbers
+    fam = kanagen.load("line")
+    problem = make_problem(fam, "line", {"point": _line_data(2)}, {"point": 1 / 0.1**2})
+    fit = fit_problem(fam, "line", problem)
+    influence = Influence(problem, fit)
+    pairs = [[(0, a), (0, b)] for a, b in ((19, 3), (0, 1), (5, 12), (7, 7))]
+    np.testing.assert_allclose(influence.joints(pairs), _reference_joints(influence, pairs),
+                               rtol=1e-12)
+    singles = [[(0, i)] for i in range(20)]
+    np.testing.assert_allclose(influence.joints(singles),
+                               _reference_joints(influence, singles), rtol=1e-12)
+    np.testing.assert_allclose(influence.drops()[0], influence.joints(singles), rtol=1e-12)
+    mixed = [[(0, 1)], [(0, 2), (0, 3)]]  # groups of several sizes: stacked by shape
+    np.testing.assert_allclose(influence.joints(mixed), _reference_joints(influence, mixed),
+                               rtol=1e-12)
+
+
+def test_the_drops_read_the_fit_as_its_kernels_evaluate_it():
+    # the whitened rows the drops use are those of the engine's linearisation at the fit's
+    # point — the fit's own numbers (its row kernels), not the family's vectorised functions
+    # (two views: the two differ in their last bits)
+    from kanagen.runtime.engine.data import arrays, pack_measures
+    from kanagen.runtime.engine.points import evaluate_flat
+    from kanagen.runtime.iterate import unpack_point
+    from kanagen.runtime.projector import linearise
+    from kanagen.scenes import two_view_scene
+
+    scene = two_view_scene("general", n=60, outliers=0.0, sigma=0.5, seed=4)
+    # the product's backend (CasADi's compiled functions; the suite's default, NumPy's, runs
+    # the same expressions as the row kernels)
+    fam = kanagen.load("two_view", backend="compiled")
+    problem = make_problem(fam, "general", {"match": scene.data}, {"match": 4.0},
+                           scene.params(), constants=scene.constants)
+    fit = fit_problem(fam, "general", problem)
+    assert fit.success
+    A = arrays(problem)
+    x = unpack_point(A, *evaluate_flat(A, fit.q.copy(), pack_measures(
+        A, (fit.measures["match"],))))[0]
+    Cbar, rbar, _ = linearise(problem, x).whitened[0]
+    influence = Influence(problem, fit)
+    assert np.array_equal(influence.parts[0][0], Cbar)
+    assert np.array_equal(influence.parts[0][1], rbar)
+
+
+def test_a_subset_is_the_problem_replaced_on_its_measures():
+    # Problem.subset makes its record without dataclasses.replace's __init__: the same
+    # fields (the very objects, the channels cut), nothing cached carried over
+    from dataclasses import fields, replace
+
+    fam = kanagen.load("line")
+    problem = make_problem(fam, "line", {"point": _line_data()}, {"point": 1 / 0.1**2})
+    fit_problem(fam, "line", problem)  # its engine arrays made (cached on it)
+    rows = (np.array([0, 3, 4, 19]),)
+    sub = problem.subset(rows)
+    ref = replace(problem, channels=tuple(ch.subset(r) for ch, r in
+                                          zip(problem.channels, rows, strict=True)))
+    assert type(sub) is type(ref)
+    for f in fields(ref):
+        if f.name == "channels":
+            assert np.array_equal(sub.channels[0].X, ref.channels[0].X)
+            assert np.array_equal(sub.channels[0].m, ref.channels[0].m)
+        else:
+            assert getattr(sub, f.name) is getattr(ref, f.name)
+    assert "_arrays" not in sub.__dict__ and "_subset_of" in sub.__dict__
+    with pytest.raises(AttributeError):
+        sub.q0 = None  # still frozen

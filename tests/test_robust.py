@@ -163,3 +163,19 @@ def test_a_refinement_makes_each_subset_once():
     for k in range(refine._SAMPLES + 5):
         ref.sample((np.arange(k % 7, 40 - k // 7),))
     assert len(ref._samples) <= refine._SAMPLES
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.integers(0, 60), max_size=40), st.lists(st.integers(0, 80), max_size=30),
+       st.booleans())
+def test_the_rounds_set_difference_is_numpys(x, y, increasing):
+    # Refinement's measures of a less those of b: np.setdiff1d's result, its fast path for
+    # increasing index arrays (the rounds' inliers) by a table of b's indices included
+    from kanagen.runtime.refine import _less, _setdiff
+
+    a = np.unique(np.array(x, dtype=np.int64)) if increasing else np.array(x, dtype=np.int64)
+    b = np.array(y, dtype=np.intp)
+    out, ref = _setdiff(a, b), np.setdiff1d(a, b)
+    assert out.dtype == ref.dtype and np.array_equal(out, ref)
+    (pair,) = _less((a,), (b,))
+    assert np.array_equal(pair, ref)
