@@ -18,9 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .engine.data import arrays, pack_measures
-from .engine.points import evaluate_flat
-from .iterate import unpack_point
+from .iterate import evaluated
 from .projector import Problem, linearise
 from .results import FitResult
 
@@ -33,11 +31,8 @@ class Influence:
 
     def __init__(self, problem: Problem, fit: FitResult):
         mt = tuple(np.asarray(fit.measures[ch.name])[:, ch.index] for ch in problem.channels)
-        A = arrays(problem)
         with np.errstate(all="ignore"):  # the point as the fit's kernels evaluate it
-            x = unpack_point(A, *evaluate_flat(A, np.ascontiguousarray(fit.q, dtype=float),
-                                               pack_measures(A, mt)))[0]
-            lin = linearise(problem, x)
+            lin = linearise(problem, evaluated(problem, fit.q, mt))
         self.S = np.asarray(fit.covariance, dtype=float)
         self.blind = not np.isfinite(self.S).all()
         self.parts = [None if w is None else (w[0], w[1], np.maximum(rank, 1))

@@ -169,7 +169,7 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
         raise
     except (ValueError, ZeroDivisionError, np.linalg.LinAlgError) as exc:
         # the compiled linear algebra refuses non-finite matrices: a numerical failure
-        x, _ = unpack_point(A, *engine_points.evaluate_flat(A, q_start, A.m))
+        x = evaluated(problem, q_start, unpack_measures(A, A.m))
         return Outcome(x, 0, FAILED, MESSAGES[FAILED] + f" ({exc})", np.inf)
     status, iterations = int(status), int(iterations)
     delta0, decrement, cost, curvature, residual = values[:5].tolist()
@@ -250,6 +250,15 @@ def unpack_point(A, values: np.ndarray, width: int, at: int = 0) -> tuple[Point,
                          values[s[7]:s[8]].reshape(M, p, d))
     return Point(q, mt, values[s[3]:s[4]], values[s[4]:s[5]].reshape(r, n), evals, delta,
                  cost), s[8]
+
+
+def evaluated(problem: Problem, q: np.ndarray, mt) -> Point:
+    """The point ``(q, m̃)`` (``mt`` per channel) with its equations, as the iteration's
+    kernels evaluate it (their row kernels; :func:`~.projector.evaluate` calls the family's
+    vectorised functions, which may differ in the last bits)."""
+    A = arrays(problem)
+    return unpack_point(A, *engine_points.evaluate_flat(
+        A, np.ascontiguousarray(q, dtype=float), pack_measures(A, mt)))[0]
 
 
 def restored(problem: Problem, q: np.ndarray, mt, root: np.ndarray | None = None,

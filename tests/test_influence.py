@@ -179,7 +179,7 @@ def test_the_drops_read_the_fit_as_its_kernels_evaluate_it():
     # (two views: the two differ in their last bits)
     from kanagen.runtime.engine.data import arrays, pack_measures
     from kanagen.runtime.engine.points import evaluate_flat
-    from kanagen.runtime.iterate import unpack_point
+    from kanagen.runtime.iterate import evaluated, unpack_point
     from kanagen.runtime.projector import linearise
     from kanagen.scenes import two_view_scene
 
@@ -195,6 +195,8 @@ def test_the_drops_read_the_fit_as_its_kernels_evaluate_it():
     x = unpack_point(A, *evaluate_flat(A, fit.q.copy(), pack_measures(
         A, (fit.measures["match"],))))[0]
     Cbar, rbar, _ = linearise(problem, x).whitened[0]
+    assert np.array_equal(evaluated(problem, fit.q, (fit.measures["match"],)).evals[0][1],
+                          x.evals[0][1])
     influence = Influence(problem, fit)
     assert np.array_equal(influence.parts[0][0], Cbar)
     assert np.array_equal(influence.parts[0][1], rbar)
