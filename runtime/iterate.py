@@ -38,8 +38,10 @@ the trust region, then the restored start as the first.
 The end (:mod:`.verify`): wherever the iteration stops, the point is checked — stationary
 (the Newton decrement of the projector's step small against the cost), no negative
 curvature of the Lagrangian on the constraints' tangent space (the profile's exact Hessian;
-a negative eigenvalue confirmed by differences of its gradient), every parameter seen by
-the data, no slope along a direction the step no longer sees. A saddle or a maximum
+a negative eigenvalue confirmed by differences of its gradient; where the constraints'
+gradients are dependent, a direction they leave free to first order but forbid to second
+order is no tangent: no curve on them goes along it), every parameter seen by the data, no
+slope along a direction the step no longer sees. A saddle or a maximum
 (report footnote 5) is left along its negative-curvature direction and the iteration goes
 on; only a verified minimum is status 0. An iteration that runs off along a lost direction
 (five rounds in a row, the parameter growing) stops there.

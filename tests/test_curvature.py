@@ -153,10 +153,11 @@ def test_verified_fit_reports_the_exact_curvature():
     lam0 = points.multipliers(x, lin.gradient)
     W = verify.tangent_basis(x, lin.info)
     K = W.T @ (H + points.constraint_curvature(A, x.q, lam0)) @ W
-    ok, least, direction = verify.exact_curvature(A, x, lin, W, lam0)
+    ok, least, direction, basis = verify.exact_curvature(A, x, lin, W, lam0)
     assert ok
     assert least == pytest.approx(np.linalg.eigvalsh(0.5 * (K + K.T))[0], rel=1e-7)
     assert least > 0
+    assert basis is W  # no direction left out: the constraint is regular
     problem = make_problem(fam, model, data, info, start, constants=constants)
     res = fit_problem(fam, model, problem)
     assert res.success and "no negative curvature" in res.message
@@ -291,3 +292,66 @@ def test_certainly_above_never_certifies_a_smaller_ratio(k, seed, log_ratio):
     # the bound loses a factor k² at worst (λmax ≥ 1 on a unit diagonal); rounding aside
     if ratio >= 1e-10 and eig[0] / eig[-1] > k * k * ratio * 1.1:
         assert verify.certainly_above(S, ratio)
+
+
+PINNED = """name: pinned
+parameter: {x: 0.0, z: 0.0}
+channels:
+  point:
+    components: [u, v]
+    equations: [u - x, v - z]
+models:
+  pinned:
+    constraints: [x + z**2, x]
+"""
+
+
+def _pinned():
+    """``x + z² = 0`` and ``x = 0`` pin ``z = 0``; their gradients there do not see ``z``.
+    The data pull ``x`` to −5 and leave ``z`` at 0 exactly (the ``v`` in opposite pairs)."""
+    fam = kanagen.load_text(PINNED, "pinned.yaml")
+    rng = np.random.default_rng(1)
+    u = -5.0 + 0.1 * rng.standard_normal(20)
+    h = 0.1 * rng.standard_normal(10)
+    return fam, {"point": np.column_stack([u, np.column_stack([h, -h]).ravel()])}
+
+
+def test_a_tangent_the_constraints_allow_to_first_order_only_is_no_saddle():
+    """At ``z = 0`` the direction of ``z`` is tangent to the constraints to first order, and
+    with the minimum-norm multipliers (the rows of ``C0`` dependent there) the Lagrangian's
+    curvature along it is −4 in units of the information; but no curve on the constraints
+    goes along it (``z² = −x = 0``): the fit's end is a minimum — before, a saddle (status
+    5) that no step could leave."""
+    fam, data = _pinned()
+    res = kanagen.fit(fam, data=data, q0=np.zeros(2))
+    assert res.success and res.status == 0, res.message
+    np.testing.assert_array_equal(res.q, [0.0, 0.0])
+    link()
+    A = arrays(make_problem(fam, "pinned", data, None, np.zeros(2)))
+    x, _ = points.restore(A, np.zeros(2), A.m, 30)
+    ok, lin, _ = points.project_point(A, x, 0.0, np.zeros(0))
+    W = verify.tangent_basis(x, lin.info)
+    lam0 = points.multipliers(x, lin.gradient)
+    assert ok and W.shape[1] == 1 and abs(W[1, 0]) > 0  # z's direction: tangent
+    ok, K = curvature.profile_hessian(A, x, lin, W)  # F_zz = 20 (20 measures): 1 along W
+    K = K + W.T @ points.constraint_curvature(A, x.q, lam0) @ W  # + 2 λ0[0] z•²
+    expected = 1.0 + 2.0 * lam0[0] * W[1, 0] ** 2  # λ0[0] = Σ(u − x) / 2 ≈ −50: ≈ −4
+    assert ok and K[0, 0] == pytest.approx(expected, rel=1e-9) and expected < -3.9
+    assert not verify.second_order_tangent(A, x, W[:, 0])  # ... the constraints forbid
+    ok, least, direction, basis = verify.exact_curvature(A, x, lin, W, lam0)
+    assert ok and least == 0.0 and basis.shape == (2, 0)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_every_tangent_of_independent_constraints_is_one_to_second_order(seed):
+    """Where the rows of ``C0`` are independent (the conic's unit norm and its circle's two
+    more), every direction tangent to them to first order is one to second order."""
+    rng = np.random.default_rng(seed)
+    fam = kanagen.load("conic")
+    for k in (0, 1):
+        model, data, info, start, constants = SCENARIOS["conic.yaml"]()[k]
+        A, x, lin = _at_fit(fam, model, data, info, start, constants)
+        T = null_space(x.C0, 1e-10)
+        d = T @ rng.standard_normal(T.shape[1])
+        assert verify.second_order_tangent(A, x, d)

@@ -17,7 +17,7 @@ import numpy as np
 from kanagen.common.jit import jit
 from kanagen.common.link import linked, record_kind
 
-from ..linalg import dot, matmul, matvec, null_space, projected, sym_eigh
+from ..linalg import complement, dot, matmul, matvec, null_space, projected, sym_eigh
 from ..sqrt import put_column, reduced_root, solve_lower_columns
 from .curvature import profile_hessian
 from .linear import linearise, seen_components
@@ -30,6 +30,7 @@ from .points import (
     finite,
     info_root,
     lagrangian,
+    max_abs,
     multipliers,
     project_point,
     restore,
@@ -44,6 +45,8 @@ SCREEN = 0.05  # least forward-difference curvature above which no central check
 LOST = 1e-12  # least eigenvalue of the scaled information, relative: a direction lost
 SLOPE = 1e3  # the gradient along it, in rounding levels of its terms, above which it falls
 _CERTAIN = 1e3  # a ratio certified above this many times LOST is no lost direction
+UNREACHABLE = 1e-3  # share of the constraints' curvature outside C0's range: no tangent
+CURVE_STEP = 1e-4  # second differences of c0, relative to the parameter's largest value
 
 Verdict = namedtuple("Verdict", ["stationary", "decrement", "cost", "curvature", "direction",
                                  "plateau", "plateau_vector"])
@@ -247,16 +250,63 @@ def least_eigen(K, W):
     return True, w[0], matvec(W, U[:, 0])
 
 
-@linked("A Pt Lin f2 f1 -> b f f1")
+@linked("A Pt f1 -> b")
+def second_order_tangent(A, x, d):
+    """The constraints ``c0 = 0`` allow a curve along their tangent ``d`` (``C0 d = 0``) to
+    second order: their curvature along it, ``v = (dᵀ∇²c0ᵢ d)ᵢ`` (central second differences
+    of ``c0``), is ``−C0 w`` for some ``w`` — the curve ``q + τ d + τ² w / 2`` stays on them.
+    Always, where ``C0``'s rows are independent; where they are dependent (a slack at zero
+    in the product of an inequality's branches: appendix F), the rows' first order may not
+    see a direction the constraints forbid (``y − z² = 0`` and ``y = 0`` pin ``z``, their
+    gradients at ``z = 0`` do not): the part of ``v`` outside ``C0``'s range (its component
+    along ``C0``'s left null space, :data:`UNREACHABLE` of ``‖v‖`` or more) tells."""
+    r = x.C0.shape[0]
+    top = max_abs(d)
+    if r == 0 or not top > 0:
+        return True
+    left = null_space(np.ascontiguousarray(x.C0.T), 1e-10)  # C0ᵀ ν = 0
+    if left.shape[1] == 0:
+        return True
+    h = CURVE_STEP * max(max_abs(x.q), 1.0) / top
+    plus = c0_eval(A, x.q + h * d)[0]
+    minus = c0_eval(A, x.q - h * d)[0]
+    v = np.empty(r)
+    for a in range(r):
+        v[a] = (plus[a] + minus[a] - 2.0 * x.c0[a]) / (h * h)
+    outside = 0.0
+    for b in range(left.shape[1]):
+        acc = 0.0
+        for a in range(r):
+            acc += left[a, b] * v[a]
+        outside += acc * acc
+    total = dot(v, v)
+    return not (np.isfinite(total) and np.sqrt(outside) > UNREACHABLE * np.sqrt(total))
+
+
+@linked("A Pt Lin f2 f1 -> b f f1 f2")
 def exact_curvature(A, x, lin, W, lam0):
     """The least eigenvalue of ``Wᵀ ∇²(F + λ0ᵀ c0) W`` from the profile's exact Hessian
-    (:func:`.curvature.profile_hessian`; ``ok`` False where it cannot be had)."""
+    (:func:`.curvature.profile_hessian`; ``ok`` False where it cannot be had), its direction
+    and the tangent basis it was taken on: ``W`` less the directions of negative curvature
+    that the constraints allow to first order only (:func:`second_order_tangent`; each
+    left out in turn, the least eigenvalue taken again on the rest)."""
     ok, K = profile_hessian(A, x, lin, W)
     if not ok:
-        return False, 0.0, np.zeros(0)
+        return False, 0.0, np.zeros(0), W
     if lam0.size:
         K += matmul(matmul(W.T, constraint_curvature(A, x.q, lam0)), W)
-    return least_eigen(K, W)
+    ok, least, direction = least_eigen(K, W)
+    if not (ok and least < -NEGATIVE) or second_order_tangent(A, x, direction):
+        return ok, least, direction, W
+    Z = np.eye(W.shape[1])  # the coordinates (in W's) of the directions kept
+    while ok and least < -NEGATIVE and not second_order_tangent(A, x, direction):
+        _, U = sym_eigh(projected(Z, 0.5 * (K + K.T)))
+        u = np.ascontiguousarray(U[:, :1])
+        Z = matmul(Z, complement(u, 1))  # Z's directions but the one of least curvature
+        if Z.shape[1] == 0:  # no direction the constraints allow: nothing to check
+            return True, 0.0, np.zeros(0), np.zeros((x.q.size, 0))
+        ok, least, direction = least_eigen(projected(Z, K), matmul(W, Z))
+    return ok, least, direction, matmul(W, Z)
 
 
 @linked("A Pt f2 f1 f f1 -> b f2")
@@ -305,7 +355,7 @@ def verify(A, x, lin, proj, info_start, at_rounding, model_lin, model_proj):
     if W.shape[1] == 0:
         return verdict(True, dec, x.cost, 0.0, np.zeros(0))
     lam0 = multipliers(x, lin.gradient)
-    ok, least, direction = exact_curvature(A, x, lin, W, lam0)
+    ok, least, direction, W = exact_curvature(A, x, lin, W, lam0)
     if ok and least >= -NEGATIVE:
         return verdict(True, dec, x.cost, least, direction)
     # a negative curvature (or none computed) is confirmed by differences of the gradient
