@@ -41,7 +41,9 @@ curvature of the Lagrangian on the constraints' tangent space (the profile's exa
 a negative eigenvalue confirmed by differences of its gradient; where the constraints'
 gradients are dependent, a direction they leave free to first order but forbid to second
 order is no tangent: no curve on them goes along it), every parameter seen by the data, no
-slope along a direction the step no longer sees. A saddle or a maximum
+slope along a direction the step no longer sees — and first, the constraints themselves
+within rounding (``‖c0‖∞``, not only their whitened violation, which a dropped pivot of
+dependent rows does not see). A saddle or a maximum
 (report footnote 5) is left along its negative-curvature direction and the iteration goes
 on; only a verified minimum is status 0. An iteration that runs off along a lost direction
 (five rounds in a row, the parameter growing) stops there.

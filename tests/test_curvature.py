@@ -18,7 +18,11 @@ from kanagen.runtime.engine.data import arrays, pack_measures
 from kanagen.runtime.fit import fit_problem, make_problem
 from kanagen.runtime.linalg import null_space, solve_small, sym_eigh
 
-CASES = [(spec, k) for spec, make in SCENARIOS.items() for k in range(len(make()))]
+#: Every scenario fit that ends at a minimum: not the hysteresis's third, whose readings
+#: (t − s_prev, the old state's) conflict with the state its constants force — no feasible
+#: point near its start, the fit stops at the cap (test_an_end_off_its_constraints_...).
+CASES = [(spec, k) for spec, make in SCENARIOS.items() for k in range(len(make()))
+         if (spec, k) != ("hysteresis.yaml", 2)]
 
 
 def _at_fit(fam, model, data, info, start, constants, exact=None):
@@ -355,3 +359,16 @@ def test_every_tangent_of_independent_constraints_is_one_to_second_order(seed):
         T = null_space(x.C0, 1e-10)
         d = T @ rng.standard_normal(T.shape[1])
         assert verify.second_order_tangent(A, x, d)
+
+
+def test_an_end_off_its_constraints_is_no_success():
+    """The hysteresis scenario's third fit (t = −2.5, the previous state −1: the switch forces
+    the state to 1, the readings are the old state's): its iteration reaches a point where
+    the whitened violation of its constraints is nothing (their rows there are dependent,
+    the violated ones' pivots dropped) but ``c0`` is −2: the end requires the constraints
+    themselves within rounding, as the steps do — before, a success (status 0)."""
+    fam = kanagen.load("hysteresis")
+    model, data, info, start, constants = SCENARIOS["hysteresis.yaml"]()[2]
+    res = kanagen.fit(fam, model, data=data, info=info, q0=start, constants=constants)
+    assert not res.success and res.status != 0, res.message
+    assert res.constraint_violation > 1.0

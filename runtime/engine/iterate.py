@@ -282,7 +282,7 @@ def end(A, st, info0, x, violation, have_lin, lin, proj, mlin, mproj, it, verify
     rep = report_of(True, lin, proj)  # lin, proj: the projector's at x, undamped
     if not verify_end:
         return True, reported(x, it, UNVERIFIED, NO_DETAIL, none, rep), x, 0.0
-    if not feasible(violation, x.cost):
+    if not on_constraints(x, violation):
         return True, reported(x, it, INFEASIBLE, NO_DETAIL, none, rep), x, 0.0
     root = info_root(A, lin.info)
     if st[2] < _ESCAPES:
@@ -324,7 +324,7 @@ def descend(A, st, info0, scale, q_start, x, violation, max_iter, xtol, verify_e
             for a in range(x.q.size):
                 info0[a] = abs(lin.info[a, a])
             st[5] = 1
-        x_feasible = feasible(violation, x.cost)
+        x_feasible = on_constraints(x, violation)
         scaled = scale * x.q
         size = np.sqrt(dot(scaled, scaled))
         lost = False
@@ -375,7 +375,7 @@ def descend(A, st, info0, scale, q_start, x, violation, max_iter, xtol, verify_e
                 return out
             since_progress = 0
     ok, lin, proj = project_point(A, x, 0.0, np.zeros(0))
-    if verify_end and ok and feasible(violation, x.cost) and \
+    if verify_end and ok and on_constraints(x, violation) and \
             not nearer(A, x, info_root(A, lin.info))[0]:
         mlin, mproj = lagrangian(A, x, lin, proj)
         start_info = info0 if st[5] != 0 else np.zeros(0)
