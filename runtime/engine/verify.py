@@ -273,14 +273,9 @@ def second_order_tangent(A, x, d):
     v = np.empty(r)
     for a in range(r):
         v[a] = (plus[a] + minus[a] - 2.0 * x.c0[a]) / (h * h)
-    outside = 0.0
-    for b in range(left.shape[1]):
-        acc = 0.0
-        for a in range(r):
-            acc += left[a, b] * v[a]
-        outside += acc * acc
+    along = matvec(left.T, v)
     total = dot(v, v)
-    return not (np.isfinite(total) and np.sqrt(outside) > UNREACHABLE * np.sqrt(total))
+    return not (np.isfinite(total) and np.sqrt(dot(along, along)) > UNREACHABLE * np.sqrt(total))
 
 
 @linked("A Pt Lin f2 f1 -> b f f1 f2")
@@ -296,17 +291,15 @@ def exact_curvature(A, x, lin, W, lam0):
     if lam0.size:
         K += matmul(matmul(W.T, constraint_curvature(A, x.q, lam0)), W)
     ok, least, direction = least_eigen(K, W)
-    if not (ok and least < -NEGATIVE) or second_order_tangent(A, x, direction):
-        return ok, least, direction, W
-    Z = np.eye(W.shape[1])  # the coordinates (in W's) of the directions kept
+    basis = W
     while ok and least < -NEGATIVE and not second_order_tangent(A, x, direction):
-        _, U = sym_eigh(projected(Z, 0.5 * (K + K.T)))
-        u = np.ascontiguousarray(U[:, :1])
-        Z = matmul(Z, complement(u, 1))  # Z's directions but the one of least curvature
-        if Z.shape[1] == 0:  # no direction the constraints allow: nothing to check
+        if basis.shape[1] == 1:  # no direction the constraints allow: nothing to check
             return True, 0.0, np.zeros(0), np.zeros((x.q.size, 0))
-        ok, least, direction = least_eigen(projected(Z, K), matmul(W, Z))
-    return ok, least, direction, matmul(W, Z)
+        _, U = sym_eigh(0.5 * (K + K.T))
+        rest = complement(np.ascontiguousarray(U[:, :1]), 1)  # all but the least's direction
+        K, basis = projected(rest, K), matmul(basis, rest)
+        ok, least, direction = least_eigen(K, basis)
+    return ok, least, direction, basis
 
 
 @linked("A Pt f2 f1 f f1 -> b f2")
