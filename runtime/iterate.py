@@ -42,8 +42,9 @@ a negative eigenvalue confirmed by differences of its gradient; where the constr
 gradients are dependent, a direction they leave free to first order but forbid to second
 order is no tangent: no curve on them goes along it), every parameter seen by the data, no
 slope along a direction the step no longer sees — and first, the constraints themselves
-within rounding (``‖c0‖∞``, not only their whitened violation, which a dropped pivot of
-dependent rows does not see). A saddle or a maximum
+within rounding (each row of ``c0`` within the rounding of the components it involves, not
+only their whitened violation, which a dropped pivot of dependent rows does not see; a slack
+run off elsewhere does not loosen it). A saddle or a maximum
 (report footnote 5) is left along its negative-curvature direction and the iteration goes
 on; only a verified minimum is status 0. An iteration that runs off along a lost direction
 (five rounds in a row, the parameter growing) stops there.
@@ -54,7 +55,8 @@ checks of :mod:`kanagen.runtime.engine.verify`); this module runs it on a
 
 Status codes (``FitResult.status``):
 0 converged — a verified local minimum;
-1 iteration cap reached before a verified minimum;
+1 iteration cap reached before a verified minimum (the message says when the point is off
+  its equations or constraints);
 2 stalled — no step lowers the cost while the point is not stationary;
 3 numerical failure — non-finite values at the start or in the projector;
 4 at the boundary of a strict inequality (``c > 0``, ``c != 0``: appendix F) — the
@@ -183,6 +185,9 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
     n_direction, n_vector, n_info, n_covariance = sizes
     checked = status in (CONVERGED, STALLED, SADDLE) or kind == engine.PLATEAU_DETAIL
     detail = _DETAILS.get(kind)
+    if kind == engine.OFF_CONSTRAINTS:
+        detail = f" with the point off its equations or constraints (constraint_violation " \
+            f"{head[3]:.3g})"
     verdict = None
     if checked or detail is None:  # the checks' verdict is reported or described
         verdict = (bool(stationary), decrement, cost, curvature,

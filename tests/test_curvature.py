@@ -18,11 +18,12 @@ from kanagen.runtime.engine.data import arrays, pack_measures
 from kanagen.runtime.fit import fit_problem, make_problem
 from kanagen.runtime.linalg import null_space, solve_small, sym_eigh
 
-#: Every scenario fit that ends at a minimum: not the hysteresis's third, whose readings
-#: (t − s_prev, the old state's) conflict with the state its constants force — no feasible
-#: point near its start, the fit stops at the cap (test_an_end_off_its_constraints_...).
+#: Every scenario fit that ends at a minimum: not the hysteresis's second and third, whose
+#: readings (t − s_prev, the old state's) conflict with the state their constants force — no
+#: feasible point near their start, the fit stops at the cap
+#: (test_an_end_off_its_constraints_is_no_success).
 CASES = [(spec, k) for spec, make in SCENARIOS.items() for k in range(len(make()))
-         if (spec, k) != ("hysteresis.yaml", 2)]
+         if (spec, k) not in (("hysteresis.yaml", 1), ("hysteresis.yaml", 2))]
 
 
 def _at_fit(fam, model, data, info, start, constants, exact=None):
@@ -361,14 +362,33 @@ def test_every_tangent_of_independent_constraints_is_one_to_second_order(seed):
         assert verify.second_order_tangent(A, x, d)
 
 
-def test_an_end_off_its_constraints_is_no_success():
-    """The hysteresis scenario's third fit (t = −2.5, the previous state −1: the switch forces
-    the state to 1, the readings are the old state's): its iteration reaches a point where
-    the whitened violation of its constraints is nothing (their rows there are dependent,
-    the violated ones' pivots dropped) but ``c0`` is −2: the end requires the constraints
-    themselves within rounding, as the steps do — before, a success (status 0)."""
+@pytest.mark.parametrize("case", [1, 2])
+def test_an_end_off_its_constraints_is_no_success(case):
+    """The hysteresis scenario's second and third fits (t = ±2.5 from the other state: the
+    switch forces the state over, the readings are the old state's) cannot reach their
+    constraints. The third reaches a point where the whitened violation of its constraints
+    is nothing (their rows there are dependent, the violated ones' pivots dropped) but
+    ``c0`` is −2: the end requires the constraints themselves within rounding, as the steps
+    do. The second runs a slack of a branch it is not on off to −1.4e27: the rounding of
+    ``c0`` taken from ``max|q|`` was 1.9e41, and ``c0`` = 1 on rows without that slack
+    passed; each row's rounding now comes from the components it involves. Both were a
+    success (status 0) before; now the cap, and its message says the point is off."""
     fam = kanagen.load("hysteresis")
-    model, data, info, start, constants = SCENARIOS["hysteresis.yaml"]()[2]
+    model, data, info, start, constants = SCENARIOS["hysteresis.yaml"]()[case]
     res = kanagen.fit(fam, model, data=data, info=info, q0=start, constants=constants)
     assert not res.success and res.status != 0, res.message
-    assert res.constraint_violation > 1.0
+    assert res.constraint_violation >= 1.0
+    assert "off its equations or constraints" in res.message, res.message
+
+
+def test_the_rounding_of_a_constraint_is_its_own():
+    """``c0_at_rounding`` takes each row's rounding from the components its gradient sees:
+    a huge component another row alone involves does not hide a violated row; a row that
+    involves it is allowed its rounding."""
+    q = np.array([1.0, 1e27])
+    C0 = np.array([[1.0, 0.0], [0.0, 2e27]])
+    assert not points.c0_at_rounding(q, np.array([1e-6, 0.0]), C0)
+    assert points.c0_at_rounding(q, np.array([1e-13, 1e40]), C0)
+    assert not points.c0_at_rounding(q, np.array([1e-13, 1e42]), C0)
+    assert not points.c0_at_rounding(q, np.array([np.nan, 0.0]), C0)
+    assert points.c0_at_rounding(q, np.zeros(0), np.zeros((0, 2)))

@@ -47,8 +47,10 @@ from .verify import Verdict, escape, is_minimum, lost_direction, stationary, ver
 CONVERGED, MAX_ITER, STALLED, FAILED, BOUNDARY, SADDLE, PLATEAU, INFEASIBLE, UNVERIFIED = \
     range(9)
 #: What follows a status's message: nothing, " at the starting point", " in the projector",
-#: the lost direction (the verdict's plateau vector), the verdict's plateau, its description.
-NO_DETAIL, AT_START, IN_PROJECTOR, LOST, PLATEAU_DETAIL, DESCRIBED = range(6)
+#: the lost direction (the verdict's plateau vector), the verdict's plateau, its description,
+#: the returned point's violation of its equations or constraints.
+NO_DETAIL, AT_START, IN_PROJECTOR, LOST, PLATEAU_DETAIL, DESCRIBED, OFF_CONSTRAINTS = \
+    range(7)
 
 _ACCEPT = 1e-4
 _EXACT = 0.05
@@ -375,15 +377,15 @@ def descend(A, st, info0, scale, q_start, x, violation, max_iter, xtol, verify_e
                 return out
             since_progress = 0
     ok, lin, proj = project_point(A, x, 0.0, np.zeros(0))
-    if verify_end and ok and on_constraints(x, violation) and \
-            not nearer(A, x, info_root(A, lin.info))[0]:
+    x_feasible = on_constraints(x, violation)
+    if verify_end and ok and x_feasible and not nearer(A, x, info_root(A, lin.info))[0]:
         mlin, mproj = lagrangian(A, x, lin, proj)
         start_info = info0 if st[5] != 0 else np.zeros(0)
         v = verify(A, x, lin, proj, start_info, False, mlin, mproj)
         if is_minimum(v):
             return reported(x, max_iter, CONVERGED, NO_DETAIL, v, report_of(ok, lin, proj))
-    return reported(x, max_iter, MAX_ITER, NO_DETAIL, _none_verdict(x.cost),
-                    report_of(ok, lin, proj))
+    return reported(x, max_iter, MAX_ITER, NO_DETAIL if x_feasible else OFF_CONSTRAINTS,
+                    _none_verdict(x.cost), report_of(ok, lin, proj))
 
 
 @linked("A f1 f1 Pt f Proj f2 -> Pt f b")

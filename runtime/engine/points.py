@@ -107,8 +107,19 @@ def max_abs(v):
 
 
 @jit
-def c0_rounding(q):
-    return 1e-13 * (1.0 + max_abs(q)) ** 2
+def c0_at_rounding(q, c0, C0):
+    """Every row of ``c0`` within the rounding of its own terms: ``1e-13 (1 + max|q_j|)²``
+    over the components ``j`` its gradient (a row of ``C0``) sees. A component no row of
+    the constraint involves (a slack of another branch run off to 1e27) does not loosen
+    it. NaN is never within."""
+    for i in range(c0.size):
+        top = 0.0
+        for j in range(q.size):
+            if C0[i, j] != 0.0:
+                top = max(top, abs(q[j]))
+        if not abs(c0[i]) <= 1e-13 * (1.0 + top) ** 2:
+            return False
+    return True
 
 
 @linked("A f1 f2 i -> f1", python=True)
@@ -136,7 +147,7 @@ def restore_parameter(A, q, root, iterations):
 @linked("Pt f2 -> f")
 def c0_violation(x, root):
     """``‖c0‖²`` whitened by ``C0 Q̃⁻¹ C0ᵀ``, or 0 below rounding."""
-    if x.c0.size == 0 or max_abs(x.c0) <= c0_rounding(x.q):
+    if c0_at_rounding(x.q, x.c0, x.C0):
         return 0.0
     if root.shape[0] == 0:
         total = 0.0
@@ -165,10 +176,11 @@ def restored(A, q, mt, root, iterations, retract):
         for k in range(2 if root.shape[0] else 1):
             metric = root if k == 0 else np.zeros((0, 0))
             candidate = restore_parameter(A, q, metric, RETRACTION)
-            worst = max_abs(c0_eval(A, candidate)[0])
+            c0, C0 = c0_eval(A, candidate)
+            worst = max_abs(c0)
             if first or worst < best:
                 best_q, best, first = candidate, worst, False
-            if worst <= c0_rounding(candidate):
+            if c0_at_rounding(candidate, c0, C0):
                 break
         q = best_q
     x, violation = restore(A, q, mt, iterations)
@@ -184,8 +196,7 @@ def feasible(violation, cost):
 @jit(inline=True)
 def on_constraints(x, violation):
     """The measures on their equations and the parameter on its constraints (rounding)."""
-    return feasible(violation, x.cost) and (x.c0.size == 0 or
-                                            max_abs(x.c0) <= c0_rounding(x.q))
+    return feasible(violation, x.cost) and c0_at_rounding(x.q, x.c0, x.C0)
 
 
 @jit
