@@ -185,9 +185,9 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
     n_direction, n_vector, n_info, n_covariance = sizes
     checked = status in (CONVERGED, STALLED, SADDLE) or kind == engine.PLATEAU_DETAIL
     detail = _DETAILS.get(kind)
-    if kind == engine.OFF_CONSTRAINTS:
-        detail = f" with the point off its equations or constraints (constraint_violation " \
-            f"{head[3]:.3g})"
+    if kind == engine.OFF_CONSTRAINTS:  # the returned point's ‖c‖∞ (eq. 18)
+        detail = (" with the point off its equations or constraints" if status == MAX_ITER
+                  else "") + f" (constraint_violation {head[3]:.3g})"
     verdict = None
     if checked or detail is None:  # the checks' verdict is reported or described
         verdict = (bool(stationary), decrement, cost, curvature,

@@ -392,3 +392,20 @@ def test_the_rounding_of_a_constraint_is_its_own():
     assert not points.c0_at_rounding(q, np.array([1e-13, 1e42]), C0)
     assert not points.c0_at_rounding(q, np.array([np.nan, 0.0]), C0)
     assert points.c0_at_rounding(q, np.zeros(0), np.zeros((0, 2)))
+
+
+def test_a_fit_that_ends_off_its_constraints_says_how_far():
+    """The hysteresis at t = 0 from the state 1: its answer y = −1 sits at the corner of the
+    saturation, where two factors of a product row vanish together (docs/engine.md: no KKT
+    point there). From a start around it the iteration ends at y ≈ −1.005 with ``c0`` at
+    1e-3 — no success, and its message gives the violation it ended with."""
+    fam = kanagen.load("hysteresis")
+    constants = {"t": 0.0, "s_prev": 1.0}
+    rng = np.random.default_rng(3)
+    y0, s0 = -1.0 + rng.normal(0.0, 0.1), 1.0 + rng.normal(0.0, 0.1)
+    start = fam.with_slacks(np.array([y0, s0]), fam.constant_vector(constants), "hysteresis")
+    res = kanagen.fit(fam, "hysteresis", data={"reading": np.array([[-0.99], [-1.02]])},
+                      q0=start, constants=constants)
+    assert not res.success and res.status in (1, 7), res.message
+    assert res.constraint_violation > 1e-6
+    assert f"(constraint_violation {res.constraint_violation:.3g})" in res.message

@@ -285,7 +285,7 @@ def end(A, st, info0, x, violation, have_lin, lin, proj, mlin, mproj, it, verify
     if not verify_end:
         return True, reported(x, it, UNVERIFIED, NO_DETAIL, none, rep), x, 0.0
     if not on_constraints(x, violation):
-        return True, reported(x, it, INFEASIBLE, NO_DETAIL, none, rep), x, 0.0
+        return True, reported(x, it, INFEASIBLE, OFF_CONSTRAINTS, none, rep), x, 0.0
     root = info_root(A, lin.info)
     if st[2] < _ESCAPES:
         found, moved, mv = nearer(A, x, root)
