@@ -400,3 +400,35 @@ def test_the_estimator_resolves_a_qualitative_variable_from_data():
     assert local.cost > 10 * best.cost
     # a gain that is no setting (a fault): the more general model wins
     assert pga["calibrate"](pga["readings"](3.3)).model == "linear"
+
+
+def test_a_start_between_two_gains_is_restored_onto_one():
+    """The amplifier's gain is a root of ``(g−1)(g−2)(g−4)(g−8)``; from g = 1.5 the
+    Gauss–Newton step onto it overshoots to 3.3, where the quartic is larger (9.8 against
+    4.1): the retraction halves it (to g ≈ 1.95) and goes on, where it used to stop at the
+    start and the fit end infeasible (status 7)."""
+    from scenarios import pga_cases
+
+    fam = kanagen.load("pga")
+    model, data, info, _, _ = pga_cases()[1]
+    for start in ([1.5, 0.16], [1.52, -0.22], [3.0, 0.3], [6.0, 0.3]):
+        res = kanagen.fit(fam, model, data=data, info=info, q0=np.array(start))
+        assert res.success, (start, res.message)
+        assert min(abs(res.params["g"] - g) for g in (1.0, 2.0, 4.0, 8.0)) < 1e-9
+
+
+def test_an_ellipse_fit_from_a_hyperbola_reaches_the_ellipse():
+    """The ellipse model (``AC − B² = 1/s²``) from a hyperbola's coefficients (``AC − B²``
+    = −0.27): the retraction's full steps raise the violation; halved, they reach an
+    ellipse, and the fit ends at the minimum the scenario's start reaches."""
+    from scenarios import conic_lattice_cases
+
+    fam = kanagen.load("conic_lattice")
+    model, data, info, start, _ = conic_lattice_cases()[2]
+    ref = kanagen.fit(fam, model, data=data, info=info, q0=start)
+    for q_start in ([0.2037, 0.4646, -0.2961, -0.2113, 0.1376, 1.3887, 1.5626, 1.0816],
+                    [-0.1755, -0.2489, 0.1718, -0.0265, -0.0466, 1.3877, 0.8772, 1.2361]):
+        res = kanagen.fit(fam, model, data=data, info=info, q0=start,
+                          q_start=np.array(q_start))
+        assert res.success, res.message
+        assert res.cost == pytest.approx(ref.cost, rel=1e-9)

@@ -44,6 +44,9 @@ record_kind("Lin", Lin, "f2 f2 f1 f1 f3 f2 f3 f3 f2 f i1")
 record_kind("Proj", Proj, "f1 f2 b1 i f")
 
 RETRACTION = 64  # Gauss–Newton steps onto c0 = 0, at most (a double root: linear)
+#: A retraction step that does not lower ``‖c0‖∞`` is halved, at most this many times (a
+#: quartic's Newton step from between two of its roots overshoots the nearer one)
+RETRACTION_HALVINGS = 5
 
 
 
@@ -125,7 +128,8 @@ def c0_at_rounding(q, c0, C0):
 @linked("A f1 f2 i -> f1", python=True)
 def restore_parameter(A, q, root, iterations):
     """``q`` moved back onto ``c0(q) = 0`` by Gauss–Newton steps in the metric ``root``
-    (empty: Euclidean), each taken when it lowers ``‖c0‖∞`` (runtime/projector.py)."""
+    (empty: Euclidean), each taken, halved up to :data:`RETRACTION_HALVINGS` times, when it
+    lowers ``‖c0‖∞`` (runtime/projector.py)."""
     c0, C0 = c0_eval(A, q)
     if c0.size == 0:
         return q.copy()
@@ -135,9 +139,15 @@ def restore_parameter(A, q, root, iterations):
     for _ in range(iterations):
         if not worst > ROUNDING * (1.0 + max_abs(q)) * 1e-3:
             break
-        trial = q - retraction_step(root, C0, c0, A.eps)
-        c0_new, C0_new = c0_eval(A, trial)
-        new_worst = max_abs(c0_new)
+        step = retraction_step(root, C0, c0, A.eps)
+        trial, c0_new, C0_new, new_worst = q, c0, C0, worst
+        for _halving in range(RETRACTION_HALVINGS + 1):
+            trial = q - step
+            c0_new, C0_new = c0_eval(A, trial)
+            new_worst = max_abs(c0_new)
+            if new_worst < worst:
+                break
+            step = 0.5 * step
         if not new_worst < worst:
             break
         q, c0, C0, worst = trial, c0_new, C0_new, new_worst
