@@ -267,11 +267,14 @@ def slsqp_solve(
     Qi: object = None,
     *,
     q_start: np.ndarray | None = None,
+    m_start: Sequence[np.ndarray] | None = None,
     method: str = "SLSQP",
     tol: float = 1e-12,
     max_iter: int = 1000,
 ) -> ReferenceResult:
-    """The same problem by ``scipy.optimize.minimize`` (method B: "SLSQP" or "trust-constr").
+    """The same problem by ``scipy.optimize.minimize`` (method B: "SLSQP" or "trust-constr"),
+    from ``q_start`` (default ``q0``) and the corrected measures ``m_start``, one array per
+    channel (default the data).
 
     Only for small problems; its accuracy is the optimiser's (about 1e-8), not the KKT solve's.
     """
@@ -279,6 +282,9 @@ def slsqp_solve(
     x_start = prob.x0.copy()
     if q_start is not None:
         x_start[: prob.n] = np.asarray(q_start, dtype=float).ravel()
+    if m_start is not None:
+        x_start[prob.n:] = np.concatenate([np.asarray(mt, dtype=float).ravel()
+                                           for mt in m_start])
 
     def fun(x: np.ndarray) -> float:
         return prob.cost(x)

@@ -13,12 +13,11 @@ import warnings
 
 import numpy as np
 import pytest
+from reference import slsqp_solve
 from scenarios import ROOT, SCENARIOS
-from scipy.optimize import minimize
 
 import kanagen
 from kanagen.runtime.fit import make_problem
-from kanagen.runtime.projector import evaluate
 
 #: A success's equations and constraints hold to this (‖c‖∞ of the scenarios' successes:
 #: ≤ 1.1e-11, the conics' pixel-scaled equations; the hysteresis fits' false successes had 1
@@ -32,56 +31,17 @@ CASES = [(spec, k) for spec, make in SCENARIOS.items() for k in range(len(make()
 
 
 def _lower_nearby(problem, q, mt):
-    """SLSQP from ``(q, m̃)``: its point's cost, ``‖c‖∞`` and distance in ``q``."""
-    n = q.size
-    shapes = [m.shape for m in mt]
-
-    def split(z):
-        out, at = [], n
-        for s in shapes:
-            out.append(z[at:at + s[0] * s[1]].reshape(s))
-            at += s[0] * s[1]
-        return z[:n], tuple(out)
-
-    def point(z):
-        with np.errstate(all="ignore"):
-            return evaluate(problem, *split(z))
-
-    def gradient(z):
-        qz, mz = split(z)
-        parts = [problem.Q0 @ (qz - problem.q0)]
-        for ch, m in zip(problem.channels, mz, strict=True):
-            r = m - ch.m
-            Q = np.broadcast_to(ch.Q, (r.shape[0], r.shape[1], r.shape[1]))
-            parts.append(np.einsum("ijk,ik->ij", Q, r).ravel())
-        return np.concatenate(parts)
-
-    def equations(z):
-        x = point(z)
-        return np.concatenate([x.c0] + [c.ravel() for c, _, _ in x.evals])
-
-    def jacobian(z):
-        x = point(z)
-        rows = [np.c_[x.C0, np.zeros((x.C0.shape[0], z.size - n))]]
-        at = n
-        for (c, C, D), s in zip(x.evals, shapes, strict=True):
-            M, p = c.shape
-            J = np.zeros((M, p, z.size))
-            J[:, :, :n] = C
-            for i in range(M):
-                J[i, :, at + i * s[1]:at + (i + 1) * s[1]] = D[i]
-            at += s[0] * s[1]
-            rows.append(J.reshape(M * p, z.size))
-        return np.vstack(rows)
-
-    z0 = np.concatenate([q] + [m.ravel() for m in mt])
-    with warnings.catch_warnings():
+    """SLSQP (:func:`reference.slsqp_solve`) from ``(q, m̃)``, with the problem's equations:
+    its point's cost, ``‖c‖∞`` and distance in ``q``."""
+    channels = [(lambda qq, m, fn=fn, ch=ch: fn(qq, ch.with_corrected(m), problem.k))
+                for fn, ch in zip(problem.measures, problem.channels, strict=True)]
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore")
-        out = minimize(lambda z: point(z).cost, z0, jac=gradient, method="SLSQP",
-                       constraints=[{"type": "eq", "fun": equations, "jac": jacobian}],
-                       options={"ftol": 1e-14, "maxiter": 500})
-    x = point(out.x)
-    return x.cost, x.delta, np.max(np.abs(out.x[:n] - q)) / (1.0 + np.max(np.abs(q)))
+        out = slsqp_solve(lambda qq: problem.c0(qq, problem.k), channels, problem.q0,
+                          problem.Q0, [ch.m for ch in problem.channels],
+                          [ch.Q for ch in problem.channels], q_start=q, m_start=mt,
+                          tol=1e-14, max_iter=500)
+    return out.cost, out.c_inf, np.max(np.abs(out.q - q)) / (1.0 + np.max(np.abs(q)))
 
 
 def _starts(spec, k, q0):
