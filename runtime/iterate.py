@@ -20,8 +20,12 @@ equations still solved exactly) is taken when the cost falls by at least 1e-4 of
 prediction, the radius shrinking or growing with the ratio ``ρ`` of actual to predicted
 fall. On curved constraints the prediction includes the multipliers' curvature,
 ``λ0ᵀ c0(q + s)``, so ``ρ`` tends to one. The first radius is the size of the start, as in
-scipy's ``trf``. While the start is not yet on its equations (a minimal solve that failed),
-eq. 18's rule is kept: a step is taken when it lowers the violation.
+scipy's ``trf``. The damping ``μ`` that holds a step to the radius is bisected on
+``log10 μ`` in [−12, 12], widened to twelve decades either side of the Hessian's scale
+(its largest diagonal) where that range does not hold it: the steps do not depend on the
+information's overall scale (σ stated in other units). While the start is not yet on its
+equations (a minimal solve that failed), eq. 18's rule is kept: a step is taken when it
+lowers the violation.
 
 Inequalities (appendix F): once an iterate satisfies the model's inequality relations, a
 trial point that breaks them is refused; a strict relation whose slack diverges stops the

@@ -68,6 +68,7 @@ _LINEAR = 0.1
 _CRAWL = 3
 _GROWING = 1.0
 _JOINT_STEPS = 4
+_DAMPING_DECADES = 12.0
 
 #: What a fit reports from the projector at a point (:func:`projected_at`): ``have`` False
 #: when not taken (the rest empty); ``ok`` False where the projector fails there.
@@ -128,17 +129,57 @@ def wnorm(s, w):
 
 
 @jit
-def damping_for(A, x, lin, radius, w):
-    """μ of ``μ diag(w)`` whose step has ``‖Δq‖_w`` just within ``radius`` (bisection)."""
-    lo, hi = -12.0, 12.0
-    if wnorm(parameter_step(A, x, lin, 10.0 ** hi, w), w) > radius:
-        return 10.0 ** hi
+def damping_decade(H, w):
+    """``log10`` of the largest ``H_aa / w_a``: the Hessian's scale in the trust region's
+    norm (NaN where no diagonal is positive and finite)."""
+    top = 0.0
+    for a in range(w.size):
+        if w[a] > 0.0:
+            ratio = H[a, a] / w[a]
+            if ratio < np.inf and ratio > top:
+                top = ratio
+    return np.log10(top) if top > 0.0 else np.nan
+
+
+@jit
+def beyond(A, x, lin, radius, w, decade):
+    """The step damped by ``μ = 10**decade`` is beyond the trust radius."""
+    return wnorm(parameter_step(A, x, lin, 10.0 ** decade, w), w) > radius
+
+
+@jit
+def bisect_damping(A, x, lin, radius, w, lo, hi):
+    """``(lo, hi)`` narrowed to 0.02 decades of ``μ``: ``10**hi``'s step within the radius,
+    ``10**lo``'s beyond it (``lo`` unchanged where no step tried was)."""
     while hi - lo > 0.02:
         mid = 0.5 * (lo + hi)
-        if wnorm(parameter_step(A, x, lin, 10.0 ** mid, w), w) > radius:
+        if beyond(A, x, lin, radius, w, mid):
             lo = mid
         else:
             hi = mid
+    return lo, hi
+
+
+@jit
+def damping_for(A, x, lin, radius, w):
+    """μ of ``μ diag(w)`` whose step has ``‖Δq‖_w`` just within ``radius``: bisected on
+    ``log10 μ`` in [−12, 12], a range widened to :data:`_DAMPING_DECADES` either side of the
+    Hessian's scale (:func:`damping_decade`) where it does not hold the radius — so the
+    trust region does not depend on the information's overall scale (σ in other units).
+    At unit information Eckerle4's Hessian is ~1e-9: the floor μ = 1e-12 alone held its
+    steps to a tenth of the radius. (Widened below the largest diagonal's scale, not the
+    least's: a slack whose curvature vanishes as it runs off, ``det(M3) = 1/s`` of the
+    conic lattice's proper conics, would then be let run to a line pair.)"""
+    if beyond(A, x, lin, radius, w, 12.0):
+        top = damping_decade(lin.H, w) + _DAMPING_DECADES
+        if not (top > 12.0 and not beyond(A, x, lin, radius, w, top)):
+            return 10.0 ** (top if top > 12.0 else 12.0)
+        return 10.0 ** bisect_damping(A, x, lin, radius, w, 12.0, top)[1]
+    lo, hi = bisect_damping(A, x, lin, radius, w, -12.0, 12.0)
+    if lo == -12.0:  # every step tried within the radius: did μ = 1e-12 hold one back?
+        bottom = damping_decade(lin.H, w) - _DAMPING_DECADES
+        if bottom < lo and beyond(A, x, lin, radius, w, bottom):
+            hi = bisect_damping(A, x, lin, radius, w, bottom, lo)[1]
     return 10.0 ** hi
 
 
