@@ -242,8 +242,11 @@ def test_kanagen_solves_at_least_as_many_as_scipy() -> None:
 
 
 @needs_data
-def test_at_the_default_budget_kanagen_solves_48_of_54() -> None:
-    """``kanagen.fit``'s default of 100 iterations: the valley crawls (Bennett5, MGH09,
-    MGH10, MGH17 from their first starts) need more; the others are solved."""
+def test_at_the_default_budget_kanagen_solves_50_of_54() -> None:
+    """``kanagen.fit``'s default of 100 iterations: the valley crawls (MGH10 from both
+    starts, Bennett5 from its first) need more and end at the cap; MGH09 from its first
+    start converges linearly (Gauss–Newton on a non-negligible residual) and meets the
+    tolerance at the certified cost with 5.4 digits of its parameters, not 6. The others
+    are solved."""
     solved = sum(_results(name, start, 100)[0].solved for name, start in CASES)
-    assert solved >= 48, f"kanagen solved {solved}/{len(CASES)} at max_iter=100"
+    assert solved >= 50, f"kanagen solved {solved}/{len(CASES)} at max_iter=100"
