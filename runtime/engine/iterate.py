@@ -172,9 +172,9 @@ def damping_for(A, x, lin, radius, w):
     conic lattice's proper conics, would then be let run to a line pair.)"""
     if beyond(A, x, lin, radius, w, 12.0):
         top = damping_decade(lin.H, w) + _DAMPING_DECADES
-        if not (top > 12.0 and not beyond(A, x, lin, radius, w, top)):
-            return 10.0 ** (top if top > 12.0 else 12.0)
-        return 10.0 ** bisect_damping(A, x, lin, radius, w, 12.0, top)[1]
+        if top > 12.0 and not beyond(A, x, lin, radius, w, top):
+            return 10.0 ** bisect_damping(A, x, lin, radius, w, 12.0, top)[1]
+        return 10.0 ** (top if top > 12.0 else 12.0)
     lo, hi = bisect_damping(A, x, lin, radius, w, -12.0, 12.0)
     if lo == -12.0:  # every step tried within the radius: did μ = 1e-12 hold one back?
         bottom = damping_decade(lin.H, w) - _DAMPING_DECADES
