@@ -37,7 +37,11 @@ the cost (four steps at most; a step's restoration, most of its cost, is made fo
 point and the last only when every step lowers it:
 :func:`kanagen.runtime.engine.iterate.joint_start`); when the descent from there fails, the
 same step damped to the first trust radius, then the restored start with every step inside
-the trust region, then the restored start as the first.
+the trust region, then the restored start as the first; and when none of them ends at a
+verified minimum, the joint step's point once more with the trust region in Marquardt's
+scaling (the information's diagonal, each kept at its largest: MINPACK's) instead of the
+start's magnitudes (ODRPACK's) — a valley whose parameters change by orders of magnitude
+(NIST's MGH10) is crawled under the one and followed under the other.
 
 The end (:mod:`.verify`): wherever the iteration stops, the point is checked — stationary
 (the Newton decrement of the projector's step small against the cost), no negative

@@ -242,11 +242,13 @@ def test_kanagen_solves_at_least_as_many_as_scipy() -> None:
 
 
 @needs_data
-def test_at_the_default_budget_kanagen_solves_50_of_54() -> None:
-    """``kanagen.fit``'s default of 100 iterations: the valley crawls (MGH10 from both
-    starts, Bennett5 from its first) need more and end at the cap; MGH09 from its first
-    start converges linearly (Gauss–Newton on a non-negligible residual) and meets the
-    tolerance at the certified cost with 5.4 digits of its parameters, not 6. The others
-    are solved."""
+def test_at_the_default_budget_kanagen_solves_51_of_54() -> None:
+    """``kanagen.fit``'s default of 100 iterations a descent: the valley crawls of MGH10
+    from its first start and Bennett5 from its first need more and end at the cap (MGH10
+    from its second start, which capped too, converges under Marquardt's scaling, the
+    plan's last descent: tests/test_marquardt_start.py); MGH09 from its first start
+    converges linearly (Gauss–Newton on a non-negligible residual) and meets the tolerance
+    at the certified cost with 5.4 digits of its parameters, not 6. The others are
+    solved."""
     solved = sum(_results(name, start, 100)[0].solved for name, start in CASES)
-    assert solved >= 50, f"kanagen solved {solved}/{len(CASES)} at max_iter=100"
+    assert solved >= 51, f"kanagen solved {solved}/{len(CASES)} at max_iter=100"

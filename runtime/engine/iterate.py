@@ -3,7 +3,8 @@ points, its end verified. runtime/iterate.py documents the method, its starts, i
 its status codes; this is its only implementation (:func:`run`).
 
 ``st`` holds the run's state between iterations: ``[radius, size0, escapes, strict,
-delta0, has_info_start]``; ``info0`` the diagonal of the information at the start.
+delta0, has_info_start, marquardt]``; ``info0`` the diagonal of the information at the
+start.
 """
 
 from __future__ import annotations
@@ -118,6 +119,27 @@ def weights(A, st, scale, q):
         index = A.strict_idx[s]
         w[index] = (st[1] / max(abs(q[index]), np.finfo(np.float64).tiny)) ** 2
     return w
+
+
+@jit
+def marquardt_scale(H):
+    """Marquardt's scaling of the parameter, ``sqrt(H_aa)`` (MINPACK's ``diag``), or none
+    (size 0) where a diagonal is not positive and finite."""
+    out = np.zeros(H.shape[0])
+    for a in range(out.size):
+        out[a] = np.sqrt(abs(H[a, a]))
+        if not (out[a] > 0.0 and np.isfinite(out[a])):
+            return np.zeros(0)
+    return out
+
+
+@jit
+def widen_marquardt(scale, H):
+    """Marquardt's scaling kept at the largest ``sqrt(H_aa)`` seen (MINPACK's rule)."""
+    for a in range(scale.size):
+        d = np.sqrt(abs(H[a, a]))
+        if d > scale[a] and np.isfinite(d):
+            scale[a] = d
 
 
 @jit
@@ -306,7 +328,8 @@ def step(A, st, scale, x, violation, lin, proj):
         if beyond or line:
             continue
         st[0] = _SHRINK * (min(st[0], size) if np.isfinite(size) else st[0])
-        if not st[0] > 1e-15 * (1.0 + np.sqrt(dot(x.q, x.q))):
+        if not st[0] > 1e-15 * (1.0 + (wnorm(x.q, w) if st[6] != 0 else
+                                       np.sqrt(dot(x.q, x.q)))):
             return False, x, 0.0
     return False, x, 0.0
 
@@ -367,6 +390,8 @@ def descend(A, st, info0, scale, q_start, x, violation, max_iter, xtol, verify_e
             for a in range(x.q.size):
                 info0[a] = abs(lin.info[a, a])
             st[5] = 1
+        if st[6] != 0:
+            widen_marquardt(scale, lin.info)
         x_feasible = on_constraints(x, violation)
         scaled = scale * x.q
         size = np.sqrt(dot(scaled, scaled))
@@ -483,7 +508,7 @@ def run(A, q_start, max_iter, xtol, verify_end):
     """The iteration from ``(q_start, m)`` (runtime/iterate.py: ``iterate``): its outcome
     and the start's violation ``‖c‖∞``."""
     n = q_start.size
-    st = np.zeros(6)
+    st = np.zeros(7)
     info0 = np.zeros(n)
     raw = evaluate(A, q_start, A.m)
     st[4] = raw.delta
@@ -507,13 +532,18 @@ def run(A, q_start, max_iter, xtol, verify_end):
         return descend(A, st, info0, scale, q_start, x, violation, max_iter, xtol,
                        verify_end), st[4]
     joint, joint_violation, joint_moved = joint_start(A, st, scale, x, violation, proj0, root)
-    plan = [0]  # the joint step's point; its damped step; the restored start (strict); it
+    # the joint step's point; its damped step; the restored start (strict); it; the joint
+    # step's point under Marquardt's scaling
+    plan = [0]
     if on_constraints(x, violation):
         if verify_end:
             plan.append(1)
             plan.append(2)
         if joint_moved:
             plan.append(3)
+    marquardt = marquardt_scale(lin0.info)
+    if verify_end and marquardt.size:
+        plan.append(4)
     have_best = False
     best = outcome(x, 0, FAILED, NO_DETAIL, _none_verdict(x.cost))
     iterations = 0
@@ -523,7 +553,7 @@ def run(A, q_start, max_iter, xtol, verify_end):
                     best.status == UNVERIFIED or best.status == MAX_ITER)):
                 break
             st[0], st[2], st[5] = st[1], 0.0, 0.0
-        if code == 0:
+        if code == 0 or code == 4:
             point, pv = joint, joint_violation
         elif code == 1:
             dp = damped(A, raw, lin0, st[1], weights(A, st, scale, q_start))
@@ -533,8 +563,12 @@ def run(A, q_start, max_iter, xtol, verify_end):
         else:
             point, pv = x, violation
         st[3] = 1.0 if code == 2 else 0.0
-        out = descend(A, st, info0, scale, q_start, point, pv, max_iter, xtol, verify_end)
-        st[3] = 0.0
+        if code == 4:  # its own first radius, the start's size in its norm
+            st[0] = st[1] = max(wnorm(q_start, marquardt ** 2), np.finfo(np.float64).tiny)
+            st[6] = 1.0
+        out = descend(A, st, info0, marquardt if code == 4 else scale, q_start, point, pv,
+                      max_iter, xtol, verify_end)
+        st[1], st[3], st[6] = size0, 0.0, 0.0
         iterations += out.iterations
         if not have_best or out.status == CONVERGED or out.x.cost < best.x.cost:
             best, have_best = out, True
