@@ -66,7 +66,8 @@ Status codes (``FitResult.status``):
 1 iteration cap reached before a verified minimum (the message says when the point is off
   its equations or constraints);
 2 stalled — no step lowers the cost while the point is not stationary;
-3 numerical failure — non-finite values at the start or in the projector;
+3 numerical failure — non-finite values at the start or in the projector (at the start:
+  the cost is infinite, the observed measures being off their equations);
 4 at the boundary of a strict inequality (``c > 0``, ``c != 0``: appendix F) — the
   relation's slack diverges (``c = 1/s² → 0``, below 1e-8 of its start): no minimum inside
   the open set the model allows; returns the first iterate that close to the boundary;
@@ -184,12 +185,17 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
     except (ValueError, ZeroDivisionError, np.linalg.LinAlgError) as exc:
         # the compiled linear algebra refuses non-finite matrices: a numerical failure
         x = evaluated(problem, q_start, unpack_measures(A, A.m))
-        return Outcome(x, 0, FAILED, MESSAGES[FAILED] + f" ({exc})", np.inf)
+        return Outcome(x, 0, FAILED, MESSAGES[FAILED] + f" ({exc})", np.inf,
+                       head=(x.q, x.mt, np.inf, x.delta))
     status, iterations = int(status), int(iterations)
     delta0, decrement, cost, curvature, residual = values[:5].tolist()
     starts = point_starts(A, width, 5)  # the point from 5, then the verdict's vectors
     at = starts[8]
     head = point_head(A, values, starts)
+    if status == FAILED and kind == engine.AT_START:
+        # the start's equations are not finite: the observed measures' cost (0) is no cost
+        # of a point on them, and must not win a comparison of fits
+        head = (*head[:2], np.inf, head[3])
     n_direction, n_vector, n_info, n_covariance = sizes
     checked = status in (CONVERGED, STALLED, SADDLE) or kind == engine.PLATEAU_DETAIL
     detail = _DETAILS.get(kind)

@@ -389,8 +389,12 @@ def whitened(c, D, G, p, d, eps, E, L, inv, kept, w):
 
 @jit(inline=True)
 def worst_abs(c, p):
+    """``‖c‖∞`` of the first ``p`` equations, infinite where one is not finite (``max``
+    would pass over a NaN, and a step into the equations' domain's outside be taken)."""
     worst = 0.0
     for a in range(p):
+        if not np.isfinite(c[a]):
+            return np.inf
         worst = max(worst, abs(c[a]))
     return worst
 
