@@ -19,6 +19,7 @@ import sympy as sp
 from ..modelspec.constructs import qualitative_labels
 from ..modelspec.ir import Family, symbol
 from .eliminate import Reduction, linear_reduction
+from .limits import finite_limits
 from .version import FORMAT  # noqa: F401 - the layout version, re-exported here
 
 #: Sums longer than this are differentiated as polynomials when they are.
@@ -206,7 +207,7 @@ def _derivative(expr: sp.Expr, variable: sp.Symbol) -> sp.Expr:
                 variable).as_expr()
         except sp.PolynomialError:
             pass
-    return sp.diff(expr, variable)
+    return finite_limits(sp.diff(expr, variable))
 
 
 def c0_function(family: Family, model: str, reduction: Reduction | None = None) -> Function:
@@ -258,7 +259,7 @@ def derived_function(family: Family) -> Function:
                for i in range(len(d.expressions))]
         outputs.append((f"v_{d.name}", shape, list(zip(idx, d.expressions, strict=True))))
         outputs.append((f"j_{d.name}", shape + (n,),
-                        [(i + (j,), sp.diff(e, v))
+                        [(i + (j,), finite_limits(sp.diff(e, v)))
                          for i, e in zip(idx, d.expressions, strict=True)
                          for j, v in enumerate(par.symbols)]))
         pairs.append((d.name, f"v_{d.name}", f"j_{d.name}"))

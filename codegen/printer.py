@@ -9,6 +9,7 @@ is the table plus the few spellings that differ between targets (square root, π
 from __future__ import annotations
 
 import sympy as sp
+from sympy.printing.precedence import PRECEDENCE
 from sympy.printing.str import StrPrinter
 
 #: SymPy function class -> NumPy function.
@@ -92,6 +93,13 @@ class TablePrinter(StrPrinter):
             return f"1/{self.module}.sqrt({self._print(expr.base)})"
         return super()._print_Pow(expr, rational)
 
+    def _print_powlog(self, expr):
+        # u**e*log(u), 0 at u = 0 (codegen/limits.py): log's argument is 1 there
+        base, exponent = expr.args
+        u = self._print(base)
+        power = self._print(sp.Pow(base, exponent, evaluate=False))
+        return f"({power}*{self.module}.log({u} + (({u}) == 0)))"
+
     def _print_Function(self, expr):
         target = self.functions.get(type(expr))
         if target is None:
@@ -111,6 +119,16 @@ class NumpyPrinter(TablePrinter):
     functions = NUMPY_FUNCTIONS
     module = "np"
     target = "NumPy"
+
+    def _print_Pow(self, expr, rational=False):
+        # numba raises ZeroDivisionError for a float's negative integer power of 0 whatever
+        # the kernel's error model (``x**(-2)`` at ``x = 0``: a fit must never raise); its
+        # division follows the error model, so ``1/x**2`` is ``inf`` there as in NumPy, with
+        # the same bits elsewhere (``x**2`` computed the same way, then inverted).
+        if expr.exp.is_Integer and expr.exp < -1:
+            power = sp.Pow(expr.base, -expr.exp, evaluate=False)
+            return f"(1/{self.parenthesize(power, PRECEDENCE['Mul'])})"
+        return super()._print_Pow(expr, rational)
 
 
 class CasadiPrinter(TablePrinter):

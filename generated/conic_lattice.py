@@ -1108,7 +1108,7 @@ def derived(q, k):
     _tmp10 = _tmp7*_tmp9
     _tmp11 = -p_A*p_E + p_B*p_D
     _tmp12 = _tmp11*_tmp9
-    _tmp13 = _tmp1**(-2)
+    _tmp13 = (1/_tmp1**2)
     _tmp14 = _tmp13*k_f0
     _tmp15 = _tmp14*_tmp7
     _tmp16 = _tmp4*_tmp8

@@ -716,7 +716,7 @@ def measure_match__none(q, m, k):
     _tmp51 = _tmp50*p_f2
     _tmp52 = _tmp41*_tmp50
     _tmp53 = p_f2*p_ty
-    _tmp54 = k_f0**(-2)
+    _tmp54 = (1/k_f0**2)
     _tmp55 = p_f1*p_f2
     _tmp56 = _tmp34*_tmp8
     _tmp57 = _tmp39*_tmp56
@@ -856,7 +856,7 @@ def row_measure_match__none(q, m, k, out):
     _tmp51 = _tmp50*p_f2
     _tmp52 = _tmp41*_tmp50
     _tmp53 = p_f2*p_ty
-    _tmp54 = k_f0**(-2)
+    _tmp54 = (1/k_f0**2)
     _tmp55 = p_f1*p_f2
     _tmp56 = _tmp34*_tmp8
     _tmp57 = _tmp39*_tmp56
@@ -981,7 +981,7 @@ def row_values_measure_match__none(q, m, k, out):
     _tmp35 = _tmp29*_tmp8
     _tmp36 = _tmp20*_tmp8
     _tmp37 = _tmp33*_tmp8
-    _tmp54 = k_f0**(-2)
+    _tmp54 = (1/k_f0**2)
     _tmp62 = _tmp34*_tmp54
     _tmp64 = _tmp21*_tmp54
     _tmp66 = _tmp8*p_f2
@@ -1040,7 +1040,7 @@ def measure_match__none__reduced(r, m, k):
     _tmp4 = -k_cy + m_v2
     _tmp5 = -k_cx + m_u
     _tmp6 = -k_cx + m_u2
-    _tmp7 = k_f0**(-2)
+    _tmp7 = (1/k_f0**2)
     _tmp8 = _tmp2*_tmp7
     _tmp9 = _tmp4*_tmp8
     _tmp10 = 2*p_qw
@@ -1084,7 +1084,7 @@ def row_measure_match__none__reduced(r, m, k, out):
     _tmp4 = -k_cy + m_v2
     _tmp5 = -k_cx + m_u
     _tmp6 = -k_cx + m_u2
-    _tmp7 = k_f0**(-2)
+    _tmp7 = (1/k_f0**2)
     _tmp8 = _tmp2*_tmp7
     _tmp9 = _tmp4*_tmp8
     _tmp10 = 2*p_qw
@@ -1127,7 +1127,7 @@ def row_values_measure_match__none__reduced(r, m, k, out):
     _tmp4 = -k_cy + m_v2
     _tmp5 = -k_cx + m_u
     _tmp6 = -k_cx + m_u2
-    _tmp7 = k_f0**(-2)
+    _tmp7 = (1/k_f0**2)
     _tmp8 = _tmp2*_tmp7
     _tmp9 = _tmp4*_tmp8
     _tmp12 = -_tmp3
@@ -1392,7 +1392,7 @@ def measure_match__zoom__reduced(r, m, k):
     _tmp6 = -k_cx + m_u2
     _tmp7 = -k_cx + m_u
     _tmp8 = _tmp4*_tmp7
-    _tmp9 = k_f0**(-2)
+    _tmp9 = (1/k_f0**2)
     _tmp10 = _tmp1*_tmp9
     _tmp11 = _tmp10*_tmp2
     _tmp12 = 2*p_qw
@@ -1442,7 +1442,7 @@ def row_measure_match__zoom__reduced(r, m, k, out):
     _tmp6 = -k_cx + m_u2
     _tmp7 = -k_cx + m_u
     _tmp8 = _tmp4*_tmp7
-    _tmp9 = k_f0**(-2)
+    _tmp9 = (1/k_f0**2)
     _tmp10 = _tmp1*_tmp9
     _tmp11 = _tmp10*_tmp2
     _tmp12 = 2*p_qw
@@ -1492,7 +1492,7 @@ def row_values_measure_match__zoom__reduced(r, m, k, out):
     _tmp6 = -k_cx + m_u2
     _tmp7 = -k_cx + m_u
     _tmp8 = _tmp4*_tmp7
-    _tmp9 = k_f0**(-2)
+    _tmp9 = (1/k_f0**2)
     _tmp10 = _tmp1*_tmp9
     _tmp11 = _tmp10*_tmp2
     _tmp15 = _tmp4*p_f2
@@ -1776,7 +1776,7 @@ def measure_match__rotation__reduced(r, m, k):
     _tmp52 = -_tmp39
     _tmp53 = _tmp44*_tmp50
     _tmp54 = _tmp7*p_f1
-    _tmp55 = k_f0**(-2)
+    _tmp55 = (1/k_f0**2)
     _tmp56 = _tmp34*_tmp55
     _tmp57 = _tmp20*_tmp55
     # Outputs
@@ -1883,7 +1883,7 @@ def row_measure_match__rotation__reduced(r, m, k, out):
     _tmp52 = -_tmp39
     _tmp53 = _tmp44*_tmp50
     _tmp54 = _tmp7*p_f1
-    _tmp55 = k_f0**(-2)
+    _tmp55 = (1/k_f0**2)
     _tmp56 = _tmp34*_tmp55
     _tmp57 = _tmp20*_tmp55
     out[0] = -_tmp19*p_f1 + _tmp20*_tmp26*_tmp7
@@ -1971,7 +1971,7 @@ def row_values_measure_match__rotation__reduced(r, m, k, out):
     _tmp36 = _tmp19*_tmp7
     _tmp37 = _tmp33*_tmp7
     _tmp54 = _tmp7*p_f1
-    _tmp55 = k_f0**(-2)
+    _tmp55 = (1/k_f0**2)
     _tmp56 = _tmp34*_tmp55
     _tmp57 = _tmp20*_tmp55
     out[0] = -_tmp19*p_f1 + _tmp20*_tmp26*_tmp7
@@ -2296,7 +2296,7 @@ def measure_match(q, m, k):
     _tmp75 = -_tmp65 + _tmp71
     _tmp76 = _tmp57 - _tmp68
     _tmp77 = _tmp53 + _tmp59
-    _tmp78 = k_f0**(-2)
+    _tmp78 = (1/k_f0**2)
     _tmp79 = _tmp31*_tmp78
     _tmp80 = _tmp22*p_f2
     _tmp81 = _tmp40*_tmp78
@@ -2417,7 +2417,7 @@ def row_measure_match(q, m, k, out):
     _tmp75 = -_tmp65 + _tmp71
     _tmp76 = _tmp57 - _tmp68
     _tmp77 = _tmp53 + _tmp59
-    _tmp78 = k_f0**(-2)
+    _tmp78 = (1/k_f0**2)
     _tmp79 = _tmp31*_tmp78
     _tmp80 = _tmp22*p_f2
     _tmp81 = _tmp40*_tmp78
@@ -2503,7 +2503,7 @@ def row_values_measure_match(q, m, k, out):
     _tmp42 = -_tmp35*p_tx + _tmp8*p_tz
     _tmp43 = _tmp20*p_tz - _tmp33*p_tx
     _tmp44 = _tmp22*(_tmp23*_tmp43 + _tmp29*_tmp41 + _tmp42*p_f1)
-    _tmp78 = k_f0**(-2)
+    _tmp78 = (1/k_f0**2)
     _tmp79 = _tmp31*_tmp78
     _tmp80 = _tmp22*p_f2
     _tmp81 = _tmp40*_tmp78
@@ -3289,7 +3289,7 @@ def measure_match__translation__reduced(r, m, k):
     _tmp16 = _tmp0*_tmp1
     _tmp17 = _tmp14*p_ty
     _tmp18 = _tmp1*_tmp12
-    _tmp19 = k_f0**(-2)
+    _tmp19 = (1/k_f0**2)
     _tmp20 = _tmp19*_tmp2
     _tmp21 = _tmp20*_tmp8
     # Outputs
@@ -3340,7 +3340,7 @@ def row_measure_match__translation__reduced(r, m, k, out):
     _tmp16 = _tmp0*_tmp1
     _tmp17 = _tmp14*p_ty
     _tmp18 = _tmp1*_tmp12
-    _tmp19 = k_f0**(-2)
+    _tmp19 = (1/k_f0**2)
     _tmp20 = _tmp19*_tmp2
     _tmp21 = _tmp20*_tmp8
     out[0] = _tmp0*_tmp4 + _tmp11*_tmp8 + _tmp12*_tmp13 - _tmp5*_tmp7
@@ -3381,7 +3381,7 @@ def row_values_measure_match__translation__reduced(r, m, k, out):
     _tmp11 = _tmp1*(-_tmp10*p_tz + _tmp6)
     _tmp12 = -k_cy + m_v2
     _tmp13 = _tmp1*(_tmp1*_tmp2*_tmp5*p_tz - _tmp3)
-    _tmp19 = k_f0**(-2)
+    _tmp19 = (1/k_f0**2)
     _tmp20 = _tmp19*_tmp2
     _tmp21 = _tmp20*_tmp8
     out[0] = _tmp0*_tmp4 + _tmp11*_tmp8 + _tmp12*_tmp13 - _tmp5*_tmp7
@@ -3617,7 +3617,7 @@ def measure_match__planar__reduced(r, m, k):
     _tmp49 = -_tmp43*_tmp48
     _tmp50 = _tmp14*p_wx + _tmp20*p_wy + p_wz
     _tmp51 = _tmp43*_tmp50
-    _tmp52 = k_f0**(-2)
+    _tmp52 = (1/k_f0**2)
     _tmp53 = _tmp0*_tmp30
     _tmp54 = _tmp45*_tmp53
     _tmp55 = _tmp48*_tmp53
@@ -3744,7 +3744,7 @@ def row_measure_match__planar__reduced(r, m, k, out):
     _tmp49 = -_tmp43*_tmp48
     _tmp50 = _tmp14*p_wx + _tmp20*p_wy + p_wz
     _tmp51 = _tmp43*_tmp50
-    _tmp52 = k_f0**(-2)
+    _tmp52 = (1/k_f0**2)
     _tmp53 = _tmp0*_tmp30
     _tmp54 = _tmp45*_tmp53
     _tmp55 = _tmp48*_tmp53
@@ -3858,7 +3858,7 @@ def row_values_measure_match__planar__reduced(r, m, k, out):
     _tmp36 = _tmp11 + _tmp13*_tmp35 + _tmp19*_tmp33 + _tmp9 + p_tx*p_wz
     _tmp37 = _tmp0*_tmp29
     _tmp38 = _tmp0*_tmp36
-    _tmp52 = k_f0**(-2)
+    _tmp52 = (1/k_f0**2)
     _tmp57 = _tmp30*_tmp52
     _tmp59 = _tmp1*_tmp52
     out[0] = _tmp0*_tmp1*_tmp21 - _tmp29
@@ -4144,7 +4144,7 @@ def measure_match__general__reduced(r, m, k):
     _tmp75 = -_tmp65 + _tmp71
     _tmp76 = _tmp57 - _tmp68
     _tmp77 = _tmp53 + _tmp59
-    _tmp78 = k_f0**(-2)
+    _tmp78 = (1/k_f0**2)
     _tmp79 = _tmp31*_tmp78
     _tmp80 = _tmp22*p_f2
     _tmp81 = _tmp40*_tmp78
@@ -4265,7 +4265,7 @@ def row_measure_match__general__reduced(r, m, k, out):
     _tmp75 = -_tmp65 + _tmp71
     _tmp76 = _tmp57 - _tmp68
     _tmp77 = _tmp53 + _tmp59
-    _tmp78 = k_f0**(-2)
+    _tmp78 = (1/k_f0**2)
     _tmp79 = _tmp31*_tmp78
     _tmp80 = _tmp22*p_f2
     _tmp81 = _tmp40*_tmp78
@@ -4348,7 +4348,7 @@ def row_values_measure_match__general__reduced(r, m, k, out):
     _tmp42 = -_tmp35*p_tx + _tmp8*p_tz
     _tmp43 = _tmp20*p_tz - _tmp33*p_tx
     _tmp44 = _tmp22*(_tmp23*_tmp43 + _tmp29*_tmp41 + _tmp42*p_f1)
-    _tmp78 = k_f0**(-2)
+    _tmp78 = (1/k_f0**2)
     _tmp79 = _tmp31*_tmp78
     _tmp80 = _tmp22*p_f2
     _tmp81 = _tmp40*_tmp78
@@ -4388,7 +4388,7 @@ def derived(q, k):
     _tmp8 = _tmp5 + _tmp7
     _tmp9 = _tmp3*p_tz
     _tmp10 = _tmp2*_tmp4 - _tmp8*_tmp9
-    _tmp11 = k_f0**(-2)
+    _tmp11 = (1/k_f0**2)
     _tmp12 = _tmp0*p_qx
     _tmp13 = 2*p_qz
     _tmp14 = _tmp13*p_qy
@@ -4541,7 +4541,7 @@ def derived(q, k):
     _tmp161 = -_tmp120
     _tmp162 = _tmp161*_tmp41
     _tmp163 = -_tmp102*_tmp72 + _tmp103*_tmp75 - _tmp62*(2*_tmp135*p_f1 - 2*_tmp157 - 2*_tmp159) - _tmp63*(2*_tmp125*p_f1 - 2*_tmp155 - 2*_tmp156) - _tmp64*(2*_tmp141*p_f1 - 2*_tmp160 - 2*_tmp162) - _tmp89*_tmp98 + _tmp90*_tmp97 - _tmp92*_tmp96 - _tmp93*_tmp95
-    _tmp164 = k_f0**(-3)
+    _tmp164 = (1/k_f0**3)
     _tmp165 = _tmp8*p_f2
     _tmp166 = _tmp2*_tmp41
     _tmp167 = _tmp15*_tmp41

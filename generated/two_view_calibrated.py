@@ -3385,11 +3385,11 @@ def derived(q, k):
     _tmp75 = _tmp38 + _tmp64
     _tmp76 = _tmp44 + _tmp62
     _tmp77 = -_tmp75
-    _tmp78 = k_fx1**(-2)
-    _tmp79 = k_fx2**(-2)
+    _tmp78 = (1/k_fx1**2)
+    _tmp79 = (1/k_fx2**2)
     _tmp80 = _tmp78*_tmp79
-    _tmp81 = k_fy1**(-2)
-    _tmp82 = k_fy2**(-2)
+    _tmp81 = (1/k_fy1**2)
+    _tmp82 = (1/k_fy2**2)
     _tmp83 = _tmp81*_tmp82
     _tmp84 = _tmp78*_tmp82
     _tmp85 = _tmp79*_tmp81
