@@ -174,7 +174,9 @@ def families() -> dict[str, Family]:
                   lambda x, b: b[0] / (1 + ((x - b[1]) / b[2]) ** 2) + b[3],
                   lambda rng: np.r_[rng.uniform(2, 10), rng.uniform(4, 6), rng.uniform(0.5, 2),
                                     rng.uniform(-1, 1)], _uniform(0, 10), 40),
-        _explicit("hill", "b0*x**b2/(b1**b2 + x**b2)", ["b0", "b1", "b2"],
+        # |x| and |b1| on both sides: ODRPACK's function needs them (a measure observed
+        # below 0), so kanagen's spec has them too -- the same model, the same minima
+        _explicit("hill", "b0*abs(x)**b2/(abs(b1)**b2 + abs(x)**b2)", ["b0", "b1", "b2"],
                   lambda x, b: b[0] * np.abs(x) ** b[2] / (np.abs(b[1]) ** b[2]
                                                             + np.abs(x) ** b[2]),
                   lambda rng: np.r_[rng.uniform(2, 10), rng.uniform(1, 5), rng.uniform(1, 4)],

@@ -16,8 +16,10 @@ import sympy as sp
 
 
 class powlog(sp.Function):  # noqa: N801 - printed by name (``_print_powlog``)
-    """``u**e * log(u)``, 0 at ``u = 0`` (its limit when ``e > 0``; it is printed, never
-    differentiated)."""
+    """``u**e * log|u|``: 0 at ``u = 0`` (its limit when ``e > 0``); below 0, where ``u**e``
+    is real only at an integer ``e``, the derivative of ``u**e`` along the integers' real
+    continuation (a model pinning ``e`` to 1 fits a measure below 0). Printed, never
+    differentiated."""
 
     nargs = 2
 

@@ -94,11 +94,14 @@ class TablePrinter(StrPrinter):
         return super()._print_Pow(expr, rational)
 
     def _print_powlog(self, expr):
-        # u**e*log(u), 0 at u = 0 (codegen/limits.py): log's argument is 1 there
+        # u**e*log|u|, 0 at u = 0 (codegen/limits.py): log's argument is 1 there. Below 0,
+        # u**e is real only at an integer e (NaN otherwise), where log|u| makes the
+        # derivative finite: a model pinning e to an integer fits measures below 0.
         base, exponent = expr.args
         u = self._print(base)
         power = self._print(sp.Pow(base, exponent, evaluate=False))
-        return f"({power}*{self.module}.log({u} + (({u}) == 0)))"
+        magnitude = f"{self.functions[sp.Abs]}({u})"
+        return f"({power}*{self.module}.log({magnitude} + (({u}) == 0)))"
 
     def _print_Function(self, expr):
         target = self.functions.get(type(expr))

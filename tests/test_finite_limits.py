@@ -38,6 +38,8 @@ def test_power_derivatives_are_finite_at_zero():
     assert f_x(0.0, 2.5, 1.0) == 0.0 and f_x(0.0, 1.0, 1.0) == 1.0
     assert f_b(0.0, 2.5, 3.0) == 0.0
     assert f_b(2.0, 2.5, 3.0) == pytest.approx(3 * 2.0**2.5 * np.log(2.0), rel=1e-15)
+    # below 0 at an integer exponent (a model pinning it), the real continuation's slope
+    assert f_b(-2.0, 1.0, 3.0) == pytest.approx(3 * -2.0 * np.log(2.0), rel=1e-15)
     # below 1, the derivative in x is truly infinite at 0, and stays so
     assert np.isinf(f_x(np.float64(0.0), 0.5, 1.0))
 

@@ -27,6 +27,8 @@ RESTORE_STEPS, RESTORE_TOL = 30, 1e-10
 #: A measure whose whitened violation stays above this (cost units) did not reach its
 #: equations by the projector's steps.
 UNREACHED = 1e-16
+#: No measure flagged: :func:`project_each` projects them all.
+_ALL = np.zeros(0, dtype=np.bool_)
 _NEWTON = 8  # normal (Newton) steps onto the manifold, at most
 _HALVINGS = 12  # halvings of a step along the manifold
 _DESCENT = 12  # steps along the manifold, at most
@@ -495,8 +497,22 @@ def project_all(A, q, mt, iterations, tol):
     out = mt.copy()
     viol = np.zeros(M)
     rank = np.zeros(M, dtype=np.int64)
-    project_each(A, q, out, iterations, tol, c, C, D, True, viol, rank)
+    project_each(A, q, out, iterations, tol, c, C, D, True, viol, rank, _ALL)
     return out, viol, rank, c, C, D
+
+
+@jit
+def project_chosen(A, q, mt, chosen, iterations, tol):
+    """:func:`project_measure` for the measures ``chosen`` (a flag each) from ``mt``:
+    ``(m̃, violations, c, C, D)``, the others left where they are, their violation
+    infinite."""
+    q = np.ascontiguousarray(q)
+    c, C, D = empty_evals(A, q.size)
+    out = mt.copy()
+    viol = np.full(A.chan.size, np.inf)
+    rank = np.zeros(A.chan.size, dtype=np.int64)
+    project_each(A, q, out, iterations, tol, c, C, D, True, viol, rank, chosen)
+    return out, viol, c, C, D
 
 
 @jit
@@ -512,7 +528,7 @@ def projected_errors(A, q, iterations, tol):
     viol = np.zeros(M)
     rank = np.zeros(M, dtype=np.int64)
     c, C, D = np.zeros((1, pmax)), np.zeros((1, pmax, q.size)), np.zeros((1, pmax, A.m.shape[1]))
-    project_each(A, q, out, iterations, tol, c, C, D, False, viol, rank)
+    project_each(A, q, out, iterations, tol, c, C, D, False, viol, rank, _ALL)
     totals = np.empty(M)
     F = fields(A)
     for i in range(M):
@@ -526,10 +542,11 @@ def projected_errors(A, q, iterations, tol):
 
 
 @jit(inline=True)
-def project_each(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank):
-    """:func:`project_measure` for every measure of ``A`` from ``out`` (updated in place),
-    its violation and rank into ``viol, rank``; its equations into the rows of ``c, C, D``
-    (its own row each, or one row for all when they have one)."""
+def project_each(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank, chosen):
+    """:func:`project_measure` for every measure of ``A`` (those flagged in ``chosen``
+    unless it is empty) from ``out`` (updated in place), its violation and rank into
+    ``viol, rank``; its equations into the rows of ``c, C, D`` (its own row each, or one
+    row for all when they have one)."""
     work = scratch(A, q.size)
     E, L, inv, kept, y, rbar, cbar, dm, step, cand, moved, x = borrow(work)
     bq, bout, bc, bC, bD = borrow((q, out, c, C, D))
@@ -537,6 +554,8 @@ def project_each(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank):
     eps = A.eps
     own = c.shape[0] == out.shape[0]
     for i in range(out.shape[0]):
+        if chosen.size and not chosen[i]:
+            continue
         ch = F[0][i]
         r = i if own else 0
         args = (F, i, bq, bout[i], iterations, tol, eps, bc[r], bC[r], bD[r], jacobian, E, L,

@@ -19,12 +19,14 @@ from ..sqrt import EPS, REDUNDANT, closest_root
 from .linear import corrected, linearise, parameter_block, retraction_step, whitened_violation
 from .measures import (
     RESTORE_STEPS,
+    RESTORE_TOL,
     ROUNDING,
     UNREACHED,
     c0_eval,
     copy_into,
     eval_all,
     point_values,
+    project_chosen,
     quad_between,
     restore_all,
     scratch,
@@ -376,30 +378,84 @@ def info_root(A, info):
     return closest_root(info, max(A.eps, REDUNDANT))
 
 
+#: How many other measures of its channel a measure's nearest corrected value is sought
+#: among (evenly spaced in the data's order): the check's cost linear in the measures.
+NEIGHBOURS = 16
+#: The steps of a measure's projection from its neighbour's corrected value (a start on the
+#: equations: in the nearer point's basin, Newton's iteration reaches it in a few).
+NEIGHBOUR_STEPS = 10
+
+
+@jit
+def neighbours_corrected(A, x):
+    """Per measure, a start on its equations away from its corrected value: the corrected
+    value nearest its observed value (its metric) among :data:`NEIGHBOURS` other measures
+    of its channel, evenly spaced in the data's order; flagged where it is within twice the
+    measure's distance to its own corrected value (in that distance's square root, where
+    a nearer point lies), else not worth a projection. ``(starts, flags)``."""
+    start = x.mt.copy()
+    n = A.chan.size
+    chosen = np.zeros(n, dtype=np.bool_)
+    stride = max(1, -(-(n - 1) // NEIGHBOURS))
+    for i in range(n):
+        ch = A.chan[i]
+        d = A.Dn[ch]
+        Q, m_obs, own = A.Q[i], A.m[i], x.mt[i]
+        reach = 4.0 * quad_between(own, m_obs, Q, d)
+        best, at = reach, i
+        for s in range(1, n, stride):
+            j = (i + s) % n
+            if A.chan[j] != ch:
+                continue
+            gap = quad_between(x.mt[j], m_obs, Q, d)
+            if gap <= best and quad_between(x.mt[j], own, Q, d) > 1e-12 * reach:
+                best, at = gap, j
+        if at != i:
+            chosen[i] = True
+            for a in range(d):
+                start[i, a] = x.mt[at, a]
+    return start, chosen
+
+
 @linked("A Pt -> b Pt")
 def nearer_points(A, x):
-    """``x`` with each measure at the nearer of its nearest point and the one restored
-    from its observed value; ``changed`` False when no measure has a nearer one."""
-    other, _ = restore(A, x.q, A.m, RESTORE_STEPS)
-    if not finite(other):
-        return False, x
+    """``x`` with each measure at the nearest of its point and the ones restored from its
+    observed value and from its neighbour's corrected value (:func:`neighbours_corrected`):
+    a measure observed where its restoration stops at a local, not the nearest, point (a
+    Hill curve's zero dose, where the curve is flat) is moved there too. ``changed`` False
+    when no measure has a nearer point."""
     mt, c, C, D = x.mt, x.c, x.C, x.D  # copied at the first measure moved
     changed = False
     work = scratch(A, 0)
-    for i in range(A.chan.size):
-        ch = A.chan[i]
-        d = A.Dn[ch]
-        d_x = quad_between(x.mt[i], A.m[i], A.Q[i], d)
-        d_o = quad_between(other.mt[i], A.m[i], A.Q[i], d)
-        if d_o < d_x - 1e-9 * (1.0 + d_x) and violation(
-                other.c[i], other.D[i], A.G[i], A.P[ch], d, A.eps, work)[0] <= UNREACHED:
-            if not changed:
-                mt, c, C, D = x.mt.copy(), x.c.copy(), x.C.copy(), x.D.copy()
-            changed = True
-            copy_into(mt[i], other.mt[i])
-            copy_into(c[i], other.c[i])
-            copy_into(C[i], other.C[i])
-            copy_into(D[i], other.D[i])
+    viol = np.zeros(0)
+    for k in range(2):
+        if k == 0:
+            other, _ = restore(A, x.q, A.m, RESTORE_STEPS)
+            if not finite(other):
+                continue
+            o_mt, o_c, o_C, o_D = other.mt, other.c, other.C, other.D
+        else:  # each measure projected alone: one left off is not descended
+            starts, chosen = neighbours_corrected(A, x)
+            if not chosen.any():
+                break
+            o_mt, viol, o_c, o_C, o_D = project_chosen(A, x.q, starts, chosen,
+                                                       NEIGHBOUR_STEPS, RESTORE_TOL)
+        for i in range(A.chan.size):
+            ch = A.chan[i]
+            d = A.Dn[ch]
+            d_x = quad_between(mt[i], A.m[i], A.Q[i], d)
+            d_o = quad_between(o_mt[i], A.m[i], A.Q[i], d)
+            if not d_o < d_x - 1e-9 * (1.0 + d_x):
+                continue
+            if (viol[i] if k else violation(o_c[i], o_D[i], A.G[i], A.P[ch], d, A.eps,
+                                            work)[0]) <= UNREACHED:
+                if not changed:
+                    mt, c, C, D = x.mt.copy(), x.c.copy(), x.C.copy(), x.D.copy()
+                changed = True
+                copy_into(mt[i], o_mt[i])
+                copy_into(c[i], o_c[i])
+                copy_into(C[i], o_C[i])
+                copy_into(D[i], o_D[i])
     if not changed:
         return False, x
     return True, make_point(A, x.q.copy(), mt, c, C, D)
