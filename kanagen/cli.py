@@ -214,9 +214,11 @@ def fit_options(command):
         click.option("--local", is_flag=True,
                      help="Fit one model (--model) to all the measures with the local "
                           "estimator: no random samples, no outlier rejection."),
-        click.option("--sigma", type=float, default=None,
+        click.option("--sigma", "sigmas", multiple=True, metavar="SIGMA|NAME=SIGMA,...",
                      help="Standard deviation of each measured component (info = 1/sigma²; "
-                          "default 1)."),
+                          "default 1): one number for all, or per component by name, e.g. "
+                          "--sigma dose=0.02,response=3 (repeatable; a bare number: the "
+                          "components not named)."),
         click.option("--const", "consts", multiple=True, metavar="NAME=VALUE",
                      help="Set a constant of SPEC (repeatable)."),
         click.option("--max-iter", type=int, default=100, show_default=True,
@@ -243,14 +245,15 @@ backend_option = click.option(
          "generated NumPy module, no compiler needed.")
 
 
-def _fit_options(scale, scorer, phi, seed, max_samples, fixed_budget, model, local, sigma,
+def _fit_options(scale, scorer, phi, seed, max_samples, fixed_budget, model, local, sigmas,
                  consts, max_iter, starts, correct_bias=False):
     """The validated FitOptions of :func:`fit_options`' values; bad input exits 2."""
     from .fitjob import FitOptions
 
     try:
         return FitOptions(scale=scale, scorer=scorer, phi=phi, seed=seed,
-                          max_samples=max_samples, model=model, local=local, sigma=sigma,
+                          max_samples=max_samples, model=model, local=local,
+                          sigma=_parse_sigmas(sigmas),
                           constants=_parse_constants(consts), max_iter=max_iter,
                           start=_parse_pairs(",".join(starts).split(","), "--start"),
                           adaptive=not fixed_budget, correct_bias=correct_bias)
@@ -453,6 +456,23 @@ def report(result, db, dataset, out, data, images):
 
 def _parse_constants(items) -> dict[str, float]:
     return _parse_pairs(items, "--const")
+
+
+def _parse_sigmas(items) -> float | dict[str, float] | None:
+    """``--sigma`` values: one number (all the components), or ``NAME=SIGMA`` pairs (a bare
+    number among them: ``"*"``, the components not named); bad input exits 2."""
+    parts = [p.strip() for item in items for p in item.split(",") if p.strip()]
+    bare = [p for p in parts if "=" not in p]
+    if len(bare) > 1:
+        _fail(f"--sigma: one bare number at most (the components not named), got {bare}")
+    try:
+        default = float(bare[0]) if bare else None
+    except ValueError:
+        _fail(f"--sigma expects a number or NAME=SIGMA, got {bare[0]!r}")
+    named = _parse_pairs([p for p in parts if "=" in p], "--sigma")
+    if not named:
+        return default
+    return named if default is None else {**named, "*": default}
 
 
 def _parse_pairs(items, option: str) -> dict[str, float]:

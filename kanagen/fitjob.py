@@ -48,8 +48,10 @@ class FitOptions:
         Robust: search this model only; with ``local``: the model to fit.
     local : bool
         Fit one model to all the measures with the local estimator (no sampling).
-    sigma : float, optional
-        Standard deviation of each measured component (info ``1/σ²``; default 1).
+    sigma : float or mapping, optional
+        Standard deviation of each measured component (info ``1/σ²``; default 1): one
+        number for all, or one per component by name (``{"dose": 0.02, "response": 3}``;
+        ``"*"``: every component not named).
     constants : mapping or pairs
         Constants of the spec set at run time.
     max_iter : int
@@ -78,7 +80,7 @@ class FitOptions:
     max_samples: int = 2000
     model: str | None = None
     local: bool = False
-    sigma: float | None = None
+    sigma: float | tuple[tuple[str, float], ...] | None = None
     constants: tuple[tuple[str, float], ...] = field(default=())
     max_iter: int = 100
     start: tuple[tuple[str, float], ...] = field(default=())
@@ -92,7 +94,11 @@ class FitOptions:
         if self.scale is not None:
             put("scale", _positive(self.scale, "scale (L*)"))
         put("adaptive", bool(self.adaptive))
-        if self.sigma is not None:
+        if isinstance(self.sigma, Mapping) or isinstance(self.sigma, list | tuple):
+            pairs = _pairs(self.sigma, "sigma")
+            put("sigma", tuple((name, _positive(value, f"sigma {name}"))
+                               for name, value in pairs))
+        elif self.sigma is not None:
             put("sigma", _positive(self.sigma, "sigma"))
         if self.scorer not in SCORERS:
             raise ValueError(f"unknown scorer {self.scorer!r} (choose from {sorted(SCORERS)})")
@@ -124,6 +130,8 @@ class FitOptions:
         out = asdict(self)
         out["constants"] = dict(self.constants)
         out["start"] = dict(self.start)
+        if isinstance(self.sigma, tuple):
+            out["sigma"] = dict(self.sigma)
         if not self.correct_bias:  # the keys of results databases written before it
             del out["correct_bias"]
         return out
@@ -194,12 +202,24 @@ def make_estimator(fam: ModelFamily, X: np.ndarray, channel: str,
     est = Estimator(fam, scale=opts.scale, scorer=opts.scorer, phi=opts.phi, seed=opts.seed,
                     channel=channel, constants=dict(opts.constants), model=opts.model,
                     q0=opts.q0(), adaptive=opts.adaptive)
-    est.add_measures(channel, X, info=_info(opts))
+    est.add_measures(channel, X, info=_info(opts, fam, channel))
     return est
 
 
-def _info(opts: FitOptions) -> float | None:
-    return None if opts.sigma is None else opts.sigma**-2
+def _info(opts: FitOptions, fam: ModelFamily, channel: str) -> float | np.ndarray | None:
+    """The channel's information of ``opts.sigma``: ``1/σ²``, or the diagonal matrix of
+    each component's (``"*"``: the components not named; else 1)."""
+    if opts.sigma is None or not isinstance(opts.sigma, tuple):
+        return None if opts.sigma is None else opts.sigma**-2
+    components = list(fam.channel(channel).components)
+    given = dict(opts.sigma)
+    unknown = sorted(set(given) - set(components) - {"*"})
+    if unknown:
+        raise ValueError(f"sigma names {', '.join(map(repr, unknown))}, not a component of "
+                         f"channel {channel!r} (its components: {components}; '*': the "
+                         "others)")
+    default = given.get("*", 1.0)
+    return np.diag([given.get(name, default) ** -2.0 for name in components])
 
 
 def search(est: Estimator, max_samples: int,
@@ -229,7 +249,8 @@ def corrected_choice(est: Estimator, fam: ModelFamily, opts: FitOptions, channel
     if not _found(best):
         return None
     rows = np.asarray(best.inliers, dtype=int)
-    return fit(fam, best.model, data={channel: X[rows]}, info={channel: _info(opts)},
+    info = {channel: _info(opts, fam, channel)}
+    return fit(fam, best.model, data={channel: X[rows]}, info=info,
                constants=dict(opts.constants), q_start=best.q, max_iter=opts.max_iter,
                correct_bias=True)
 
@@ -274,7 +295,7 @@ def local_record(fam: ModelFamily, X: np.ndarray, channel: str, opts: FitOptions
     from .runtime.coherence import coherence
     from .runtime.fit import fit
 
-    info = {channel: _info(opts)}
+    info = {channel: _info(opts, fam, channel)}
     constants = dict(opts.constants)
     res = fit(fam, opts.model, data={channel: X}, info=info, constants=constants,
               q0=opts.q0(), max_iter=opts.max_iter, correct_bias=opts.correct_bias)

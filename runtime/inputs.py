@@ -108,7 +108,9 @@ def _eye(k: int) -> np.ndarray:
 
 
 def information(value, k: int, M: int, what: str) -> np.ndarray:
-    """Normalise an information specification to (k, k) or (M, k, k), validated."""
+    """Normalise an information specification to (k, k) or (M, k, k), validated: a number
+    (``1/σ²`` of every component), one per component ``(k,)`` or per measure ``(M,)`` or
+    both ``(M, k)`` (diagonal), a matrix ``(k, k)`` or one per measure ``(M, k, k)``."""
     if value is None:
         return np.eye(k)
     Q = real_array(value, what)
@@ -125,8 +127,18 @@ def information(value, k: int, M: int, what: str) -> np.ndarray:
     if Q.shape == (k, k) or Q.shape == (M, k, k):
         _psd(Q, what)
         return Q
-    raise ValueError(f"{what} has shape {Q.shape}; expected a scalar, ({k}, {k}), ({M},) "
-                     f"or ({M}, {k}, {k})")
+    if M != k and Q.shape in ((k,), (M, k)):  # per component (and measure): a diagonal
+        if np.any(Q < 0):
+            raise ValueError(f"{what}: a component's information must be >= 0, got "
+                             f"{Q.min()}")
+        return Q[..., None] * np.eye(k)
+    ambiguous = (f" (with {M} measures of {k} components, ({k},) could be one per measure "
+                 f"or one per component: pass np.diag(v) per component, or "
+                 f"v[:, None, None] * np.eye({k}) per measure)") if M == k and Q.ndim == 1 \
+        else ""
+    raise ValueError(f"{what} has shape {Q.shape}; expected a scalar, ({k},) one per "
+                     f"component, ({k}, {k}), ({M},) one per measure, ({M}, {k}) or "
+                     f"({M}, {k}, {k}){ambiguous}")
 
 
 _ROOTS: dict = {}  # inverse_root of a shared (k, k) information, by its bytes
