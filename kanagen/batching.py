@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .dataio import DataError, read_measures
-from .fitjob import FitOptions, resolve_channel, run_job
+from .fitjob import FitOptions, read_sigmas, resolve_channel, run_job
 from .modelspec.limits import DEFAULT, Limits
 from .resultsdb import ResultsDB, Row, claim_owner, encode
 
@@ -152,7 +152,7 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
                 progress(Outcome(path, status, encoded.model, message, out.get("seconds"),
                                  out.get("cpu")))
 
-        def jobs() -> Iterator[tuple[str, np.ndarray]]:
+        def jobs() -> Iterator[tuple]:
             for path in todo:
                 # another run on the same database may have taken it (or done it) since
                 if not store.claim(path, fam.sha256, key, owner, retry_errors):
@@ -162,11 +162,12 @@ def batch(spec: str | Path, datasets: str | Iterable[str | Path], *, db: str | P
                     X = read_measures(path, components, channel)
                     if X.ndim != 2 or X.shape[0] == 0:
                         raise DataError(f"{path}: no measures for channel {channel!r}")
+                    sigmas = read_sigmas(path, options, channel)
                 except Exception as exc:  # any unreadable dataset: recorded, the run goes on
                     record(path, "error", str(exc) if isinstance(exc, DataError)
                            else f"{path}: cannot read data: {type(exc).__name__}")
                     continue
-                yield path, X
+                yield path, X, sigmas
 
         task = (spec_text, source, channel, options.to_dict(), backend, limits)
         try:
@@ -235,7 +236,7 @@ def _client(workers: int | None, scheduler: str | None, needed: bool):
         yield client, workers
 
 
-def _run(client, slots: int, task: tuple, jobs: Iterator[tuple[str, np.ndarray]]):
+def _run(client, slots: int, task: tuple, jobs: Iterator[tuple]):
     """Yield ``(dataset, outcome)`` as datasets finish, keeping ``_IN_FLIGHT`` per slot
     submitted."""
     if client is None:
@@ -247,8 +248,8 @@ def _run(client, slots: int, task: tuple, jobs: Iterator[tuple[str, np.ndarray]]
     run_id = uuid.uuid4().hex[:8]
 
     def submit() -> None:
-        for path, X in jobs:
-            future = client.submit(estimate_dataset, *task, X, path, pure=False,
+        for path, X, sigmas in jobs:
+            future = client.submit(estimate_dataset, *task, X, path, sigmas, pure=False,
                                    key=f"kanagen-{run_id}-{len(names)}")
             names[future.key] = path
             running.add(future)
@@ -268,14 +269,16 @@ def _run(client, slots: int, task: tuple, jobs: Iterator[tuple[str, np.ndarray]]
 
 
 def estimate_dataset(spec_text: str | None, source: str, channel: str, options: dict,
-                     backend: str, limits: Limits, X: np.ndarray, dataset: str) -> dict:
+                     backend: str, limits: Limits, X: np.ndarray, dataset: str,
+                     sigmas: np.ndarray | None = None) -> dict:
     """One dataset on a worker: its record encoded for the database (``"encoded"``,
     ``"found"``, ``"stop_reason"``) or ``"error"``, with ``"seconds"`` (wall) and ``"cpu"``
     (the process's CPU time); never raises (a dataset's failure is its outcome)."""
     started, cpu = time.perf_counter(), time.process_time()
     try:
         fam = _family(spec_text, source, backend, limits)
-        rec = run_job(fam, X, channel, FitOptions(**options), spec=source, data=dataset)
+        rec = run_job(fam, X, channel, FitOptions(**options), spec=source, data=dataset,
+                      sigmas=sigmas)
         out = {"encoded": encode(rec), "found": rec["found"],
                "stop_reason": rec.get("stop_reason") or ""}
     except Exception as exc:  # recorded as the dataset's error; the run goes on

@@ -216,9 +216,10 @@ def fit_options(command):
                           "estimator: no random samples, no outlier rejection."),
         click.option("--sigma", "sigmas", multiple=True, metavar="SIGMA|NAME=SIGMA,...",
                      help="Standard deviation of each measured component (info = 1/sigma²; "
-                          "default 1): one number for all, or per component by name, e.g. "
-                          "--sigma dose=0.02,response=3 (repeatable; a bare number: the "
-                          "components not named)."),
+                          "default 1): one number for all, or per component by name, a "
+                          "number or a column of DATA holding one per measure, e.g. "
+                          "--sigma dose=0.02,response=sd_response (repeatable; a bare "
+                          "number: the components not named)."),
         click.option("--const", "consts", multiple=True, metavar="NAME=VALUE",
                      help="Set a constant of SPEC (repeatable)."),
         click.option("--max-iter", type=int, default=100, show_default=True,
@@ -313,7 +314,7 @@ def _fit(spec, data, channel, json_out, backend, trusted, limit, opts):
     """The body of ``kanagen fit``; exits with its status."""
     from . import load
     from .dataio import read_measures
-    from .fitjob import local_record, make_estimator, resolve_channel
+    from .fitjob import local_record, make_estimator, read_sigmas, resolve_channel
 
     try:
         fam = load(spec, backend=backend, limits=_limits(trusted, limit))
@@ -322,10 +323,12 @@ def _fit(spec, data, channel, json_out, backend, trusted, limit, opts):
         X = read_measures(data, fam.channel(channel).components, channel)
         if X.ndim != 2 or X.shape[0] == 0:
             _fail(f"{data}: no measures for channel {channel!r}")
+        sigmas = read_sigmas(data, opts, channel)
         if opts.local:
-            res, record = local_record(fam, X, channel, opts, spec=spec, data=data)
+            res, record = local_record(fam, X, channel, opts, spec=spec, data=data,
+                                       sigmas=sigmas)
         else:
-            est = make_estimator(fam, X, channel, opts)
+            est = make_estimator(fam, X, channel, opts, sigmas)
     except (SpecError, ValueError, OSError) as exc:
         _fail(str(exc))
     to_err = json_out == "-"  # stdout holds the JSON alone; the text goes to stderr
@@ -334,7 +337,7 @@ def _fit(spec, data, channel, json_out, backend, trusted, limit, opts):
         _write_json(record, json_out)
         sys.exit(0 if res.success else 1)
     found, interrupted = _report_robust(est, fam, channel, X, json_out, to_err, opts,
-                                        spec=spec, data=data)
+                                        spec=spec, data=data, sigmas=sigmas)
     sys.exit(130 if interrupted else 0 if found else 1)
 
 
@@ -458,9 +461,10 @@ def _parse_constants(items) -> dict[str, float]:
     return _parse_pairs(items, "--const")
 
 
-def _parse_sigmas(items) -> float | dict[str, float] | None:
-    """``--sigma`` values: one number (all the components), or ``NAME=SIGMA`` pairs (a bare
-    number among them: ``"*"``, the components not named); bad input exits 2."""
+def _parse_sigmas(items) -> float | dict[str, float | str] | None:
+    """``--sigma`` values: one number (all the components), or ``NAME=SIGMA`` pairs, SIGMA
+    a number or a column of DATA (a bare number among them: ``"*"``, the components not
+    named); bad input exits 2 (FitOptions checks the numbers)."""
     parts = [p.strip() for item in items for p in item.split(",") if p.strip()]
     bare = [p for p in parts if "=" not in p]
     if len(bare) > 1:
@@ -469,7 +473,13 @@ def _parse_sigmas(items) -> float | dict[str, float] | None:
         default = float(bare[0]) if bare else None
     except ValueError:
         _fail(f"--sigma expects a number or NAME=SIGMA, got {bare[0]!r}")
-    named = _parse_pairs([p for p in parts if "=" in p], "--sigma")
+    named = {}
+    for part in parts:
+        name, sep, value = part.partition("=")
+        if sep:
+            if not name.strip() or not value.strip():
+                _fail(f"--sigma expects NAME=SIGMA (a number or a column), got {part!r}")
+            named[name.strip()] = value.strip()
     if not named:
         return default
     return named if default is None else {**named, "*": default}
@@ -493,7 +503,7 @@ def _parse_pairs(items, option: str) -> dict[str, float]:
 
 
 def _report_robust(est, fam, channel, X, json_out, to_err, opts, *, spec,
-                   data) -> tuple[bool, bool]:
+                   data, sigmas=None) -> tuple[bool, bool]:
     """Run the search, print the lattice and the chosen model; (a model was found, the
     search was interrupted by Ctrl-C)."""
     from .fitjob import corrected_choice, robust_record
@@ -503,7 +513,8 @@ def _report_robust(est, fam, channel, X, json_out, to_err, opts, *, spec,
         samples = _search(est, opts.max_samples)
     except KeyboardInterrupt:  # anytime: report the best model so far
         samples, interrupted = len(est.history), True
-    corrected = corrected_choice(est, fam, opts, channel, X) if opts.correct_bias else None
+    corrected = corrected_choice(est, fam, opts, channel, X, sigmas) \
+        if opts.correct_bias else None
     record = robust_record(est, fam, opts, channel=channel, X=X, samples=samples, spec=spec,
                            data=data, interrupted=interrupted, corrected=corrected)
     measures = len(X)

@@ -51,7 +51,8 @@ class FitOptions:
     sigma : float or mapping, optional
         Standard deviation of each measured component (info ``1/σ²``; default 1): one
         number for all, or one per component by name (``{"dose": 0.02, "response": 3}``;
-        ``"*"``: every component not named).
+        ``"*"``: every component not named), a number or the name of the data's column
+        holding one per measure (``{"response": "sd"}``: :func:`read_sigmas`).
     constants : mapping or pairs
         Constants of the spec set at run time.
     max_iter : int
@@ -80,7 +81,7 @@ class FitOptions:
     max_samples: int = 2000
     model: str | None = None
     local: bool = False
-    sigma: float | tuple[tuple[str, float], ...] | None = None
+    sigma: float | tuple[tuple[str, float | str], ...] | None = None
     constants: tuple[tuple[str, float], ...] = field(default=())
     max_iter: int = 100
     start: tuple[tuple[str, float], ...] = field(default=())
@@ -95,9 +96,7 @@ class FitOptions:
             put("scale", _positive(self.scale, "scale (L*)"))
         put("adaptive", bool(self.adaptive))
         if isinstance(self.sigma, Mapping) or isinstance(self.sigma, list | tuple):
-            pairs = _pairs(self.sigma, "sigma")
-            put("sigma", tuple((name, _positive(value, f"sigma {name}"))
-                               for name, value in pairs))
+            put("sigma", _sigmas(self.sigma))
         elif self.sigma is not None:
             put("sigma", _positive(self.sigma, "sigma"))
         if self.scorer not in SCORERS:
@@ -156,6 +155,30 @@ def _pairs(value, what: str) -> tuple[tuple[str, float], ...]:
     return pairs
 
 
+def _sigmas(value) -> tuple[tuple[str, float | str], ...]:
+    """σ by component name, sorted: a positive number, or a data column's name (a string
+    that is not a number)."""
+    items = value.items() if isinstance(value, Mapping) else value
+    out = {}
+    try:
+        for name, sigma in items:
+            if isinstance(sigma, str):
+                try:
+                    sigma = float(sigma)
+                except ValueError:
+                    if not sigma.strip():
+                        raise ValueError(f"sigma {name}: an empty column name") from None
+                    out[str(name)] = sigma.strip()
+                    continue
+            out[str(name)] = _positive(sigma, f"sigma {name}")
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, ValueError) and str(exc).startswith("sigma "):
+            raise
+        raise ValueError(f"sigma must map component names to numbers or column names, got "
+                         f"{value!r}") from None
+    return tuple(sorted(out.items()))
+
+
 def _positive(value, what: str) -> float:
     try:
         out = float(value)
@@ -197,18 +220,21 @@ def resolve_channel(fam: ModelFamily, channel: str | None) -> str:
 
 
 def make_estimator(fam: ModelFamily, X: np.ndarray, channel: str,
-                   opts: FitOptions) -> Estimator:
-    """The robust lattice search of one dataset, measures in, not yet run."""
+                   opts: FitOptions, sigmas: np.ndarray | None = None) -> Estimator:
+    """The robust lattice search of one dataset, measures in, not yet run (``sigmas``:
+    :func:`read_sigmas`' columns, if any)."""
     est = Estimator(fam, scale=opts.scale, scorer=opts.scorer, phi=opts.phi, seed=opts.seed,
                     channel=channel, constants=dict(opts.constants), model=opts.model,
                     q0=opts.q0(), adaptive=opts.adaptive)
-    est.add_measures(channel, X, info=_info(opts, fam, channel))
+    est.add_measures(channel, X, info=_info(opts, fam, channel, sigmas))
     return est
 
 
-def _info(opts: FitOptions, fam: ModelFamily, channel: str) -> float | np.ndarray | None:
+def _info(opts: FitOptions, fam: ModelFamily, channel: str,
+          sigmas: np.ndarray | None = None) -> float | np.ndarray | None:
     """The channel's information of ``opts.sigma``: ``1/σ²``, or the diagonal matrix of
-    each component's (``"*"``: the components not named; else 1)."""
+    each component's (``"*"``: the components not named; else 1), one per measure where a
+    component's σ is a column (``sigmas``: those columns, in :func:`sigma_columns`' order)."""
     if opts.sigma is None or not isinstance(opts.sigma, tuple):
         return None if opts.sigma is None else opts.sigma**-2
     components = list(fam.channel(channel).components)
@@ -219,7 +245,50 @@ def _info(opts: FitOptions, fam: ModelFamily, channel: str) -> float | np.ndarra
                          f"channel {channel!r} (its components: {components}; '*': the "
                          "others)")
     default = given.get("*", 1.0)
-    return np.diag([given.get(name, default) ** -2.0 for name in components])
+    if isinstance(default, str):
+        raise ValueError("sigma '*' (the components not named) must be a number")
+    columns = sigma_columns(opts)
+    if columns and (sigmas is None or sigmas.shape[1] != len(columns)):
+        raise ValueError(f"sigma of {list(columns)} from the data's columns "
+                         f"{list(columns.values())}: not read")
+    per = np.empty((len(sigmas) if columns else 1, len(components)))
+    for a, name in enumerate(components):
+        value = given.get(name, default)
+        per[:, a] = sigmas[:, list(columns).index(name)] if isinstance(value, str) else value
+    info = per**-2.0
+    return info[:, :, None] * np.eye(len(components)) if columns else np.diag(info[0])
+
+
+def sigma_columns(opts: FitOptions) -> dict[str, str]:
+    """The components whose σ is a column of the data: ``{component: column}``."""
+    if not isinstance(opts.sigma, tuple):
+        return {}
+    return {name: value for name, value in opts.sigma if isinstance(value, str)}
+
+
+def read_sigmas(path, opts: FitOptions, channel: str) -> np.ndarray | None:
+    """Each measure's σ of the components named by a column (:func:`sigma_columns`), from
+    the data file's columns of those names (a CSV with a header, or JSON rows of named
+    values); None when there is none. Raises ``DataError`` naming the file, the column
+    and the row where a σ is not a positive number."""
+    from .dataio import DataError, read_measures
+
+    columns = sigma_columns(opts)
+    if not columns:
+        return None
+    if str(path).lower().endswith(".npz"):
+        raise DataError(f"{path}: sigma from columns {list(columns.values())} needs a file "
+                        "with named columns (CSV with a header, or JSON)")
+    try:
+        values = read_measures(path, tuple(columns.values()), channel)
+    except DataError as exc:
+        raise DataError(f"{exc} (the sigma columns {list(columns.values())})") from None
+    bad = ~(np.isfinite(values) & (values > 0))
+    if bad.any():
+        row, col = (int(v) for v in np.argwhere(bad)[0])
+        raise DataError(f"{path}: column {list(columns.values())[col]!r}, measure {row}: "
+                        f"sigma {values[row, col]} is not a positive number")
+    return values
 
 
 def search(est: Estimator, max_samples: int,
@@ -240,7 +309,7 @@ def search(est: Estimator, max_samples: int,
 
 
 def corrected_choice(est: Estimator, fam: ModelFamily, opts: FitOptions, channel: str,
-                     X: np.ndarray):
+                     X: np.ndarray, sigmas: np.ndarray | None = None):
     """``--correct-bias`` after a search: the chosen model refitted on its inliers from its
     estimate, less its second-order bias (a FitResult; None without a chosen model)."""
     from .runtime.fit import fit
@@ -249,7 +318,7 @@ def corrected_choice(est: Estimator, fam: ModelFamily, opts: FitOptions, channel
     if not _found(best):
         return None
     rows = np.asarray(best.inliers, dtype=int)
-    info = {channel: _info(opts, fam, channel)}
+    info = {channel: _info(opts, fam, channel, None if sigmas is None else sigmas[rows])}
     return fit(fam, best.model, data={channel: X[rows]}, info=info,
                constants=dict(opts.constants), q_start=best.q, max_iter=opts.max_iter,
                correct_bias=True)
@@ -290,12 +359,12 @@ def robust_record(est: Estimator, fam: ModelFamily, opts: FitOptions, *, channel
 
 
 def local_record(fam: ModelFamily, X: np.ndarray, channel: str, opts: FitOptions, *,
-                 spec: str, data: str):
+                 spec: str, data: str, sigmas: np.ndarray | None = None):
     """The local fit of one model to all the measures: ``(FitResult, JSON record)``."""
     from .runtime.coherence import coherence
     from .runtime.fit import fit
 
-    info = {channel: _info(opts, fam, channel)}
+    info = {channel: _info(opts, fam, channel, sigmas)}
     constants = dict(opts.constants)
     res = fit(fam, opts.model, data={channel: X}, info=info, constants=constants,
               q0=opts.q0(), max_iter=opts.max_iter, correct_bias=opts.correct_bias)
@@ -327,14 +396,16 @@ def _header(fam: ModelFamily, channel: str, spec: str, data: str, X: np.ndarray)
 
 
 def run_job(fam: ModelFamily, X: np.ndarray, channel: str, opts: FitOptions, *,
-            spec: str, data: str) -> dict:
+            spec: str, data: str, sigmas: np.ndarray | None = None) -> dict:
     """Estimate one dataset without a terminal (``kanagen batch``): the record that
     ``kanagen fit --json`` writes for the same dataset and options, made plain JSON data."""
     if opts.local:
-        return finite(local_record(fam, X, channel, opts, spec=spec, data=data)[1])
-    est = make_estimator(fam, X, channel, opts)
+        return finite(local_record(fam, X, channel, opts, spec=spec, data=data,
+                                   sigmas=sigmas)[1])
+    est = make_estimator(fam, X, channel, opts, sigmas)
     samples = search(est, opts.max_samples)
-    corrected = corrected_choice(est, fam, opts, channel, X) if opts.correct_bias else None
+    corrected = corrected_choice(est, fam, opts, channel, X, sigmas) \
+        if opts.correct_bias else None
     return finite(robust_record(est, fam, opts, channel=channel, X=X, samples=samples,
                                 spec=spec, data=data, corrected=corrected))
 

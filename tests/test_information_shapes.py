@@ -18,6 +18,11 @@ from kanagen.cli import main
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def run(*args):
+    """``kanagen ARGS`` as a user types it: its exit code and output."""
+    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+
+
 def _line_data(M=25, seed=4):
     rng = np.random.default_rng(seed)
     x = np.linspace(0, 10, M)
@@ -60,11 +65,6 @@ def test_cli_sigma_per_component(tmp_path):
     data = _line_data()
     path = tmp_path / "line.csv"
     np.savetxt(path, data, delimiter=",", header="x,y", comments="", fmt="%.9f")
-    runner = CliRunner()
-
-    def run(*args):
-        return runner.invoke(main, [str(a) for a in args], catch_exceptions=False)
-
     spec = ROOT / "examples" / "line.yaml"
     out_json = tmp_path / "res.json"
     out = run("fit", spec, path, "--model", "line", "--local", "--sigma", "x=0.05,y=0.5",
@@ -87,3 +87,44 @@ def test_cli_sigma_per_component(tmp_path):
         out = run("fit", spec, path, "--model", "line", "--local", "--sigma", bad)
         assert out.exit_code == 2 and message in out.output, out.output
         assert "Traceback" not in out.output
+
+
+def test_cli_sigma_from_the_data_columns(tmp_path):
+    """``--sigma y=sd_y``: each measure's σ from a column of DATA (a CSV with sx, sy as
+    metrology files carry them): the same fit as ``info`` of shape (M, k); ``kanagen batch``
+    reads them per file."""
+    data = _line_data()
+    sd = np.c_[np.linspace(0.02, 0.08, len(data)), np.linspace(0.3, 0.9, len(data))]
+    path = tmp_path / "line.csv"
+    np.savetxt(path, np.c_[sd[:, 1], data, sd[:, 0]], delimiter=",", header="sy,x,y,sx",
+               comments="", fmt="%.9f")
+    spec = ROOT / "examples" / "line.yaml"
+    out_json = tmp_path / "res.json"
+    out = run("fit", spec, path, "--model", "line", "--local", "--sigma", "x=sx,y=sy",
+              "--json", out_json)
+    assert out.exit_code == 0, out.output
+    read = np.loadtxt(path, delimiter=",", skiprows=1)
+    expected = kanagen.fit(kanagen.load(spec), "line", data={"point": read[:, 1:3]},
+                           info={"point": np.c_[read[:, 3], read[:, 0]] ** -2.0})
+    got = json.loads(out_json.read_text())
+    np.testing.assert_allclose(list(got["params"].values()), expected.q, rtol=1e-12)
+    assert 0.4 < expected.reduced_chi2 < 2.5
+    # the robust search and a batch, with the same columns
+    assert run("fit", spec, path, "--sigma", "x=sx,y=sy").exit_code == 0
+    summary = kanagen.batch(spec, [str(path)], db=tmp_path / "r.sqlite", workers=1,
+                            sigma={"x": "sx", "y": "sy"}, model="line", local=True)
+    assert summary.ok == 1, summary
+    (row,) = kanagen.read_results(tmp_path / "r.sqlite")
+    np.testing.assert_allclose(list(row["estimate"].values()), expected.q, rtol=1e-12)
+    # a missing column, a sigma not positive, a file without named columns
+    bad = tmp_path / "bad.csv"
+    bad.write_text("x,y,sx,sy\n1,2,0.1,0.2\n2,3,0.1,0\n3,4,0.1,0.2\n")
+    for data_file, sigma, message in (
+            (path, "x=sdx", "lacks component(s) ['sdx'] (the sigma columns ['sdx'])"),
+            (bad, "x=sx,y=sy", "column 'sy', measure 1: sigma 0.0 is not a positive number")):
+        out = run("fit", spec, data_file, "--model", "line", "--local", "--sigma", sigma)
+        assert out.exit_code == 2 and message in out.output, out.output
+    npz = tmp_path / "line.npz"
+    np.savez(npz, point=data)
+    out = run("fit", spec, npz, "--model", "line", "--local", "--sigma", "y=sy")
+    assert out.exit_code == 2 and "needs a file with named columns" in out.output
