@@ -349,7 +349,7 @@ def robust_record(est: Estimator, fam: ModelFamily, opts: FitOptions, *, channel
                    "scale_given": opts.scale is not None, "adaptive": opts.adaptive,
                    "planned_samples": est.planned, "scorer": opts.scorer, "phi": opts.phi,
                    "seed": opts.seed, "max_samples": opts.max_samples, "measures": len(X),
-                   "start": dict(opts.start),
+                   "start": dict(opts.start), "sigma": opts.to_dict()["sigma"],
                    "total_samples": samples, "status": est.status, "stop_reason": status,
                    "found": found})
     if found and corrected is not None:
@@ -375,7 +375,7 @@ def local_record(fam: ModelFamily, X: np.ndarray, channel: str, opts: FitOptions
     record.update(_header(fam, channel, spec, data, X))
     record.update({"local": True, "errors": errors, "found": bool(res.success),
                    "stop_reason": res.message, "max_iter": opts.max_iter,
-                   "start": dict(opts.start)})
+                   "start": dict(opts.start), "sigma": opts.to_dict()["sigma"]})
     return res, record
 
 

@@ -76,6 +76,7 @@ def test_cli_sigma_per_component(tmp_path):
                            info={"point": [1 / 0.05**2, 1 / 0.5**2]})
     got = json.loads(out_json.read_text())
     np.testing.assert_allclose(list(got["params"].values()), expected.q, rtol=1e-12)
+    assert got["sigma"] == {"x": 0.05, "y": 0.5}  # the record says what it assumed
     # a bare number is the components not named: the same fit
     out2 = tmp_path / "res2.json"
     assert run("fit", spec, path, "--model", "line", "--local", "--sigma", "0.5",
