@@ -126,9 +126,9 @@ def marquardt_scale(H):
     """Marquardt's scaling of the parameter, ``sqrt(H_aa)`` (MINPACK's ``diag``), or none
     (size 0) where a diagonal is not positive and finite."""
     out = np.zeros(H.shape[0])
+    widen_marquardt(out, H)  # 0 where sqrt(|H_aa|) is 0 or not finite
     for a in range(out.size):
-        out[a] = np.sqrt(abs(H[a, a]))
-        if not (out[a] > 0.0 and np.isfinite(out[a])):
+        if not out[a] > 0.0:
             return np.zeros(0)
     return out
 
