@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .engine.data import model_rows
+from .engine.data import arrays, model_rows
 from .family import ModelFamily
 from .hyper import corrected
 from .inputs import channel_data, data_hint, describe, parameter_vector, prior_information
@@ -128,12 +128,30 @@ def fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
     if not any(ch.size for ch in problem.channels) and not np.any(problem.Q0):
         raise ValueError("nothing to estimate: no measures (data has no rows) and no prior "
                          "information (Q0)")
+    check_determined(fam, model, problem, constants)
     start = problem.q0 if q_start is None else parameter_vector(fam, q_start, "q_start")
     assumed = fam.warn_assumed(constants)
     res = fit_problem(fam, model, problem, q_start=start, max_iter=max_iter, xtol=xtol)
     if correct_bias:
         res = corrected(fam, model, problem, res, relative=correct_bias == "relative")
     return replace(res, assumed=assumed) if assumed else res
+
+
+def check_determined(fam: ModelFamily, model: str, problem: Problem, constants) -> None:
+    """Fewer equations than the parameter's free degrees of freedom, and no prior: the
+    estimate is not determined (a continuum of exact fits). A ValueError, as ODRPACK's and
+    MINPACK's refusals of fewer observations than parameters."""
+    measures = sum(ch.size for ch in problem.channels)
+    if measures >= problem.q0.size or np.any(problem.Q0):  # an equation at least each
+        return
+    A = arrays(problem)  # made once: the fit's own
+    count = int(A.P @ A.size)
+    free = fam.free_dof(model, constants)
+    if count < free:
+        raise ValueError(f"too few measures for model {model!r}: {measures} measure(s) give "
+                         f"{count} equation(s), fewer than the {free} degrees of freedom of "
+                         f"its parameter; the estimate would not be determined (add "
+                         f"measures, or prior information Q0)")
 
 
 def check_correct_bias(correct_bias) -> None:

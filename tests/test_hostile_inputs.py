@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -32,6 +33,27 @@ def test_a_fit_without_measures_or_prior_is_an_error(data):
         kanagen.fit(LINE, "line", data=data)
     res = kanagen.fit(LINE, "line", data=data, Q0=1.0, q0=[0.5, 2.0])  # a prior alone: fine
     assert res.success and np.allclose(res.q, [0.5, 2.0])
+
+
+def test_fewer_equations_than_parameters_is_an_error(tmp_path):
+    """One point for a line (two parameters): a continuum of exact fits, which the fit
+    reported as a converged minimum with infinite deviations; ODRPACK and MINPACK refuse
+    fewer observations than parameters. With a prior, or a model pinning a component
+    (``horizontal``: a = 0), one point is enough."""
+    one = np.array([[1.0, 2.0]])
+    with pytest.raises(ValueError, match=r"too few measures for model 'line': 1 measure\(s\) "
+                       r"give 1 equation\(s\), fewer than the 2 degrees of freedom"):
+        kanagen.fit(LINE, "line", data={"point": one})
+    assert kanagen.fit(LINE, "line", data={"point": one}, Q0=1.0, q0=[0.5, 2.0]).success
+    horizontal = kanagen.fit(LINE, "horizontal", data={"point": one})
+    assert horizontal.success and np.allclose(horizontal.q, [0.0, 2.0])
+    two = kanagen.fit(LINE, "line", data={"point": np.array([[1.0, 2.0], [3.0, 3.0]])})
+    assert two.success and np.allclose(two.q, [0.5, 1.5])  # exactly determined: fine
+    path = tmp_path / "one.csv"
+    path.write_text("x,y\n1,2\n")
+    spec = Path(__file__).resolve().parents[1] / "examples" / "line.yaml"
+    out = CliRunner().invoke(main, ["fit", str(spec), str(path), "--local", "--model", "line"])
+    assert out.exit_code == 2 and "too few measures" in out.output, out.output
 
 
 @pytest.mark.parametrize("values, what", [
