@@ -33,7 +33,7 @@ from .yamlsrc import Located, read_yaml
 _TOP_KEYS = ("name", "description", "constants", "parameter", "define", "channels", "models",
              "derived", "null_model", "units")
 #: a unit as people write it: "px", "deg", "m/s^2", "µm", "1/K", "N·m", "%"
-_UNIT = re.compile(r"[A-Za-z0-9µΩ°%²³·/^*(). -]{1,24}")
+_UNIT = re.compile(r"[A-Za-z0-9µΩ°%²³·/^*(). -]{0,24}")  # empty: dimensionless
 #: what a constant's default stands for: printable text without quotes or markup
 _ASSUME = re.compile(r"[^\x00-\x1f\x7f\"'`<>&\\]{1,120}")
 _CHANNEL_KEYS = ("components", "exact", "equations", "description")
@@ -619,10 +619,11 @@ class _Builder:
             if name not in names:
                 raise self.error(f"units: {name!r} is not a parameter component, constant, "
                                  f"derived quantity or measured component", "units", name)
+            unit = "" if unit is None else unit  # ``n:`` alone: dimensionless, as ``""``
             if not isinstance(unit, str) or not _UNIT.fullmatch(unit):
                 raise self.error(f"units: the unit of {name!r} must be short text (up to 24 "
-                                 f"letters, digits, spaces and µΩ°%²³·/^*().-), got {unit!r}",
-                                 "units", name)
+                                 f"letters, digits, spaces and µΩ°%²³·/^*().-; empty: "
+                                 f"dimensionless), got {unit!r}", "units", name)
             out.append((name, unit))
         return tuple(out)
 

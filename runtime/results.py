@@ -251,7 +251,7 @@ class ResultProtocol:
                  f"p = {self.chi2_pvalue:.3g}"]
         if self.assumed:
             lines.append("  assumed (constants not given): " + ", ".join(
-                f"{name} = {value:g}{' ' + self.units[name] if name in self.units else ''}"
+                f"{name} = {value:g}{' ' + self.units[name] if self.units.get(name) else ''}"
                 for name, value in self.assumed.items()))
         lines += estimate_lines(self.params, self.slacks, np.asarray(self.std), self.derived,
                                 self.units, self.pinned)
@@ -347,11 +347,11 @@ def estimate_lines(params: dict, slacks: dict, std, derived: dict,
         if name in pinned:
             continue
         tag = "  (slack)" if name in slacks else ""
-        unit = f" {units[name]}" if name in units else ""
+        unit = f" {units[name]}" if units.get(name) else ""
         lines.append(f"  {name:<{width}} = {value: .10g}  ± {std[i]:.3g}{unit}{tag}")
     for name, d in derived.items():
         value = np.asarray(d.value)
-        unit = f" {units[name]}" if name in units else ""
+        unit = f" {units[name]}" if units.get(name) else ""
         if value.ndim == 0:
             lines.append(f"  {name} = {float(value): .10g}  ± {float(d.std):.3g}{unit}")
         else:

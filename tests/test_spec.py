@@ -137,6 +137,10 @@ def test_units_are_text_beside_values():
                                   "f0: '°C'}"), "units.yaml")
     assert dict(fam.units) == {"a": "m/s^2", "x": "µm", "f0": "°C"}
     assert parse_spec(GOOD, "plain.yaml").units == ()
+    # a dimensionless component: an empty unit, or none given (``a:`` alone)
+    for text in ("units: {a: '', x: px}", "units: {a: , x: px}"):
+        fam = parse_spec(GOOD.replace("name: demo", "name: demo\n" + text), "units.yaml")
+        assert dict(fam.units) == {"a": "", "x": "px"}
 
 
 def test_duplicate_key_and_cycle():
