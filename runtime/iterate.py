@@ -192,13 +192,14 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
     starts = point_starts(A, width, 5)  # the point from 5, then the verdict's vectors
     at = starts[8]
     head = point_head(A, values, starts)
+    detail = _DETAILS.get(kind)
     if status == FAILED and kind == engine.AT_START:
         # the start's equations are not finite: the observed measures' cost (0) is no cost
         # of a point on them, and must not win a comparison of fits
         head = (*head[:2], np.inf, head[3])
+        detail += not_finite_at(A, problem, values, starts)
     n_direction, n_vector, n_info, n_covariance = sizes
     checked = status in (CONVERGED, STALLED, SADDLE) or kind == engine.PLATEAU_DETAIL
-    detail = _DETAILS.get(kind)
     if kind == engine.OFF_CONSTRAINTS:  # the returned point's ‖c‖∞ (eq. 18)
         detail = (" with the point off its equations or constraints" if status == MAX_ITER
                   else "") + f" (constraint_violation {head[3]:.3g})"
@@ -228,6 +229,35 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
                               int(rank0), residual, covariance)
     return Outcome((A, values, width, 5), iterations, status, message, delta0, verdict,
                    projected, head)
+
+
+def not_finite_at(A, problem: Problem, values: np.ndarray, starts: tuple[int, ...]) -> str:
+    """What is not finite at a start laid out in ``values`` (:func:`point_starts`): the
+    parameter, its constraints, or the first measures whose equations or Jacobians are not,
+    named by channel, row and observed value (a measure outside its equations' domain:
+    ``sqrt(x)`` or ``x**b`` at an observed ``x < 0``); ``""`` when all are."""
+    n, M, width = A.q0.size, A.chan.size, (starts[6] - starts[5]) // max(A.chan.size, 1)
+    if not np.all(np.isfinite(values[starts[1]:starts[2]])):
+        return ": the parameter is not finite"
+    if not np.all(np.isfinite(values[starts[3]:starts[5]])):
+        return ": the model's constraints are not finite at the parameter"
+    c = values[starts[5]:starts[6]].reshape(M, width)
+    C = values[starts[6]:starts[7]].reshape(M, width, n)
+    D = values[starts[7]:starts[8]].reshape(M, width, A.m.shape[1])
+    bad = [i for i in range(M) if not (np.all(np.isfinite(c[i])) and np.all(np.isfinite(
+        C[i])) and np.all(np.isfinite(D[i])))]
+    if not bad:
+        return ""
+    named = []
+    for i in bad[:3]:
+        ch = int(A.chan[i])
+        channel = problem.channels[ch]
+        row = i - int(A.start[ch])
+        observed = ", ".join(f"{v:.4g}" for v in channel.X[row])
+        named.append(f"{channel.name!r} row {row} (observed {observed})")
+    more = f" and {len(bad) - 3} more" if len(bad) > 3 else ""
+    return (f": the equations of {len(bad)} measure(s) are not finite there — "
+            f"{'; '.join(named)}{more}: observed outside the equations' domain?")
 
 
 def _verdict(stationary, decrement, cost, curvature, direction, plateau, vector,

@@ -226,6 +226,11 @@ def test_a_start_outside_the_domain_fails_with_no_cost():
     assert res.status == 3 and not res.success
     assert "starting point" in res.message
     assert res.cost == np.inf
+    # the message says which measure: its channel, row and observed value
+    assert "the equations of 1 measure(s) are not finite there — 'pt' row 3 (observed " \
+        "-0.2, 1.206)" in res.message, res.message
+    data[[5, 7, 9, 11], 0] = -1.0
+    assert "5 measure(s)" in kanagen.fit(fam, "m", data={"pt": data}).message
 
 
 def test_a_measure_projection_does_not_step_outside_the_domain():
