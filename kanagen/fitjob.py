@@ -120,6 +120,10 @@ class FitOptions:
         fam.constant_vector(dict(self.constants))
         parameter_vector(fam, dict(self.start), "--start")
 
+    def plain_sigma(self) -> float | dict[str, float | str] | None:
+        """``sigma`` as JSON data: a number, or a mapping by component."""
+        return dict(self.sigma) if isinstance(self.sigma, tuple) else self.sigma
+
     def q0(self) -> dict[str, float] | None:
         """The start as :func:`kanagen.fit` and :class:`Estimator` take it (``q0``)."""
         return dict(self.start) or None
@@ -129,8 +133,7 @@ class FitOptions:
         out = asdict(self)
         out["constants"] = dict(self.constants)
         out["start"] = dict(self.start)
-        if isinstance(self.sigma, tuple):
-            out["sigma"] = dict(self.sigma)
+        out["sigma"] = self.plain_sigma()
         if not self.correct_bias:  # the keys of results databases written before it
             del out["correct_bias"]
         return out
@@ -159,24 +162,29 @@ def _sigmas(value) -> tuple[tuple[str, float | str], ...]:
     """σ by component name, sorted: a positive number, or a data column's name (a string
     that is not a number)."""
     items = value.items() if isinstance(value, Mapping) else value
-    out = {}
     try:
-        for name, sigma in items:
-            if isinstance(sigma, str):
-                try:
-                    sigma = float(sigma)
-                except ValueError:
-                    if not sigma.strip():
-                        raise ValueError(f"sigma {name}: an empty column name") from None
-                    out[str(name)] = sigma.strip()
-                    continue
-            out[str(name)] = _positive(sigma, f"sigma {name}")
-    except (TypeError, ValueError) as exc:
-        if isinstance(exc, ValueError) and str(exc).startswith("sigma "):
-            raise
+        pairs = [(str(name), sigma) for name, sigma in items]
+    except (TypeError, ValueError):
         raise ValueError(f"sigma must map component names to numbers or column names, got "
                          f"{value!r}") from None
+    out = {}
+    for name, sigma in pairs:
+        column = _column(sigma, name)
+        out[name] = column if column is not None else _positive(sigma, f"sigma {name}")
     return tuple(sorted(out.items()))
+
+
+def _column(sigma, name: str) -> str | None:
+    """The column a σ names (a string that is not a number), else None."""
+    if not isinstance(sigma, str):
+        return None
+    try:
+        float(sigma)
+    except ValueError:
+        if not sigma.strip():
+            raise ValueError(f"sigma {name}: an empty column name") from None
+        return sigma.strip()
+    return None
 
 
 def _positive(value, what: str) -> float:
@@ -349,7 +357,7 @@ def robust_record(est: Estimator, fam: ModelFamily, opts: FitOptions, *, channel
                    "scale_given": opts.scale is not None, "adaptive": opts.adaptive,
                    "planned_samples": est.planned, "scorer": opts.scorer, "phi": opts.phi,
                    "seed": opts.seed, "max_samples": opts.max_samples, "measures": len(X),
-                   "start": dict(opts.start), "sigma": opts.to_dict()["sigma"],
+                   "start": dict(opts.start), "sigma": opts.plain_sigma(),
                    "total_samples": samples, "status": est.status, "stop_reason": status,
                    "found": found})
     if found and corrected is not None:
@@ -375,7 +383,7 @@ def local_record(fam: ModelFamily, X: np.ndarray, channel: str, opts: FitOptions
     record.update(_header(fam, channel, spec, data, X))
     record.update({"local": True, "errors": errors, "found": bool(res.success),
                    "stop_reason": res.message, "max_iter": opts.max_iter,
-                   "start": dict(opts.start), "sigma": opts.to_dict()["sigma"]})
+                   "start": dict(opts.start), "sigma": opts.plain_sigma()})
     return res, record
 
 

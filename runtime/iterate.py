@@ -197,7 +197,7 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
         # the start's equations are not finite: the observed measures' cost (0) is no cost
         # of a point on them, and must not win a comparison of fits
         head = (*head[:2], np.inf, head[3])
-        detail += not_finite_at(A, problem, values, starts)
+        detail += not_finite_at(A, problem, values, starts, width)
     n_direction, n_vector, n_info, n_covariance = sizes
     checked = status in (CONVERGED, STALLED, SADDLE) or kind == engine.PLATEAU_DETAIL
     if kind == engine.OFF_CONSTRAINTS:  # the returned point's ‖c‖∞ (eq. 18)
@@ -231,21 +231,21 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
                    projected, head)
 
 
-def not_finite_at(A, problem: Problem, values: np.ndarray, starts: tuple[int, ...]) -> str:
-    """What is not finite at a start laid out in ``values`` (:func:`point_starts`): the
-    parameter, its constraints, or the first measures whose equations or Jacobians are not,
-    named by channel, row and observed value (a measure outside its equations' domain:
-    ``sqrt(x)`` or ``x**b`` at an observed ``x < 0``); ``""`` when all are."""
-    n, M, width = A.q0.size, A.chan.size, (starts[6] - starts[5]) // max(A.chan.size, 1)
+def not_finite_at(A, problem: Problem, values: np.ndarray, starts: tuple[int, ...],
+                  width: int) -> str:
+    """What is not finite at a start laid out in ``values`` (:func:`point_starts`, its
+    equations padded to ``width``): the parameter, its constraints, or the first measures
+    whose equations or Jacobians are not, named by channel, row and observed value (a
+    measure outside its equations' domain: ``sqrt(x)`` or ``x**b`` at an observed
+    ``x < 0``); ``""`` when all are."""
     if not np.all(np.isfinite(values[starts[1]:starts[2]])):
         return ": the parameter is not finite"
     if not np.all(np.isfinite(values[starts[3]:starts[5]])):
         return ": the model's constraints are not finite at the parameter"
-    c = values[starts[5]:starts[6]].reshape(M, width)
-    C = values[starts[6]:starts[7]].reshape(M, width, n)
-    D = values[starts[7]:starts[8]].reshape(M, width, A.m.shape[1])
-    bad = [i for i in range(M) if not (np.all(np.isfinite(c[i])) and np.all(np.isfinite(
-        C[i])) and np.all(np.isfinite(D[i])))]
+    M = A.chan.size
+    finite = [np.isfinite(e).reshape(M, -1).all(axis=1)
+              for e in flat_evals(A, values, starts, width)]
+    bad = np.flatnonzero(~(finite[0] & finite[1] & finite[2])).tolist()
     if not bad:
         return ""
     named = []
@@ -296,13 +296,21 @@ def unpack_point(A, values: np.ndarray, width: int, at: int = 0) -> tuple[Point,
     """A :class:`~kanagen.runtime.projector.Point` from the engine's layout of one in
     ``values`` from ``at`` (:func:`point_starts`), its equations padded to ``width``: the
     point (views of ``values``) and the index after it."""
-    n, M, d, r, p = A.q0.size, A.chan.size, A.m.shape[1], A.r, width
+    n, r = A.q0.size, A.r
     s = point_starts(A, width, at)
     q, mt, cost, delta = point_head(A, values, s)
-    evals = unpack_evals(A, values[s[5]:s[6]].reshape(M, p), values[s[6]:s[7]].reshape(M, p, n),
-                         values[s[7]:s[8]].reshape(M, p, d))
+    evals = unpack_evals(A, *flat_evals(A, values, s, width))
     return Point(q, mt, values[s[3]:s[4]], values[s[4]:s[5]].reshape(r, n), evals, delta,
                  cost), s[8]
+
+
+def flat_evals(A, values: np.ndarray, starts: tuple[int, ...], width: int) -> tuple:
+    """``c, C, D`` of the point laid out in ``values`` at ``starts`` (:func:`point_starts`),
+    per measure and padded to ``width`` equations: views of ``values``."""
+    n, M, d = A.q0.size, A.chan.size, A.m.shape[1]
+    return (values[starts[5]:starts[6]].reshape(M, width),
+            values[starts[6]:starts[7]].reshape(M, width, n),
+            values[starts[7]:starts[8]].reshape(M, width, d))
 
 
 def evaluated(problem: Problem, q: np.ndarray, mt) -> Point:
