@@ -19,6 +19,7 @@ from .minimal import coherence_errors, manifold_ranks
 from .refine import outlier_threshold
 from .results import ModelState
 from .scoring import scorer as get_scorer
+from .significance import false_alarms as nfa
 
 _RESTART_SEEDS = 1000  # seeds of restart r: seed + 1000 r, then one per search
 _CEILING = 2.0  # a structure's outlier threshold at most, in units of its L* (default)
@@ -36,7 +37,8 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
                     max_structures: int = 5, model: str | None = None,
                     min_inliers: int | None = None, max_samples: int = 2000,
                     reassign: int = 5, local: float = 0.5, retries: int = 2,
-                    restarts: int = 3, **options) -> list[ModelState]:
+                    restarts: int = 3, false_alarms: float | None = 1.0,
+                    **options) -> list[ModelState]:
     """Several structures in the same data (report §4, clustered data): find one, take its
     inliers out, search again, until nothing relevant is left or ``max_structures``; then
     (``reassign`` rounds) give each measure to the structure with the least coherence
@@ -82,6 +84,16 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
         structure and ``τ`` the ceiling ``max_threshold`` (else ``ceiling × L*``) — the
         truncated error of MSAC (Torr & Zisserman 2000) summed over the structures.
         Default 3 (three times the time of one extraction).
+    false_alarms : float or None
+        A structure is kept only when measures without structure would give as many inliers
+        this rarely: its number of false alarms — the samples drawn times the measures,
+        times the chance of its inlier count among measures drawn
+        uniform in the measures' box, outside what the structures found before took out —
+        at most this, shared among the ``(retries + 1) × restarts`` searches that may end
+        an extraction (:mod:`~kanagen.runtime.significance`: the a-contrario test of
+        Moisan & Stival's ORSA). Default 1: on average at most one structure of uniform
+        outliers in a call. None: no test (the structures are then those above
+        ``min_inliers``, up to ``max_structures``).
     options : the :class:`Estimator` options (``scale``, ``scorer``, ``phi``, ``seed``,
         ``channel``, ``constants``, ``max_threshold``, ``ceiling``...). ``scale`` (``L*``)
         defaults to each structure's model's χ² quantile, as the :class:`Estimator`'s.
@@ -109,36 +121,44 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
         raise ValueError(f"retries must be >= 0, got {retries}")
     if restarts < 1:
         raise ValueError(f"restarts must be >= 1, got {restarts}")
+    if false_alarms is not None and not (np.isfinite(false_alarms) and false_alarms > 0):
+        raise ValueError(f"false_alarms must be a number > 0 or None, got {false_alarms!r}")
     info = dict(info or {})
     seed = options.pop("seed", 0)
     if options.get("max_threshold") is None:
         options.setdefault("ceiling", _CEILING)
-    best, best_energy = [], np.inf
+    # every search may end an extraction, in each restart: a bound on all of them
+    per_test = None if false_alarms is None else false_alarms / ((retries + 1) * restarts)
+    extractions = []
     for r in range(restarts):
         found, needed, scales = _extract(
             fam, data, info, max_structures, model, min_inliers, max_samples, local, retries,
-            None if seed is None else seed + _RESTART_SEEDS * r, options)
+            per_test, None if seed is None else seed + _RESTART_SEEDS * r, options)
         if reassign and found:
             found, scales = _assign(fam, data, info, found, needed, scales, reassign, options)
-        if restarts == 1:
-            best = found
-            break
-        energy = _energy(fam, data, info, found, scales, options)
-        if energy < best_energy:
-            best, best_energy = found, energy
+        extractions.append((found, scales))
+    best = extractions[0][0]
+    if len(extractions) > 1:  # one ceiling for all: an extraction finding nothing compares too
+        top = max((max(scales) for _, scales in extractions if scales), default=1.0)
+        energies = [_energy(fam, data, info, found, top, options) for found, _ in extractions]
+        best = extractions[int(np.argmin(energies))][0]
     return sorted(best, key=lambda s: -len(s.inliers))
 
 
 def _extract(fam: ModelFamily, data: Mapping, info: Mapping, max_structures: int,
              model: str | None, min_inliers: int | None, max_samples: int, local: float,
-             retries: int, seed: int | None, options: Mapping,
+             retries: int, false_alarms: float | None, seed: int | None, options: Mapping,
              ) -> tuple[list[ModelState], list[int], list[float]]:
-    """The greedy extraction: find a structure, take its inliers out, search again. Returns
-    the structures, the inliers each needs, and the L* of each."""
+    """The greedy extraction: find a structure, take its inliers out, search again (a
+    structure that chance explains, :func:`_meaningful`, is not taken). Returns the
+    structures, the inliers each needs, and the L* of each."""
     sizes = {name: len(np.asarray(rows)) for name, rows in data.items()}
     offsets = dict(zip(sizes, np.cumsum([0] + list(sizes.values()))[:-1].tolist(),
                        strict=True))
     remaining = {name: np.arange(size) for name, size in sizes.items()}
+    boxes = [(np.min(rows, axis=0), np.max(rows, axis=0)) if len(rows) else None
+             for rows in (np.asarray(data[name], dtype=float) for name in sizes)]
+    cut: list[tuple] = []  # what each structure explains: (model, q, search threshold)
     found: list[ModelState] = []
     needed: list[int] = []
     scales: list[float] = []
@@ -154,14 +174,17 @@ def _extract(fam: ModelFamily, data: Mapping, info: Mapping, max_structures: int
         if best is None or not best.samples:
             break
         need = min_inliers if min_inliers is not None else 2 * _minimal(est, best)
-        if len(best.inliers) <= need:
+        problem = _problem_on(fam, best.model, data, info, remaining, sizes, options)
+        tests = max(est.samples, 1) * len(index)
+        if len(best.inliers) <= need or not _meaningful(
+                fam, problem, best, tests, _minimal(est, best), cut, boxes, options,
+                false_alarms, attempt):
             failures += 1
             if failures > retries:
                 break
             continue
         failures = 0
         scale = est.scales.get(best.model, est.scale or 1.0)
-        problem = _problem_on(fam, best.model, data, info, remaining, sizes, options)
         taken, noise = _own_noise(fam, best, problem, scale, need)
         state = replace(taken, inliers=index[taken.inliers], outliers=index[taken.outliers])
         if noise is not None:
@@ -174,11 +197,36 @@ def _extract(fam: ModelFamily, data: Mapping, info: Mapping, max_structures: int
         # the measures taken out are those at the structure's own noise; the assignment
         # decides at the search's threshold (a tight one would lose the tails of inliers)
         found.append(replace(state, threshold=best.threshold))
+        cut.append((state.model, state.q, best.threshold))
         needed.append(need)
         scales.append(scale)
         for name, rows in remaining.items():
             remaining[name] = rows[~np.isin(offsets[name] + rows, state.inliers)]
     return found, needed, scales
+
+
+def _meaningful(fam: ModelFamily, problem, state: ModelState, tests: float, sample: int,
+                found: list, boxes: list, options: Mapping, epsilon: float | None,
+                seed: int) -> bool:
+    """Is ``state`` more than chance among the measures of ``problem``: its number of
+    false alarms at most ``epsilon`` (:func:`~.significance.false_alarms`, ``tests``
+    hypotheses, the null uniform in ``boxes`` — those of all the measures), among the
+    measures the structures ``found`` (``(model, q, threshold)``, at their search's
+    threshold) do not explain? Always, when ``epsilon`` is None."""
+    if epsilon is None:
+        return True
+
+    def explained(channels):
+        taken = [np.zeros(ch.size, bool) for ch in channels]
+        for model, q, threshold in found:
+            null = make_problem(fam, model, channels=channels, q0=options.get("q0"),
+                                Q0=options.get("Q0"), constants=options.get("constants"))
+            for mask, errors in zip(taken, coherence_errors(null, q), strict=True):
+                mask |= errors < threshold
+        return taken
+
+    return nfa(problem, state.q, state.threshold, tests, sample, boxes=boxes,
+               explained=explained, seed=seed) <= epsilon
 
 
 def _estimator_on(fam: ModelFamily, data: Mapping, info: Mapping, rows: Mapping,
@@ -370,12 +418,11 @@ def _channel_rows(rows: np.ndarray, sizes: Mapping, offsets: Mapping) -> dict:
 
 
 def _energy(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelState],
-            scales: list[float], options: Mapping) -> float:
+            scale: float, options: Mapping) -> float:
     """``Σᵢ min(eᵢ, τ)``: each measure's error to its closest structure, truncated at the
     ceiling ``τ`` (an outlier costs ``τ``): ``max_threshold``, else ``ceiling`` (default 2)
-    times the largest L* of the structures."""
-    ceiling = _ceiling(options, max(scales, default=1.0)) or \
-        _CEILING * max(scales, default=1.0)
+    times ``scale`` (the largest L* of the extractions compared)."""
+    ceiling = _ceiling(options, scale) or _CEILING * scale
     size = sum(len(np.asarray(rows)) for rows in data.values())
     closest = np.full(size, np.inf)
     for state in found:

@@ -117,6 +117,20 @@ def test_adelaide_metric_and_peers():
     assert means["F"]["kanagen_median"] == pytest.approx(2.0)
 
 
+@pytest.mark.parametrize("kind, name", [("H", "oldclassicswing"), ("F", "cubetoy")])
+def test_adelaide_count_unknown(kind, name):
+    """Without the number of structures (find_structures' default max_structures, 5), a
+    scene of two structures gives two: the matches labelled outliers make none that is
+    more than chance (before the a-contrario test: 4 and 3, at 7.7 % and 8.8 %)."""
+    need("adelaidermf")
+    import adelaide
+
+    scene = datasets.adelaide_scene(kind, name)
+    labels, found = adelaide.kanagen_labels(kanagen.load("two_view"), scene, defaults=True,
+                                            unknown=True)
+    assert found == 2 and misclassification(scene.labels, labels) < 0.05
+
+
 def test_real_table_helpers():
     """experiments/two_view_real.py: what each pair should come out as, and the error of a
     model on the ground truth (the ground truth's own H and F: zero and its Sampson error)."""
