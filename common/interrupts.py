@@ -27,10 +27,20 @@ DEFERRED = ("numba.", "llvmlite.")
 RETRY = 0.05
 
 
+#: numba's Python that runs when a compiled kernel boxes its results (unpickling a class):
+#: a KeyboardInterrupt there reaches the caller as a SystemError caused by it, which the
+#: callers turn back into one (:func:`kanagen.common.jit.interrupted`). It is where a long
+#: run of kernel calls spends most of its Python time: deferred there, a Ctrl-C landed there
+#: again at every delivery and a search ran to its end.
+BOXING = (("numba.core.serialize", "_numba_unpickle"),)
+
+
 def deferred_at(frame) -> bool:
-    """``frame`` or one of its callers runs numba's or llvmlite's code, or a finaliser."""
+    """``frame`` or one of its callers runs numba's or llvmlite's code (but the boxing of a
+    kernel's results, :data:`BOXING`), or a finaliser."""
     while frame is not None:
-        if frame.f_globals.get("__name__", "").startswith(DEFERRED) or \
+        module = frame.f_globals.get("__name__", "")
+        if (module.startswith(DEFERRED) and (module, frame.f_code.co_name) not in BOXING) or \
                 frame.f_code.co_name == "__del__":
             return True
         frame = frame.f_back

@@ -48,6 +48,10 @@ def test_numbas_and_llvmlites_code_and_finalisers_wait_it_out():
     assert interrupts.deferred_at(_frame("kanagen.runtime.results", "__del__", ours))
     assert not interrupts.deferred_at(ours)
     assert not interrupts.deferred_at(sys._getframe())
+    # a kernel boxing its results (a search's kernels, one after another): raised there
+    assert not interrupts.deferred_at(_frame("numba.core.serialize", "_numba_unpickle", ours))
+    # the same unpickling while a compile loads its cache: waited out
+    assert interrupts.deferred_at(_frame("numba.core.serialize", "_numba_unpickle", compiling))
 
 
 def test_a_ctrl_c_in_a_finaliser_is_delivered_again_once_out_of_it():
