@@ -594,7 +594,7 @@ def _state_summary(best, measures: int) -> str:
              f"{len(best.outliers)} outlier(s) of {measures} measures; "
              f"L~^2/d = {best.normalized_cost:.6g}"
              f" (d = {best.dof}), relevance {best.relevance:.4g}, threshold "
-             f"{best.threshold:.4g}, {best.samples} sample(s)"]
+             f"{best.threshold:.4g}, {best.samples} sample(s)" + best._chance_line()]
     if best.status not in ("estimated", "null"):
         lines.append(f"  refinement: {best.status}")
     lines += estimate_lines(best.params, best.slacks, best.std, best.derived,

@@ -439,7 +439,7 @@ def estimator_to_json(est: Estimator, chosen: str | None, measures: int | None =
     ``measures`` long, ids from 0). The costs mean what they mean on every result (and in
     :func:`result_to_json`): ``cost`` is L~^2, ``normalized_cost`` L~^2/d (the lattice's
     comparison); the chosen model also has ``chi2`` = 2 L~^2, ``chi2_dof``, ``reduced_chi2``
-    and ``chi2_pvalue``."""
+    and ``chi2_pvalue``, and ``false_alarms``, its NFA (at most 1: more than chance)."""
     lattice = [{"model": s.model, "parent": s.parent, "dof": s.dof, "cost": s.cost,
                 "normalized_cost": s.normalized_cost, "reduced_chi2": s.reduced_chi2,
                 "relevance": s.relevance, "inliers": len(s.inliers), "outliers": len(s.outliers),
@@ -457,6 +457,7 @@ def estimator_to_json(est: Estimator, chosen: str | None, measures: int | None =
     out.update({
         **estimate_json(best),
         "relevance": best.relevance,
+        "false_alarms": best.false_alarms,
         "threshold": best.threshold,
         "samples": best.samples,
         "inliers": np.asarray(best.inliers, dtype=int),

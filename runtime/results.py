@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -165,6 +165,28 @@ class ParameterStd(dict):
             float if dtype is None else dtype, copy=False)
 
 
+class Chance:
+    """A search's number of false alarms (:func:`~kanagen.runtime.significance.false_alarms`)
+    computed when first read (``compute()``): a result that carries one costs nothing until
+    it is asked for. It pickles and copies as its value."""
+
+    def __init__(self, compute: Callable[[], float] | None, value: float | None = None):
+        self._compute, self._value = compute, value
+
+    @property
+    def value(self) -> float:
+        if self._value is None:
+            self._value = float(self._compute())
+            self._compute = None  # the measures it held are no longer needed
+        return self._value
+
+    def __reduce__(self):
+        return Chance, (None, self.value)
+
+    def __repr__(self) -> str:
+        return f"Chance({self.value:.3g})"
+
+
 class ResultProtocol:
     """What every result (:class:`FitResult`, :class:`ModelState`,
     :class:`~kanagen.runtime.robust.RobustEstimate`) says, with one meaning on all three.
@@ -183,9 +205,30 @@ class ResultProtocol:
       right (scipy.odr's ``res_var``, lmfit's ``redchi``); ``chi2_pvalue``: the chance of a
       χ² at least this large under the model with those weights.
 
+    A robust search's results (:class:`ModelState`, ``RobustEstimate``) also say whether
+    their structure is more than chance: ``false_alarms``, the number of false alarms (NFA,
+    :mod:`~kanagen.runtime.significance`): at most 1, more than chance; above, measures
+    uniform in their box show as much. Computed when first read; None for a plain fit.
+
     Subclasses provide ``model, params, q, covariance, cost, dof, derived, slacks`` and
     ``equations`` (Σ pᵢ).
     """
+
+    chance: Chance | None = None  # a search's result: its NFA, computed when read
+
+    @property
+    def false_alarms(self) -> float | None:
+        return None if self.chance is None else self.chance.value
+
+    def _chance_line(self) -> str:
+        """The summary's line on the NFA ("" without one)."""
+        nfa = self.false_alarms
+        if nfa is None:
+            return ""
+        if nfa <= 1:
+            return f"\n  more than chance: {nfa:.3g} false alarm(s) (NFA)"
+        return (f"\n  NOT more than chance: {nfa:.3g} false alarms (NFA > 1) — measures "
+                "uniform in their box give as many inliers")
 
     @property
     def std(self) -> ParameterStd:
@@ -404,6 +447,7 @@ class ModelState(ResultProtocol):
     units: dict[str, str] = field(default_factory=dict)  # the spec's units: (display only)
     pinned: dict[str, float] = field(default_factory=dict)  # components the model fixes
     assumed: dict[str, float] = field(default_factory=dict)  # constants' defaults relied on
+    chance: Chance | None = field(default=None, compare=False)  # the NFA, when read
 
     @property
     def estimated(self) -> bool:
@@ -418,4 +462,4 @@ class ModelState(ResultProtocol):
     def _headline(self) -> str:
         return (f"model {self.model!r} ({self.status}): {len(self.inliers)} inlier(s), "
                 f"{len(self.outliers)} outlier(s), relevance {self.relevance:.4g}, "
-                f"{self.samples} sample(s)")
+                f"{self.samples} sample(s)") + self._chance_line()

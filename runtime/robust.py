@@ -11,6 +11,7 @@ one search to the end.
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
@@ -25,10 +26,11 @@ from .inputs import check_search_options
 from .minimal import coherence_errors, manifold_ranks
 from .projector import Problem
 from .refine import Refinement
-from .results import FitResult, ResultProtocol
+from .results import Chance, FitResult, ResultProtocol
 from .sampling import MinimalSamples
 from .scoring import default_scale, samples_for_confidence
 from .scoring import scorer as get_scorer
+from .significance import false_alarms
 
 
 @dataclass(frozen=True, repr=False)
@@ -49,6 +51,7 @@ class RobustEstimate(ResultProtocol):
     degenerate: int
     history: list[tuple[int, float]] = field(default_factory=list)  # (samples, best score)
     scale: float | None = None  # the L* of the search (given, or its default)
+    chance: Chance | None = field(default=None, compare=False)  # the NFA, when read
 
     @property
     def q(self) -> np.ndarray:
@@ -115,7 +118,7 @@ class RobustEstimate(ResultProtocol):
         outliers = sum(len(v) for v in self.outliers.values())
         return (f"model {self.model!r} ({self.fit.message}): {inliers} inlier(s), "
                 f"{outliers} outlier(s), relevance {self.relevance:.4g}, "
-                f"{self.samples} sample(s)")
+                f"{self.samples} sample(s)") + self._chance_line()
 
 
 class ModelSearch:
@@ -396,6 +399,10 @@ class ModelSearch:
             degenerate=self.degenerate,
             history=list(self.history),
             scale=self.scale,
+            chance=Chance(functools.partial(
+                false_alarms, self.problem, result.q, threshold,
+                max(self.samples, 1) * sum(ch.size for ch in self.problem.channels),
+                self.draws.sample_size)),
         )
 
 def robust_fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,

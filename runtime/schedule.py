@@ -439,7 +439,7 @@ class Scheduler:
                            "estimated" if est.fit.success else est.fit.message,
                            est.fit.slacks, scored[order], errors[order],
                            est.fit.equations, est.fit.units, est.fit.pinned,
-                           self.fam.assumed(self._constants))
+                           self.fam.assumed(self._constants), est.chance)
         return self.walk.accepted(state, est.fit.success, shape)
 
     def _null_state(self, root: str) -> ModelState:

@@ -38,6 +38,7 @@ from .projector import Problem
 DRAWS = 4000
 
 
+
 def false_alarms(problem: Problem, q: np.ndarray, threshold: float, tests: float,
                  sample: int = 0, *, boxes: Sequence | None = None,
                  explained: Callable | None = None, seed: int = 0,

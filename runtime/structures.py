@@ -17,7 +17,7 @@ from .fit import fit_problem, make_problem
 from .inputs import check_search_options
 from .minimal import coherence_errors, manifold_ranks
 from .refine import outlier_threshold
-from .results import ModelState
+from .results import Chance, ModelState
 from .scoring import scorer as get_scorer
 from .significance import false_alarms as nfa
 
@@ -127,13 +127,12 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
     seed = options.pop("seed", 0)
     if options.get("max_threshold") is None:
         options.setdefault("ceiling", _CEILING)
-    # every search may end an extraction, in each restart: a bound on all of them
-    per_test = None if false_alarms is None else false_alarms / ((retries + 1) * restarts)
     extractions = []
     for r in range(restarts):
         found, needed, scales = _extract(
             fam, data, info, max_structures, model, min_inliers, max_samples, local, retries,
-            per_test, None if seed is None else seed + _RESTART_SEEDS * r, options)
+            false_alarms, restarts, None if seed is None else seed + _RESTART_SEEDS * r,
+            options)
         if reassign and found:
             found, scales = _assign(fam, data, info, found, needed, scales, reassign, options)
         extractions.append((found, scales))
@@ -147,10 +146,10 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
 
 def _extract(fam: ModelFamily, data: Mapping, info: Mapping, max_structures: int,
              model: str | None, min_inliers: int | None, max_samples: int, local: float,
-             retries: int, false_alarms: float | None, seed: int | None, options: Mapping,
-             ) -> tuple[list[ModelState], list[int], list[float]]:
+             retries: int, false_alarms: float | None, restarts: int, seed: int | None,
+             options: Mapping) -> tuple[list[ModelState], list[int], list[float]]:
     """The greedy extraction: find a structure, take its inliers out, search again (a
-    structure that chance explains, :func:`_meaningful`, is not taken). Returns the
+    structure that chance explains, :func:`_chance`, is not taken). Returns the
     structures, the inliers each needs, and the L* of each."""
     sizes = {name: len(np.asarray(rows)) for name, rows in data.items()}
     offsets = dict(zip(sizes, np.cumsum([0] + list(sizes.values()))[:-1].tolist(),
@@ -175,10 +174,13 @@ def _extract(fam: ModelFamily, data: Mapping, info: Mapping, max_structures: int
             break
         need = min_inliers if min_inliers is not None else 2 * _minimal(est, best)
         problem = _problem_on(fam, best.model, data, info, remaining, sizes, options)
-        tests = max(est.samples, 1) * len(index)
-        if len(best.inliers) <= need or not _meaningful(
-                fam, problem, best, tests, _minimal(est, best), cut, boxes, options,
-                false_alarms, attempt):
+        # the hypotheses: the samples, the thresholds, and every search that may end an
+        # extraction, in each restart (the bound is on all of them)
+        tests = max(est.samples, 1) * len(index) * (retries + 1) * restarts
+        chance = None if false_alarms is None or len(best.inliers) <= need else \
+            _chance(fam, problem, best, tests, _minimal(est, best), cut, boxes, options,
+                    attempt)
+        if len(best.inliers) <= need or (chance is not None and chance > false_alarms):
             failures += 1
             if failures > retries:
                 break
@@ -196,7 +198,8 @@ def _extract(fam: ModelFamily, data: Mapping, info: Mapping, max_structures: int
                         None if seed is None else seed + _HALF_SEEDS + 4 * attempt)
         # the measures taken out are those at the structure's own noise; the assignment
         # decides at the search's threshold (a tight one would lose the tails of inliers)
-        found.append(replace(state, threshold=best.threshold))
+        found.append(replace(state, threshold=best.threshold,
+                             chance=state.chance if chance is None else Chance(None, chance)))
         cut.append((state.model, state.q, best.threshold))
         needed.append(need)
         scales.append(scale)
@@ -205,16 +208,12 @@ def _extract(fam: ModelFamily, data: Mapping, info: Mapping, max_structures: int
     return found, needed, scales
 
 
-def _meaningful(fam: ModelFamily, problem, state: ModelState, tests: float, sample: int,
-                found: list, boxes: list, options: Mapping, epsilon: float | None,
-                seed: int) -> bool:
-    """Is ``state`` more than chance among the measures of ``problem``: its number of
-    false alarms at most ``epsilon`` (:func:`~.significance.false_alarms`, ``tests``
-    hypotheses, the null uniform in ``boxes`` — those of all the measures), among the
-    measures the structures ``found`` (``(model, q, threshold)``, at their search's
-    threshold) do not explain? Always, when ``epsilon`` is None."""
-    if epsilon is None:
-        return True
+def _chance(fam: ModelFamily, problem, state: ModelState, tests: float, sample: int,
+            found: list, boxes: list, options: Mapping, seed: int) -> float:
+    """The number of false alarms of ``state`` among the measures of ``problem``
+    (:func:`~.significance.false_alarms`: ``tests`` hypotheses, the null uniform in
+    ``boxes`` — those of all the measures), among the measures that the structures
+    ``found`` (``(model, q, threshold)``, at their search's threshold) do not explain."""
 
     def explained(channels):
         taken = [np.zeros(ch.size, bool) for ch in channels]
@@ -226,7 +225,7 @@ def _meaningful(fam: ModelFamily, problem, state: ModelState, tests: float, samp
         return taken
 
     return nfa(problem, state.q, state.threshold, tests, sample, boxes=boxes,
-               explained=explained, seed=seed) <= epsilon
+               explained=explained, seed=seed)
 
 
 def _estimator_on(fam: ModelFamily, data: Mapping, info: Mapping, rows: Mapping,

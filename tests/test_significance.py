@@ -4,6 +4,8 @@ model on uniform data; a small true structure among many outliers is still found
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -148,3 +150,53 @@ def test_false_alarms_is_checked(line):
     for bad in (0.0, -1.0, np.nan):
         with pytest.raises(ValueError, match="false_alarms"):
             kanagen.find_structures(line, data={"point": xy}, false_alarms=bad)
+
+
+def test_robust_fit_says_whether_its_structure_is_more_than_chance(line):
+    """robust_fit on uniform points converges on the points of some band; its NFA says that
+    uniform points give as many (> 1), where a line's points among outliers give far
+    below 1. Read when asked (the summary); a pickled or copied estimate keeps the value."""
+    import copy
+    import pickle
+
+    rng = np.random.default_rng(0)
+    noise = kanagen.robust_fit(line, "line", data={"point": rng.uniform(*BOX, (100, 2))})
+    assert noise.success and noise.chance._value is None  # not computed yet
+    assert noise.false_alarms > 1
+    assert "NOT more than chance" in noise.summary()
+    x = rng.uniform(-50, 50, 70)
+    xy = np.r_[np.c_[x, 0.2 * x + rng.normal(0, 1, 70)], rng.uniform(*BOX, (30, 2))]
+    found = kanagen.robust_fit(line, "line", data={"point": xy})
+    assert found.false_alarms < 1e-10
+    assert "more than chance" in found.summary() and "NOT" not in found.summary()
+    for clone in (pickle.loads(pickle.dumps(found)), copy.deepcopy(found)):
+        assert clone.false_alarms == found.false_alarms
+    fresh = kanagen.robust_fit(line, "line", data={"point": xy})  # same seed: same value
+    assert fresh.false_alarms == found.false_alarms
+
+
+def test_estimator_and_structures_carry_their_false_alarms(line, tmp_path):
+    """The lattice search's chosen state, its JSON record and each structure say their NFA:
+    a line's points far below 1, uniform points above (the lattice still picks a model)."""
+    import json
+
+    from click.testing import CliRunner
+
+    from kanagen.cli import main
+
+    rng = np.random.default_rng(8)
+    noise = rng.uniform(*BOX, (100, 2))
+    est = kanagen.Estimator(line, seed=0)
+    est.add_measures("point", noise)
+    assert est.run(max_samples=300).false_alarms > 1
+    xy, _ = crossing_lines(0)
+    for state in kanagen.find_structures(line, data={"point": xy}, seed=0):
+        assert state.false_alarms < 1e-10
+    path = tmp_path / "noise.csv"
+    np.savetxt(path, noise, delimiter=",", header="x,y", comments="")
+    spec = Path(__file__).resolve().parents[1] / "examples" / "line.yaml"
+    out = CliRunner().invoke(main, ["fit", str(spec), str(path), "--json", "-"],
+                             catch_exceptions=False)
+    record = json.loads(out.stdout)
+    assert record["false_alarms"] > 1
+    assert "NOT more than chance" in out.stderr
