@@ -30,7 +30,7 @@ from .results import Chance, FitResult, ResultProtocol
 from .sampling import MinimalSamples
 from .scoring import default_scale, samples_for_confidence
 from .scoring import scorer as get_scorer
-from .significance import false_alarms
+from .significance import false_alarms, hypotheses
 
 
 @dataclass(frozen=True, repr=False)
@@ -401,8 +401,8 @@ class ModelSearch:
             scale=self.scale,
             chance=Chance(functools.partial(
                 false_alarms, self.problem, result.q, threshold,
-                max(self.samples, 1) * sum(ch.size for ch in self.problem.channels),
-                self.draws.sample_size)),
+                hypotheses(sum(ch.size for ch in self.problem.channels),
+                           self.draws.sample_size), self.draws.sample_size)),
         )
 
 def robust_fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,

@@ -20,6 +20,7 @@ from .refine import outlier_threshold
 from .results import Chance, ModelState
 from .scoring import scorer as get_scorer
 from .significance import false_alarms as nfa
+from .significance import hypotheses
 
 _RESTART_SEEDS = 1000  # seeds of restart r: seed + 1000 r, then one per search
 _CEILING = 2.0  # a structure's outlier threshold at most, in units of its L* (default)
@@ -86,8 +87,9 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
         Default 3 (three times the time of one extraction).
     false_alarms : float or None
         A structure is kept only when measures without structure would give as many inliers
-        this rarely: its number of false alarms — the samples drawn times the measures,
-        times the chance of its inlier count among measures drawn
+        this rarely: its number of false alarms — the hypotheses a search may try (every
+        minimal sample, times the measures), times the chance of its inlier count among
+        measures drawn
         uniform in the measures' box, outside what the structures found before took out —
         at most this, shared among the ``(retries + 1) × restarts`` searches that may end
         an extraction (:mod:`~kanagen.runtime.significance`: the a-contrario test of
@@ -174,12 +176,12 @@ def _extract(fam: ModelFamily, data: Mapping, info: Mapping, max_structures: int
             break
         need = min_inliers if min_inliers is not None else 2 * _minimal(est, best)
         problem = _problem_on(fam, best.model, data, info, remaining, sizes, options)
-        # the hypotheses: the samples, the thresholds, and every search that may end an
-        # extraction, in each restart (the bound is on all of them)
-        tests = max(est.samples, 1) * len(index) * (retries + 1) * restarts
+        # the hypotheses of a search, times every search that may end an extraction, in
+        # each restart (the bound is on all of them)
+        sample = _minimal(est, best)
+        tests = hypotheses(len(index), sample) * (retries + 1) * restarts
         chance = None if false_alarms is None or len(best.inliers) <= need else \
-            _chance(fam, problem, best, tests, _minimal(est, best), cut, boxes, options,
-                    attempt)
+            _chance(fam, problem, best, tests, sample, cut, boxes, options, attempt)
         if len(best.inliers) <= need or (chance is not None and chance > false_alarms):
             failures += 1
             if failures > retries:
