@@ -60,6 +60,7 @@ def main():
       kanagen fit examples/conic_lattice.yaml points.csv             # robust, lattice
       kanagen fit examples/conic.yaml examples/data/ellipse_arc.csv --model conic --local
       kanagen batch examples/conic_lattice.yaml 'scenes/*.csv' --db results.sqlite
+      kanagen structures examples/line.yaml drawing.csv   # several lines in one file
       kanagen report result.json -o report.html       # a page with the pictures
     """
 
@@ -295,8 +296,12 @@ def fit(spec, data, channel, json_out, backend, trusted, limit, **options):
     Ctrl-C stops the search: the best model so far is printed (and written to --json) as
     usual, with stop reason "interrupted", and the exit status is 130, as for `kanagen batch`.
 
-    Exit status: 0 when a model was found (--local: when the fit converged), 1 otherwise,
-    2 on bad input, 130 when interrupted (Ctrl-C).
+    The chosen model's number of false alarms (NFA, printed and in the JSON) says whether
+    its inliers are more than chance: at most 1, measures uniform in their box would rarely
+    give as many; above 1, they would (no structure shown: exit status 1).
+
+    Exit status: 0 when a model was found that is more than chance (--local: when the fit
+    converged), 1 otherwise, 2 on bad input, 130 when interrupted (Ctrl-C).
 
     \b
     Examples:
@@ -310,20 +315,29 @@ def fit(spec, data, channel, json_out, backend, trusted, limit, **options):
         _fail("interrupted", 130)
 
 
-def _fit(spec, data, channel, json_out, backend, trusted, limit, opts):
-    """The body of ``kanagen fit``; exits with its status."""
+def _dataset(spec, data, channel, backend, trusted, limit, opts):
+    """SPEC loaded and DATA's measures of its channel, checked (``kanagen fit`` and
+    ``structures``): ``(fam, channel, X, sigmas)``, ``sigmas`` the per-measure σ columns
+    ``opts`` names (or None). Bad input raises or exits 2."""
     from . import load
     from .dataio import read_measures
-    from .fitjob import local_record, make_estimator, read_sigmas, resolve_channel
+    from .fitjob import read_sigmas, resolve_channel
+
+    fam = load(spec, backend=backend, limits=_limits(trusted, limit))
+    channel = resolve_channel(fam, channel)
+    opts.check(fam)
+    X = read_measures(data, fam.channel(channel).components, channel)
+    if X.ndim != 2 or X.shape[0] == 0:
+        _fail(f"{data}: no measures for channel {channel!r}")
+    return fam, channel, X, read_sigmas(data, opts, channel)
+
+
+def _fit(spec, data, channel, json_out, backend, trusted, limit, opts):
+    """The body of ``kanagen fit``; exits with its status."""
+    from .fitjob import local_record, make_estimator
 
     try:
-        fam = load(spec, backend=backend, limits=_limits(trusted, limit))
-        channel = resolve_channel(fam, channel)
-        opts.check(fam)
-        X = read_measures(data, fam.channel(channel).components, channel)
-        if X.ndim != 2 or X.shape[0] == 0:
-            _fail(f"{data}: no measures for channel {channel!r}")
-        sigmas = read_sigmas(data, opts, channel)
+        fam, channel, X, sigmas = _dataset(spec, data, channel, backend, trusted, limit, opts)
         if opts.local:
             res, record = local_record(fam, X, channel, opts, spec=spec, data=data,
                                        sigmas=sigmas)
@@ -338,7 +352,75 @@ def _fit(spec, data, channel, json_out, backend, trusted, limit, opts):
         sys.exit(0 if res.success else 1)
     found, interrupted = _report_robust(est, fam, channel, X, json_out, to_err, opts,
                                         spec=spec, data=data, sigmas=sigmas)
-    sys.exit(130 if interrupted else 0 if found else 1)
+    meaningful = found and not est.best().false_alarms > 1
+    sys.exit(130 if interrupted else 0 if meaningful else 1)
+
+
+@main.command()
+@click.argument("spec", type=click.Path(exists=True, dir_okay=False))
+@click.argument("data", type=click.Path(exists=True, dir_okay=False))
+@click.option("--channel", default=None, help="Channel of DATA (default: the only one of SPEC).")
+@click.option("--model", default=None,
+              help="The model of every structure (default: the lattice search picks one "
+                   "for each).")
+@click.option("--max-structures", type=click.IntRange(min=1), default=5, show_default=True,
+              help="Structures at most (a cap: the search stops at the first that chance "
+                   "explains).")
+@click.option("--scale", type=float, default=None, metavar="L*",
+              help="L* (default: each model's chi2_p(0.999)/p, as for `kanagen fit`).")
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="Seed of the random samples (same seed, same result).")
+@click.option("--max-samples", type=click.IntRange(min=1), default=2000, show_default=True,
+              help="Random samples of each search at most.")
+@click.option("--sigma", "sigmas", multiple=True, metavar="SIGMA|NAME=SIGMA,...",
+              help="Standard deviation of each measured component, as for `kanagen fit`.")
+@click.option("--const", "consts", multiple=True, metavar="NAME=VALUE",
+              help="Set a constant of SPEC (repeatable).")
+@click.option("--json", "json_out", type=click.Path(dir_okay=False), default=None,
+              help="Also write the result as JSON to this file; '-': to stdout, the text "
+                   "going to stderr.")
+@backend_option
+@limit_options
+def structures(spec, data, channel, model, max_structures, scale, seed, max_samples, sigmas,
+               consts, json_out, backend, trusted, limit):
+    """Find the several structures of SPEC's models in DATA (clustered data, report §4):
+    lines in a drawing, planes or rigid motions in the matches of two views.
+
+    One structure is found by the robust search, its inliers are taken out, and the search
+    goes on among the rest while what it finds is more than chance: its number of false
+    alarms (NFA: the chance that measures uniform in their box give as many inliers, times
+    the hypotheses a search may try) at most 1. Then each measure goes to the structure
+    that explains it best and each structure is refitted on its own. DATA is read as by
+    `kanagen fit`. Printed: each structure's model, inliers, NFA and estimate ± standard
+    deviation; the JSON also has every measure's structure (labels: -1 for an outlier).
+
+    Exit status: 0 when a structure was found, 1 when none is more than chance, 2 on bad
+    input, 130 when interrupted (Ctrl-C).
+
+    \b
+    Examples:
+      kanagen structures examples/line.yaml drawing.csv --sigma 0.5 --json found.json
+      kanagen structures examples/two_view.yaml matches.csv --model planar \\
+          --const cx=320,cy=240,f0=640
+    """
+    from .fitjob import FitOptions
+    from .structjob import structures_record, structures_summary
+
+    try:
+        opts = FitOptions(scale=scale, seed=seed, max_samples=max_samples, model=model,
+                          sigma=_parse_sigmas(sigmas), constants=_parse_constants(consts))
+        fam, channel, X, sigmas = _dataset(spec, data, channel, backend, trusted, limit, opts)
+        found, record = structures_record(fam, X, channel, opts, max_structures, spec=spec,
+                                          data=data, sigmas=sigmas)
+    except (SpecError, ValueError, OSError) as exc:
+        _fail(str(exc))
+    except KeyboardInterrupt:
+        _fail("interrupted", 130)
+    to_err = json_out == "-"
+    click.echo(f"family {fam.name!r}, channel {channel!r}: {len(X)} measures", err=to_err)
+    click.echo(structures_summary(found, len(X), max_structures), err=to_err)
+    _write_json(record, json_out)
+    sys.exit(0 if found else 1)
 
 
 @main.command()

@@ -234,11 +234,11 @@ def make_estimator(fam: ModelFamily, X: np.ndarray, channel: str,
     est = Estimator(fam, scale=opts.scale, scorer=opts.scorer, phi=opts.phi, seed=opts.seed,
                     channel=channel, constants=dict(opts.constants), model=opts.model,
                     q0=opts.q0(), adaptive=opts.adaptive)
-    est.add_measures(channel, X, info=_info(opts, fam, channel, sigmas))
+    est.add_measures(channel, X, info=channel_info(opts, fam, channel, sigmas))
     return est
 
 
-def _info(opts: FitOptions, fam: ModelFamily, channel: str,
+def channel_info(opts: FitOptions, fam: ModelFamily, channel: str,
           sigmas: np.ndarray | None = None) -> float | np.ndarray | None:
     """The channel's information of ``opts.sigma``: ``1/σ²``, or the diagonal matrix of
     each component's (``"*"``: the components not named; else 1), one per measure where a
@@ -326,7 +326,8 @@ def corrected_choice(est: Estimator, fam: ModelFamily, opts: FitOptions, channel
     if not _found(best):
         return None
     rows = np.asarray(best.inliers, dtype=int)
-    info = {channel: _info(opts, fam, channel, None if sigmas is None else sigmas[rows])}
+    info = {channel: channel_info(opts, fam, channel,
+                                  None if sigmas is None else sigmas[rows])}
     return fit(fam, best.model, data={channel: X[rows]}, info=info,
                constants=dict(opts.constants), q_start=best.q, max_iter=opts.max_iter,
                correct_bias=True)
@@ -349,7 +350,7 @@ def robust_record(est: Estimator, fam: ModelFamily, opts: FitOptions, *, channel
     if not interrupted and samples >= opts.max_samples and est.status != "done":
         status = f"stopped at --max-samples {opts.max_samples} ({est.status})"
     record = estimator_to_json(est, best.model if found else None, len(X))
-    record.update(_header(fam, channel, spec, data, X))
+    record.update(record_header(fam, channel, spec, data, X))
     # L*: the chosen model's (given, or its default), each model's, and whether given
     chosen = best.model if best is not None else None
     scale = opts.scale if opts.scale is not None else est.scales.get(chosen)
@@ -372,7 +373,7 @@ def local_record(fam: ModelFamily, X: np.ndarray, channel: str, opts: FitOptions
     from .runtime.coherence import coherence
     from .runtime.fit import fit
 
-    info = {channel: _info(opts, fam, channel, sigmas)}
+    info = {channel: channel_info(opts, fam, channel, sigmas)}
     constants = dict(opts.constants)
     res = fit(fam, opts.model, data={channel: X}, info=info, constants=constants,
               q0=opts.q0(), max_iter=opts.max_iter, correct_bias=opts.correct_bias)
@@ -380,7 +381,7 @@ def local_record(fam: ModelFamily, X: np.ndarray, channel: str, opts: FitOptions
     errors = np.full(len(X), np.nan)
     if np.all(np.isfinite(res.q)):
         errors = coherence(fam, res.model, res.q, {channel: X}, info, constants)[channel]
-    record.update(_header(fam, channel, spec, data, X))
+    record.update(record_header(fam, channel, spec, data, X))
     record.update({"local": True, "errors": errors, "found": bool(res.success),
                    "stop_reason": res.message, "max_iter": opts.max_iter,
                    "start": dict(opts.start), "sigma": opts.plain_sigma()})
@@ -393,7 +394,10 @@ def measures_sha256(X: np.ndarray) -> str:
     return hashlib.sha256(np.ascontiguousarray(X, dtype=float).tobytes()).hexdigest()
 
 
-def _header(fam: ModelFamily, channel: str, spec: str, data: str, X: np.ndarray) -> dict:
+def record_header(fam: ModelFamily, channel: str, spec: str, data: str,
+                  X: np.ndarray) -> dict:
+    """What every record of a dataset says first: the family, spec and data (with their
+    SHA-256), the channel and the lattice's edges."""
     return {"format": RECORD_FORMAT, "family": fam.name, "spec": str(spec),
             "spec_sha256": fam.sha256, "data": str(data),
             "data_sha256": measures_sha256(X), "channel": channel,

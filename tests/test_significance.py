@@ -199,4 +199,8 @@ def test_estimator_and_structures_carry_their_false_alarms(line, tmp_path):
                              catch_exceptions=False)
     record = json.loads(out.stdout)
     assert record["false_alarms"] > 1
-    assert "NOT more than chance" in out.stderr
+    assert "NOT more than chance" in out.stderr and out.exit_code == 1
+    np.savetxt(path, xy, delimiter=",", header="x,y", comments="")  # two lines: one found
+    out = CliRunner().invoke(main, ["fit", str(spec), str(path), "--json", "-"],
+                             catch_exceptions=False)
+    assert json.loads(out.stdout)["false_alarms"] < 1e-10 and out.exit_code == 0
