@@ -221,8 +221,8 @@ def fit_options(command):
                           "number or a column of DATA holding one per measure, e.g. "
                           "--sigma dose=0.02,response=sd_response (repeatable; a bare "
                           "number: the components not named)."),
-        click.option("--const", "consts", multiple=True, metavar="NAME=VALUE",
-                     help="Set a constant of SPEC (repeatable)."),
+        click.option("--const", "consts", multiple=True, metavar="NAME=VALUE,...",
+                     help="Set constants of SPEC, e.g. --const cx=320,cy=240 (repeatable)."),
         click.option("--max-iter", type=int, default=100, show_default=True,
                      help="Iterations of the local estimator (--local only)."),
         click.option("--correct-bias", is_flag=True,
@@ -374,8 +374,8 @@ def _fit(spec, data, channel, json_out, backend, trusted, limit, opts):
               help="Random samples of each search at most.")
 @click.option("--sigma", "sigmas", multiple=True, metavar="SIGMA|NAME=SIGMA,...",
               help="Standard deviation of each measured component, as for `kanagen fit`.")
-@click.option("--const", "consts", multiple=True, metavar="NAME=VALUE",
-              help="Set a constant of SPEC (repeatable).")
+@click.option("--const", "consts", multiple=True, metavar="NAME=VALUE,...",
+              help="Set constants of SPEC, e.g. --const cx=320,cy=240 (repeatable).")
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), default=None,
               help="Also write the result as JSON to this file; '-': to stdout, the text "
                    "going to stderr.")
@@ -514,13 +514,15 @@ def batch(spec, data_glob, channel, db, workers, scheduler, retry_errors, backen
 def report(result, db, dataset, out, data, images):
     """Write one self-contained HTML page of a result, with its pictures.
 
-    RESULT is the JSON of `kanagen fit --json`; or give --db and --dataset for a dataset of
-    a batch run. The page shows the chosen model and its estimate, the error histogram with
-    the inlier threshold (report Fig. 5), the best relevance against samples (Fig. 9), the
-    lattice of models with d and cost, the chosen one highlighted (Fig. 13–14), the
-    residuals, the measures of a planar channel, and for two-view data (x, y, x', y') with
-    --images the matches on both images, inliers and outliers coloured. Figures are SVG
-    drawn by matplotlib, inlined: the page needs no other file.
+    RESULT is the JSON of `kanagen fit --json` (or of `kanagen structures --json`: each
+    structure's estimate, and the measures coloured by structure); or give --db and
+    --dataset for a dataset of a batch run. The page shows the chosen model and its
+    estimate, the error histogram with the inlier threshold (report Fig. 5), the best
+    relevance against samples (Fig. 9), the lattice of models with d and cost, the chosen
+    one highlighted (Fig. 13–14), the residuals, the measures of a planar channel, and for
+    two-view data (x, y, x', y') with --images the matches on both images, inliers and
+    outliers coloured. Figures are SVG drawn by matplotlib, inlined: the page needs no other
+    file.
 
     \b
     Examples:
@@ -540,7 +542,9 @@ def report(result, db, dataset, out, data, images):
 
 
 def _parse_constants(items) -> dict[str, float]:
-    return _parse_pairs(items, "--const")
+    """``--const`` values: ``NAME=VALUE`` pairs, repeated or comma-separated (as --start)."""
+    return _parse_pairs([p for item in items for p in item.split(",") if p.strip()],
+                        "--const")
 
 
 def _parse_sigmas(items) -> float | dict[str, float | str] | None:

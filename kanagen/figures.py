@@ -3,8 +3,8 @@
 Each function takes plain data (what a JSON record carries) and returns an ``<svg>``
 element: the error histogram with its threshold (report Fig. 5), the best-relevance curve
 (Fig. 9), the lattice of models (Fig. 13–14), the residuals, the measures of a planar
-channel (with the fitted conic when the result has one), and two-view matches drawn on their
-images.
+channel (with the fitted conic when the result has one), two-view matches drawn on their
+images, and the measures coloured by structure (``kanagen structures``).
 """
 
 from __future__ import annotations
@@ -262,3 +262,31 @@ def two_view_matches(X: np.ndarray, inliers: np.ndarray, first: np.ndarray,
     ax.set_axis_off()
     ax.legend(fontsize=9, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncols=2)
     return _svg(fig, "matches")
+
+
+def structure_measures(X: np.ndarray, labels: np.ndarray, names) -> str:
+    """The measures coloured by their structure (``labels``: from 0; -1, outliers, grey
+    crosses): the first two components, and for a channel of four (two views' matches
+    ``x, y, x', y'``) the last two beside them — each point where its image has it."""
+    import matplotlib
+
+    X = np.asarray(X, dtype=float)
+    labels = np.asarray(labels, dtype=int)
+    views = [(0, 1)] + ([(2, 3)] if X.shape[1] == 4 else [])
+    fig = _figure((6.0 * len(views), 4.5))
+    colours = matplotlib.colormaps["tab10"]
+    for ax, (i, j) in zip(np.atleast_1d(fig.subplots(1, len(views))), views, strict=True):
+        out = labels < 0
+        ax.scatter(X[out, i], X[out, j], s=10, color="#999999", marker="x",
+                   label=f"outliers ({np.count_nonzero(out)})")
+        for k in range(labels.max(initial=-1) + 1):
+            mine = labels == k
+            ax.scatter(X[mine, i], X[mine, j], s=10, color=colours(k % 10),
+                       label=f"structure {k} ({np.count_nonzero(mine)})")
+        ax.set_xlabel(names[i])
+        ax.set_ylabel(names[j])
+        ax.set_aspect("equal", adjustable="datalim")
+        if len(views) == 2:
+            ax.invert_yaxis()  # image rows down
+    fig.axes[0].legend(fontsize=9)
+    return _svg(fig, "structures")

@@ -1,8 +1,9 @@
 """``kanagen report``: one self-contained HTML page of a result, with its pictures.
 
-The page is rendered by jinja2 from a JSON record (``kanagen fit --json``, or the record a
-batch run stored for a dataset); the figures are matplotlib SVG inlined in it
-(:mod:`kanagen.figures`), so the page needs nothing but itself.
+The page is rendered by jinja2 from a JSON record (``kanagen fit --json``, the record a
+batch run stored for a dataset, or ``kanagen structures --json``); the figures are
+matplotlib SVG inlined in it (:mod:`kanagen.figures`), so the page needs nothing but
+itself.
 """
 
 from __future__ import annotations
@@ -34,8 +35,10 @@ def load_record(result: str | Path | None = None, *, db: str | Path | None = Non
             raise ValueError(f"{result}: cannot read: {exc.strerror}") from None
         except json.JSONDecodeError as exc:
             raise ValueError(f"{result}: not JSON: {exc}") from None
-        if not isinstance(record, dict) or "model" not in record:
-            raise ValueError(f"{result}: not a kanagen result (kanagen fit --json)")
+        if not isinstance(record, dict) or ("model" not in record and
+                                            "structures" not in record):
+            raise ValueError(f"{result}: not a kanagen result (kanagen fit or structures "
+                             "--json)")
         return record, None
     if dataset is None:
         raise ValueError("--db needs --dataset NAME")
@@ -87,11 +90,11 @@ def render_report(record: dict, *, measures: np.ndarray | None = None,
     row : dict, optional
         The database row of a batch result (status, time).
     """
-    import jinja2
-
     from . import figures
 
     count = _count(record)
+    if "structures" in record:
+        return _render(record, row, count, *_structure_figures(record, measures), title)
     inliers = np.asarray(record.get("inliers") or [], dtype=int)
     errors = record.get("errors")
     e = None if errors is None else np.array([np.nan if v is None else v for v in errors],
@@ -144,14 +147,43 @@ def render_report(record: dict, *, measures: np.ndarray | None = None,
     elif measures is None and len(components) == 2 and record.get("model"):
         notes.append(("warn", "Measures not drawn: the data file was not found (give it with "
                               "--data)."))
+    return _render(record, row, count, figs, notes, title)
+
+
+def _render(record: dict, row, count, figs: list, notes: list, title) -> str:
+    """The page of ``record`` with its figures and notes (the template's one call)."""
+    import jinja2
+
     env = jinja2.Environment(loader=jinja2.PackageLoader("kanagen", "templates"),
                              autoescape=True, undefined=jinja2.ChainableUndefined,
                              trim_blocks=True, lstrip_blocks=True)
     page = env.get_template("report.html.jinja")
+    structures = [{**entry, "estimate": _estimate(entry), "pinned_text": _pinned(entry)}
+                  for entry in record.get("structures") or []]
     return page.render(rec=record, row=row, count=count, figures=figs, notes=notes,
                        title=title or record.get("data") or "result", num=_num,
                        options=_options(record), estimate=_estimate(record),
-                       pinned=_pinned(record), version=_version())
+                       pinned=_pinned(record), version=_version(),
+                       structures=structures if "structures" in record else None)
+
+
+def _structure_figures(record: dict, measures: np.ndarray | None) -> tuple[list, list]:
+    """The figure of a ``kanagen structures`` record: its measures coloured by structure
+    (when the data were found), or a note saying they were not."""
+    from . import figures
+
+    labels = record.get("labels")
+    components = record.get("channel_components") or []
+    if measures is None or labels is None or len(labels) != len(measures) or \
+            len(components) < 2:
+        return [], [("warn", "Measures not drawn: the data file was not found (give it "
+                             "with --data).")]
+    svg = figures.structure_measures(measures, np.asarray(labels, dtype=int), components)
+    return [{"id": "structures", "title": "Structures", "svg": svg,
+             "caption": "The measures coloured by the structure they belong to (outliers "
+                        "of every structure grey)" + ("; the first image's points left, "
+                                                     "the second's right." if
+                                                     len(components) == 4 else ".")}], []
 
 
 def write_report(out: str | Path, result: str | Path | None = None, *,
@@ -224,9 +256,10 @@ def _num(value) -> str:
 
 
 def _options(record: dict) -> list[tuple[str, str]]:
-    names = ("scale", "scorer", "phi", "seed", "max_samples", "max_iter", "local")
+    names = ("scale", "scorer", "phi", "seed", "max_samples", "max_iter", "local",
+             "max_structures")
     labels = {"scale": "L* (scale)", "phi": "Φ", "max_samples": "max samples",
-              "max_iter": "max iterations"}
+              "max_iter": "max iterations", "max_structures": "max structures"}
     return [(labels.get(n, n), _num(record[n]) if n != "phi" or record[n] is not None
              else "the spec's, per edge")
             for n in names if n in record]

@@ -105,6 +105,11 @@ def test_report_of_a_robust_fit_has_every_figure(conic_result, tmp_path):
     rec = json.loads(result.read_text())
     assert f"Chosen model: <span class=\"chosen\">{rec['model']}</span>" in html
     assert "threshold" in html and "Φ" in html
+    assert rec["false_alarms"] < 1 and "More than chance: " in html  # its NFA, said
+    rec["false_alarms"] = 12.0  # a record whose model chance explains: a warning
+    result.write_text(json.dumps(rec))
+    assert run("report", result, "-o", page).exit_code == 0
+    assert '<p class="warn">NOT more than chance: 12 false alarms' in page.read_text()
     # an arc of a circle: B and the other models' slacks (appendix F) are pinned, no estimates
     assert rec["model"] == "circle"
     assert rec["pinned"] == {"B": 0.0, "s_ellipse": 1.0, "s_proper": 1.0}
@@ -196,6 +201,19 @@ document.body.dataset.rendered = JSON.stringify(
 </script>"""
 
 
+def rendered_figures(page: Path, tmp_path: Path) -> list:
+    """``[figure, width, height, elements drawn]`` of each figure of ``page`` as headless
+    Chromium lays it out (:data:`PROBE`)."""
+    probe = tmp_path / "probe.html"
+    probe.write_text(page.read_text().replace("</body>", PROBE + "</body>"))
+    dom = chromium("--virtual-time-budget=2000", "--dump-dom", probe.as_uri(),
+                   profile=tmp_path / "profile1")
+    assert dom.returncode == 0, dom.stderr[-2000:]
+    found = re.search(r'data-rendered="([^"]*)"', dom.stdout)
+    assert found, dom.stdout[:2000]
+    return json.loads(found.group(1).replace("&quot;", '"'))
+
+
 @pytest.mark.parametrize("kind", ["conic", "two_view"])
 def test_report_renders_in_headless_chromium(kind, request, tmp_path):
     if CHROMIUM is None:
@@ -213,13 +231,7 @@ def test_report_renders_in_headless_chromium(kind, request, tmp_path):
     page = tmp_path / "page.html"
     assert run("report", result, *extra, "-o", page).exit_code == 0
     probe = tmp_path / "probe.html"
-    probe.write_text(page.read_text().replace("</body>", PROBE + "</body>"))
-    dom = chromium("--virtual-time-budget=2000", "--dump-dom", probe.as_uri(),
-                   profile=tmp_path / "profile1")
-    assert dom.returncode == 0, dom.stderr[-2000:]
-    found = re.search(r'data-rendered="([^"]*)"', dom.stdout)
-    assert found, dom.stdout[:2000]
-    rendered = json.loads(found.group(1).replace("&quot;", '"'))
+    rendered = rendered_figures(page, tmp_path)
     assert [r[0] for r in rendered] == ["histogram", "relevance", "lattice", "residuals",
                                         expected]
     for name, width, height, drawn in rendered:

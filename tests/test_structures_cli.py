@@ -85,3 +85,54 @@ def test_bad_input_exits_2(lines_csv, args, message):
     path, _, _ = lines_csv
     out = invoke(LINE, path, *args)
     assert out.exit_code == 2 and message in out.output
+
+
+def test_report_of_structures_draws_them(lines_csv, tmp_path):
+    """`kanagen report` of a structures record: each structure's section (model, inliers,
+    NFA, estimate) and the measures coloured by structure; without the data, a note."""
+    import re
+
+    path, xy, _ = lines_csv
+    result = tmp_path / "found.json"
+    assert invoke(LINE, path, "--sigma", "0.5", "--json", result).exit_code == 0
+    record = json.loads(result.read_text())
+    page = tmp_path / "found.html"
+    done = CliRunner().invoke(main, ["report", str(result), "-o", str(page)])
+    assert done.exit_code == 0, done.output
+    html = page.read_text()
+    assert re.findall(r'data-figure="([a-z]+)"', html) == ["structures"]
+    assert "2 structure(s) more than chance (at most 5)" in html
+    outliers = len(xy) - sum(len(s["inliers"]) for s in record["structures"])
+    assert f"; {outliers} outlier(s)." in html
+    for k, s in enumerate(record["structures"]):
+        assert f"Structure {k}: line" in html and f"{len(s['inliers'])} inliers" in html
+        assert f"structure {k} ({len(s['inliers'])})" in html  # its legend in the figure
+    assert "<h2>Estimate</h2>" not in html and "Chosen model" not in html
+    record["data"], record["data_sha256"] = "elsewhere.csv", "0" * 64
+    result.write_text(json.dumps(record))
+    assert CliRunner().invoke(main, ["report", str(result), "-o", str(page)]).exit_code == 0
+    assert "Measures not drawn" in page.read_text()
+
+
+def test_structures_page_renders_in_headless_chromium(lines_csv, tmp_path):
+    import os
+
+    from test_report import CHROMIUM, rendered_figures
+
+    if CHROMIUM is None:
+        if os.environ.get("CI"):
+            pytest.fail("chromium is missing: .ci/run installs it (apt-get install chromium)")
+        pytest.skip("chromium not installed (apt-get install chromium)")
+    path, _, _ = lines_csv
+    result, page = tmp_path / "found.json", tmp_path / "found.html"
+    assert invoke(LINE, path, "--sigma", "0.5", "--json", result).exit_code == 0
+    assert CliRunner().invoke(main, ["report", str(result), "-o", str(page)]).exit_code == 0
+    (name, width, height, drawn), = rendered_figures(page, tmp_path)
+    assert name == "structures" and width > 200 and height > 100 and drawn > 10
+
+
+def test_constants_repeated_or_comma_separated():
+    from kanagen.cli import _parse_constants
+
+    assert _parse_constants(("cx=320,cy=240", "f0=640")) == {"cx": 320.0, "cy": 240.0,
+                                                              "f0": 640.0}
