@@ -53,6 +53,16 @@ def test_fit_of_a_shipped_family_reads_no_spec(backend):
     assert loaded == ([] if backend == "numpy" else ["casadi"])
 
 
+def test_a_robust_search_and_its_nfa_import_no_scipy_stats():
+    """scipy.stats costs half a second of a process's first search: the NFA of a robust
+    result (runtime/significance.py) takes the binomial tail from scipy.special."""
+    code = ("import numpy as np, kanagen\n"
+            "xy = np.random.default_rng(0).uniform(-9, 9, (60, 2))\n"
+            "r = kanagen.robust_fit(kanagen.load('line'), 'line', data={'point': xy})\n"
+            "assert r.false_alarms > 0 and 'NOT' in r.summary()")
+    assert imported_after(code, ("scipy.stats",) + SPEC_AND_GENERATOR) == []
+
+
 def test_a_compiled_fit_from_its_cache_loads_no_generator():
     """Once a family is compiled (its library cached), loading and fitting it with the
     compiled backend imports neither SymPy nor jinja2: the cache key is computed by the
