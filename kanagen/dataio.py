@@ -59,7 +59,13 @@ def read_measures(path: str | Path, components: tuple[str, ...], channel: str) -
     except (ValueError, TypeError, KeyError, EOFError, zipfile.BadZipFile, csv.Error,
             MemoryError) as exc:
         raise DataError(f"{path}: cannot read data: {type(exc).__name__}") from None
-    return _numbers(values, path)
+    values = _numbers(values, path)
+    if values.ndim == 2 and values.shape[1] == len(components) and \
+            not np.all(np.isfinite(values)):
+        i, k = (int(v) for v in np.argwhere(~np.isfinite(values))[0])
+        raise DataError(f"{path}: measure {i} (from 0), {components[k]} is {values[i, k]}, "
+                        "not a finite number (a measure must be)")
+    return values
 
 
 def _numbers(values, path: Path) -> np.ndarray:
@@ -109,7 +115,7 @@ def _from_csv(path: Path, components) -> np.ndarray:
                 f"column(s), not the {len(components)} of the components "
                 f"{list(components)}: add a header line naming the columns, e.g. "
                 f"{','.join(components)}")
-        return _csv_rows(path, rows, range(width))
+        return _csv_rows(path, rows, range(width), components)
     header = [h.strip() for h in rows[0][1]]
     twice = sorted({h for h in header if header.count(h) > 1})
     if twice:
@@ -122,7 +128,7 @@ def _from_csv(path: Path, components) -> np.ndarray:
         hint = f" (names are case-sensitive: the header has {', '.join(cased)})" \
             if cased else ""
         raise DataError(f"{path}: header {header[:20]} lacks component(s) {missing}{hint}")
-    return _csv_rows(path, rows[1:], [header.index(c) for c in components])
+    return _csv_rows(path, rows[1:], [header.index(c) for c in components], components)
 
 
 def _is_number(field: str) -> bool:
@@ -133,8 +139,9 @@ def _is_number(field: str) -> bool:
     return True
 
 
-def _csv_rows(path: Path, rows, cols) -> np.ndarray:
-    """The columns ``cols`` of ``rows`` (``(line, fields)``) as numbers."""
+def _csv_rows(path: Path, rows, cols, components) -> np.ndarray:
+    """The columns ``cols`` of ``rows`` (``(line, fields)``) as finite numbers (the
+    ``components``, for messages)."""
     cols = list(cols)
     out = np.empty((len(rows), len(cols)))
     for at, (line, row) in enumerate(rows):
@@ -143,6 +150,11 @@ def _csv_rows(path: Path, rows, cols) -> np.ndarray:
         except (ValueError, IndexError):
             raise DataError(f"{path}:{line}: not a row of numbers ({len(row)} field(s))") \
                 from None
+        if not np.all(np.isfinite(out[at])):
+            k = int(np.flatnonzero(~np.isfinite(out[at]))[0])
+            raise DataError(f"{path}:{line}: {components[k]} is {row[cols[k]].strip()!r}, "
+                            "not a finite number (a measure must be; drop the row or give "
+                            "its value)")
     return out
 
 

@@ -78,7 +78,9 @@ def test_batch_records_every_dataset_with_its_error_and_resumes(tmp_path, schedu
     table = {r["dataset"]: r for r in rows(db)}
     assert set(table) == {*paths, str(bad), str(nan)}
     assert "lacks component(s) ['y']" in table[str(bad)]["message"]
-    assert "NaN" in table[str(nan)]["message"]
+    assert table[str(nan)]["message"].endswith(
+        ".csv:3: y is 'nan', not a finite number (a measure must be; drop the row or give "
+        "its value)")
     for name in (str(bad), str(nan)):
         assert table[name]["status"] == "error" and table[name]["record"] is None
     for path in paths:

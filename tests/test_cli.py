@@ -226,7 +226,12 @@ def test_local_fit_reports_bad_data_without_traceback(run, tmp_path):
     assert "lacks component(s) ['y']" in out.output
     bad.write_text("x,y\n1,nan\n")
     out = run("fit", ROOT / "examples/conic.yaml", bad, "--model", "conic", "--local")
-    assert out.exit_code == 2 and "NaN" in out.output
+    assert out.exit_code == 2 and "bad.csv:2: y is 'nan', not a finite number" in out.output
+    for name, write in (("bad.npz", lambda p: np.savez(p, point=[[1.0, 2.0], [3.0, np.inf]])),
+                        ("bad.json", lambda p: p.write_text('{"point": [[1, 2], [3, NaN]]}'))):
+        write(tmp_path / name)  # no lines: the measure and its component
+        out = run("fit", ROOT / "examples/conic.yaml", tmp_path / name)
+        assert out.exit_code == 2 and f"{name}: measure 1 (from 0), y is " in out.output
     out = run("fit", ROOT / "examples/conic.yaml", ROOT / "examples/data/ellipse_arc.csv",
               "--model", "parabola", "--local")
     assert out.exit_code == 2 and "unknown model 'parabola'" in out.output
