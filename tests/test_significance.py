@@ -204,3 +204,11 @@ def test_estimator_and_structures_carry_their_false_alarms(line, tmp_path):
     out = CliRunner().invoke(main, ["fit", str(spec), str(path), "--json", "-"],
                              catch_exceptions=False)
     assert json.loads(out.stdout)["false_alarms"] < 1e-10 and out.exit_code == 0
+
+
+def test_orsas_count_of_hypotheses():
+    from kanagen.runtime.significance import hypotheses
+
+    assert hypotheses(10, 2) == 45 * 10  # C(10, 2) samples, times 10 inlier counts
+    assert hypotheses(1, 2) == 1.0  # fewer measures than a sample: one hypothesis
+    assert hypotheses(10**6, 80) == np.inf  # beyond a float
