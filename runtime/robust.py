@@ -405,6 +405,7 @@ class ModelSearch:
                            self.draws.sample_size), self.draws.sample_size)),
         )
 
+
 def robust_fit(fam: ModelFamily, model: str | None = None, data: Mapping | None = None,
                info: Mapping | None = None, *, channel: str | None = None,
                scale: float | None = None, scorer: str | Callable = "relevance",

@@ -41,7 +41,8 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
                     restarts: int = 3, false_alarms: float | None = 1.0,
                     **options) -> list[ModelState]:
     """Several structures in the same data (report §4, clustered data): find one, take its
-    inliers out, search again, until nothing relevant is left or ``max_structures``; then
+    inliers out, search again, until what it finds is no more than chance (``false_alarms``)
+    or ``max_structures``; then
     (``reassign`` rounds) give each measure to the structure with the least coherence
     error among those whose threshold it passes, refit each structure on its measures, and
     repeat until the assignment is stable.
@@ -89,10 +90,9 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
         A structure is kept only when measures without structure would give as many inliers
         this rarely: its number of false alarms — the hypotheses a search may try (every
         minimal sample, times the measures), times the chance of its inlier count among
-        measures drawn
-        uniform in the measures' box, outside what the structures found before took out —
-        at most this, shared among the ``(retries + 1) × restarts`` searches that may end
-        an extraction (:mod:`~kanagen.runtime.significance`: the a-contrario test of
+        measures uniform in the data's box, outside what the structures found before
+        explain — at most this, shared among the ``(retries + 1) × restarts`` searches that
+        may end an extraction (:mod:`~kanagen.runtime.significance`: the a-contrario test of
         Moisan & Stival's ORSA). Default 1: on average at most one structure of uniform
         outliers in a call. None: no test (the structures are then those above
         ``min_inliers``, up to ``max_structures``).
@@ -211,15 +211,16 @@ def _extract(fam: ModelFamily, data: Mapping, info: Mapping, max_structures: int
 
 
 def _chance(fam: ModelFamily, problem, state: ModelState, tests: float, sample: int,
-            found: list, boxes: list, options: Mapping, seed: int) -> float:
+            cut: list, boxes: list, options: Mapping, seed: int) -> float:
     """The number of false alarms of ``state`` among the measures of ``problem``
     (:func:`~.significance.false_alarms`: ``tests`` hypotheses, the null uniform in
-    ``boxes`` — those of all the measures), among the measures that the structures
-    ``found`` (``(model, q, threshold)``, at their search's threshold) do not explain."""
+    ``boxes`` — those of all the measures), among the measures that the structures found
+    before (``cut``: their ``(model, q, threshold)``, at their search's threshold) do not
+    explain."""
 
     def explained(channels):
         taken = [np.zeros(ch.size, bool) for ch in channels]
-        for model, q, threshold in found:
+        for model, q, threshold in cut:
             null = make_problem(fam, model, channels=channels, q0=options.get("q0"),
                                 Q0=options.get("Q0"), constants=options.get("constants"))
             for mask, errors in zip(taken, coherence_errors(null, q), strict=True):
