@@ -182,6 +182,23 @@ def _wrap_expr(text: str, indent: str, width: int = SHOW_WIDTH) -> str:
                                     break_long_words=False, break_on_hyphens=False))
 
 
+#: --sigma and --const of `kanagen fit`, `batch` and `structures`
+sigma_option = click.option(
+    "--sigma", "sigmas", multiple=True, metavar="SIGMA|NAME=SIGMA,...",
+    help="Standard deviation of each measured component (info = 1/sigma²; default 1): one "
+         "number for all, or per component by name, a number or a column of DATA holding one "
+         "per measure, e.g. --sigma dose=0.02,response=sd_response (repeatable; a bare "
+         "number: the components not named).")
+const_option = click.option(
+    "--const", "consts", multiple=True, metavar="NAME=VALUE,...",
+    help="Set constants of SPEC, e.g. --const cx=320,cy=240 (repeatable).")
+#: --json of `kanagen fit` and `structures`
+json_option = click.option(
+    "--json", "json_out", type=click.Path(dir_okay=False), default=None,
+    help="Also write the result as JSON to this file; '-': to stdout, the text going to "
+         "stderr. Infinite or undefined numbers are null.")
+
+
 def fit_options(command):
     """The estimation options of ``kanagen fit``, shared with ``kanagen batch`` (defined once,
     turned into a :class:`~kanagen.fitjob.FitOptions` by :func:`_fit_options`)."""
@@ -215,14 +232,8 @@ def fit_options(command):
         click.option("--local", is_flag=True,
                      help="Fit one model (--model) to all the measures with the local "
                           "estimator: no random samples, no outlier rejection."),
-        click.option("--sigma", "sigmas", multiple=True, metavar="SIGMA|NAME=SIGMA,...",
-                     help="Standard deviation of each measured component (info = 1/sigma²; "
-                          "default 1): one number for all, or per component by name, a "
-                          "number or a column of DATA holding one per measure, e.g. "
-                          "--sigma dose=0.02,response=sd_response (repeatable; a bare "
-                          "number: the components not named)."),
-        click.option("--const", "consts", multiple=True, metavar="NAME=VALUE,...",
-                     help="Set constants of SPEC, e.g. --const cx=320,cy=240 (repeatable)."),
+        sigma_option,
+        const_option,
         click.option("--max-iter", type=int, default=100, show_default=True,
                      help="Iterations of the local estimator (--local only)."),
         click.option("--correct-bias", is_flag=True,
@@ -267,9 +278,7 @@ def _fit_options(scale, scorer, phi, seed, max_samples, fixed_budget, model, loc
 @click.argument("spec", type=click.Path(exists=True, dir_okay=False))
 @click.argument("data", type=click.Path(exists=True, dir_okay=False))
 @fit_options
-@click.option("--json", "json_out", type=click.Path(dir_okay=False), default=None,
-              help="Also write the result as JSON to this file; '-': to stdout, the text "
-                   "going to stderr. Infinite or undefined numbers are null.")
+@json_option
 @backend_option
 @limit_options
 def fit(spec, data, channel, json_out, backend, trusted, limit, **options):
@@ -372,13 +381,9 @@ def _fit(spec, data, channel, json_out, backend, trusted, limit, opts):
               help="Seed of the random samples (same seed, same result).")
 @click.option("--max-samples", type=click.IntRange(min=1), default=2000, show_default=True,
               help="Random samples of each search at most.")
-@click.option("--sigma", "sigmas", multiple=True, metavar="SIGMA|NAME=SIGMA,...",
-              help="Standard deviation of each measured component, as for `kanagen fit`.")
-@click.option("--const", "consts", multiple=True, metavar="NAME=VALUE,...",
-              help="Set constants of SPEC, e.g. --const cx=320,cy=240 (repeatable).")
-@click.option("--json", "json_out", type=click.Path(dir_okay=False), default=None,
-              help="Also write the result as JSON to this file; '-': to stdout, the text "
-                   "going to stderr.")
+@sigma_option
+@const_option
+@json_option
 @backend_option
 @limit_options
 def structures(spec, data, channel, model, max_structures, scale, seed, max_samples, sigmas,

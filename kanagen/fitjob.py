@@ -239,7 +239,7 @@ def make_estimator(fam: ModelFamily, X: np.ndarray, channel: str,
 
 
 def channel_info(opts: FitOptions, fam: ModelFamily, channel: str,
-          sigmas: np.ndarray | None = None) -> float | np.ndarray | None:
+                 sigmas: np.ndarray | None = None) -> float | np.ndarray | None:
     """The channel's information of ``opts.sigma``: ``1/σ²``, or the diagonal matrix of
     each component's (``"*"``: the components not named; else 1), one per measure where a
     component's σ is a column (``sigmas``: those columns, in :func:`sigma_columns`' order)."""
@@ -291,7 +291,7 @@ def read_sigmas(path, opts: FitOptions, channel: str) -> np.ndarray | None:
         values = read_measures(path, tuple(columns.values()), channel)
     except DataError as exc:
         raise DataError(f"{exc} (the sigma columns {list(columns.values())})") from None
-    bad = ~(np.isfinite(values) & (values > 0))
+    bad = ~(values > 0)  # NaN too (read_measures refuses the infinite already)
     if bad.any():
         row, col = (int(v) for v in np.argwhere(bad)[0])
         raise DataError(f"{path}: column {list(columns.values())[col]!r}, measure {row}: "

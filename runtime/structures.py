@@ -174,15 +174,17 @@ def _extract(fam: ModelFamily, data: Mapping, info: Mapping, max_structures: int
         best = est.run(max_samples=max_samples)
         if best is None or not best.samples:
             break
-        need = min_inliers if min_inliers is not None else 2 * _minimal(est, best)
-        problem = _problem_on(fam, best.model, data, info, remaining, sizes, options)
-        # the hypotheses of a search, times every search that may end an extraction, in
-        # each restart (the bound is on all of them)
         sample = _minimal(est, best)
-        tests = hypotheses(len(index), sample) * (retries + 1) * restarts
-        chance = None if false_alarms is None or len(best.inliers) <= need else \
-            _chance(fam, problem, best, tests, sample, cut, boxes, options, attempt)
-        if len(best.inliers) <= need or (chance is not None and chance > false_alarms):
+        need = min_inliers if min_inliers is not None else 2 * sample
+        problem = chance = None
+        if len(best.inliers) > need:
+            problem = _problem_on(fam, best.model, data, info, remaining, sizes, options)
+            # the hypotheses of a search, times every search that may end an extraction,
+            # in each restart (the bound is on all of them)
+            tests = hypotheses(len(index), sample) * (retries + 1) * restarts
+            chance = None if false_alarms is None else \
+                _chance(fam, problem, best, tests, sample, cut, boxes, options, attempt)
+        if problem is None or (chance is not None and chance > false_alarms):
             failures += 1
             if failures > retries:
                 break
