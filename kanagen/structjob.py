@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .evaluation import labels_from_structures
 from .fitjob import FitOptions, channel_info, estimate_json, record_header
 from .runtime.family import ModelFamily
 from .runtime.results import ModelState, estimate_lines
@@ -26,9 +27,7 @@ def structures_record(fam: ModelFamily, X: np.ndarray, channel: str, opts: FitOp
                             max_samples=opts.max_samples, seed=opts.seed, scale=opts.scale,
                             scorer=opts.scorer, phi=opts.phi, q0=opts.q0(),
                             constants=dict(opts.constants))
-    labels = np.full(len(X), -1)
-    for k, state in enumerate(found):
-        labels[state.inliers] = k
+    labels = labels_from_structures(len(X), [s.inliers for s in found]) - 1  # -1: outlier
     record = {**record_header(fam, channel, spec, data, X), "max_structures": max_structures,
               "seed": opts.seed, "scale": opts.scale, "sigma": opts.plain_sigma(),
               "constants": dict(opts.constants), "measures": len(X),
