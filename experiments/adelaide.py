@@ -80,9 +80,7 @@ def kanagen_labels(fam, scene: datasets.MultiStructureScene, samples: int = SAMP
     of structures found. ``defaults``: only the number of structures and the model given
     (issue 18's floor), the other options at the library's defaults; ``unknown`` (with
     ``defaults``): the number not given either (``max_structures`` at its default)."""
-    cx, cy = scene.centre
-    width, height = scene.image_size or (2 * cx, 2 * cy)
-    constants = {"cx": cx, "cy": cy, "f0": float(max(width, height))}
+    constants = datasets.nominal_constants(scene)
     if defaults:
         count = {} if unknown else {"max_structures": scene.structures}
         found = kanagen.find_structures(

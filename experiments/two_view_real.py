@@ -74,17 +74,12 @@ def real_pairs(groups: Sequence[str] = GROUPS) -> Iterator[tuple[str, datasets.T
                 else datasets.fundamental_pair
             for name in names:
                 pair = load(name)
-                yield group, pair, constants_of(pair)
+                yield group, pair, datasets.nominal_constants(pair)
         elif group == "graf" and datasets.available("oxford_graf"):
             pair = datasets.oxford_graf()
-            yield group, pair, constants_of(pair)
+            yield group, pair, datasets.nominal_constants(pair)
 
 
-def constants_of(pair: datasets.TwoViewPair) -> dict[str, float]:
-    """``cx, cy`` at the image centre, ``f0`` the larger side (a nominal focal length)."""
-    cx, cy = pair.centre
-    width, height = pair.image_size or (2 * cx, 2 * cy)
-    return {"cx": cx, "cy": cy, "f0": float(max(width, height))}
 
 
 def expected_models(group: str, pair: datasets.TwoViewPair) -> set[str]:

@@ -411,6 +411,16 @@ def _images(folder: Path, name: str) -> tuple[Path, Path] | None:
     return None
 
 
+def nominal_constants(scene) -> dict[str, float]:
+    """The ``two_view`` family's constants for a scene or pair (anything with ``centre`` and
+    ``image_size``): ``cx, cy`` its centre, ``f0`` the larger side of its image (twice the
+    centre's coordinates where the size is unknown) — a nominal focal length."""
+    from .scenes import image_constants
+
+    cx, cy = scene.centre
+    return image_constants(*(scene.image_size or (2 * cx, 2 * cy)))
+
+
 def _centre(image_size, matches: np.ndarray) -> tuple[float, float]:
     if image_size is not None:
         return image_size[0] / 2.0, image_size[1] / 2.0

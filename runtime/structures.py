@@ -82,8 +82,8 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
         number of structures); default 2.
     restarts : int
         Independent extractions (fresh samples); the one kept explains the measures best:
-        least ``Σᵢ min(eᵢ, τ)`` over all measures, ``eᵢ`` the error to the closest
-        structure and ``τ`` the ceiling ``max_threshold`` (else ``ceiling × L*``) — the
+        least ``Σᵢ min(eᵢ, L*)`` over all measures, ``eᵢ`` the error to the closest
+        structure and ``L*`` the largest of the structures' (an outlier's cost) — the
         truncated error of MSAC (Torr & Zisserman 2000) summed over the structures.
         Default 3 (three times the time of one extraction).
     false_alarms : float or None
@@ -139,7 +139,7 @@ def find_structures(fam: ModelFamily, data: Mapping, info: Mapping | None = None
             found, scales = _assign(fam, data, info, found, needed, scales, reassign, options)
         extractions.append((found, scales))
     best = extractions[0][0]
-    if len(extractions) > 1:  # one ceiling for all: an extraction finding nothing compares too
+    if len(extractions) > 1:  # one L* for all: an extraction finding nothing compares too
         top = max((max(scales) for _, scales in extractions if scales), default=1.0)
         energies = [_energy(fam, data, info, found, top, options) for found, _ in extractions]
         best = extractions[int(np.argmin(energies))][0]
@@ -423,17 +423,18 @@ def _channel_rows(rows: np.ndarray, sizes: Mapping, offsets: Mapping) -> dict:
 
 def _energy(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelState],
             scale: float, options: Mapping) -> float:
-    """``Σᵢ min(eᵢ, τ)``: each measure's error to its closest structure, truncated at the
-    ceiling ``τ`` (an outlier costs ``τ``): ``max_threshold``, else ``ceiling`` (default 2)
-    times ``scale`` (the largest L* of the extractions compared)."""
-    ceiling = _ceiling(options, scale) or _CEILING * scale
+    """``Σᵢ min(eᵢ, L*)``: each measure's error to its closest structure, truncated at
+    ``scale`` (the largest L* of the extractions compared: an outlier costs L*). Not at a
+    structure's threshold ceiling (2 L*): an inlier's error is below L* (the χ² quantile of
+    the assumed noise), and between L* and 2 L* a structure holding two motions explained
+    both for less than the third motion's matches left out cost (AdelaideRMF toycubecar)."""
     size = sum(len(np.asarray(rows)) for rows in data.values())
     closest = np.full(size, np.inf)
     for state in found:
         problem = make_problem(fam, state.model, data, info, options.get("q0"),
                                options.get("Q0"), options.get("constants"))
         closest = np.minimum(closest, np.concatenate(coherence_errors(problem, state.q)))
-    return float(np.sum(np.minimum(closest, ceiling)))
+    return float(np.sum(np.minimum(closest, scale)))
 
 
 def _assign(fam: ModelFamily, data: Mapping, info: Mapping, found: list[ModelState],

@@ -277,12 +277,10 @@ def test_two_motions_under_one_fundamental_matrix_are_two_structures():
     if not datasets.available("adelaidermf"):
         pytest.skip("shared data folder adelaidermf not found")
     scene = datasets.adelaide_scene("F", "gamebiscuit")
-    cx, cy = scene.centre
-    width, height = scene.image_size or (2 * cx, 2 * cy)
     found = kanagen.find_structures(
         kanagen.load("two_view"), data={"match": scene.matches}, info={"match": 1.0},
         max_structures=scene.structures, model="general", seed=0,
-        constants={"cx": cx, "cy": cy, "f0": float(max(width, height))})
+        constants=datasets.nominal_constants(scene))
     labels = labels_from_structures(len(scene.matches), [s.inliers for s in found])
     assert misclassification(scene.labels, labels) < 0.06
 
