@@ -10,11 +10,23 @@ stops off its equations. Those measures are finished by a feasible descent on th
 
 1. onto the manifold: Newton steps on ``c = 0`` along ``Q⁺ Dᵀ`` (the normal in the metric),
    with halving on ``|c|``;
-2. along it: the tangent-plane projection of the observed measure (the projector's point at a
-   feasible ``m̃``), back onto the manifold by 1., taken when the distance falls, halved
-   otherwise.
+2. along it: the step to the nearest point of the distance's second-order model on the
+   manifold — the equations' curvature weighted by their multipliers, the SQP (Newton) step
+   of ``min ½‖m̃ − m‖²_Q`` subject to ``c = 0`` (``measures.curved_step``) — or, where that
+   model has no minimum along the step (a negative curvature) or its system is singular,
+   the tangent-plane projection of the observed measure (the projector's point at a feasible
+   ``m̃``); back onto the manifold by 1., taken when the distance falls, halved otherwise,
+   until the fall the model predicts is below the distance's rounding.
 
 Each accepted step lowers the distance on the manifold: it ends at a local nearest point.
+The tangent-plane step alone is the same step without the curvature: far from a curved
+manifold it converges linearly, and at its cap of 12 steps it stopped short of the nearest
+point (a measure under a Gaussian's tail, its ordinate 10⁴ times more precise than its
+abscissa: 3.7e-10 relative in the distance, and twice the fit's time in halvings).
+
+A point where the equations' slope is infinite (``sqrt(x)`` at ``x = 0``) is not on them:
+its whitened violation ``c² / (D Q⁺ Dᵀ)`` would be 0 for any ``c`` (``measures.whitened``
+makes it infinite there).
 Both are kernels, measure by measure (:mod:`kanagen.runtime.engine.measures`:
 ``restore_all``, ``descend``).
 

@@ -126,7 +126,8 @@ def test_numerical_trouble_is_a_status_not_an_exception():
 def test_measures_without_a_point_on_their_equation_are_infeasible():
     """x² + y² + a = 0 with the constraint a = 1 has no real point: no measure can be
     restored onto it, and the fit says so (status 7) rather than converging; the violation
-    it reports is that of the point it returns."""
+    it reports is that of the point it returns, and its cost is infinite (the cost of a
+    point off its equations would win a comparison of fits)."""
     fam = kanagen.load_text(
         "name: nosol\nparameter: {a: 1.0}\nchannels:\n  point:\n    components: [x, y]\n"
         "    equations: [x**2 + y**2 + a]\nmodels:\n  pinned:\n    constraints: [a - 1]\n",
@@ -134,6 +135,7 @@ def test_measures_without_a_point_on_their_equation_are_infeasible():
     xy = np.random.default_rng(0).normal(0.0, 1.0, (10, 2))
     res = kanagen.fit(fam, "pinned", data={"point": xy})
     assert not res.success and res.status == 7 and "infeasible" in res.message
+    assert res.cost == np.inf
     worst = np.max(np.abs(res.measures["point"][:, 0] ** 2 + res.measures["point"][:, 1] ** 2
                           + res.q[0]))
     assert res.constraint_violation == pytest.approx(worst) and worst >= 1.0

@@ -36,39 +36,7 @@ from kanagen.common.jit import jit
 from kanagen.common.link import linked
 
 from ..linalg import matmul, solve_small
-from .measures import eval_shaped, fields, row_buffer, unwhiten_column
-
-#: Relative step of the central differences of the equations' Jacobians.
-STEP = 1e-5
-
-
-@jit(inline=True)
-def weighted_gradient(lam, c, C, D, p, n, d, out, at):
-    """``out[at] = (Cᵀλ, Dᵀλ)``: the gradient of ``λᵀ c`` in ``(q, m̃)``."""
-    for j in range(n):
-        acc = 0.0
-        for a in range(p):
-            acc += lam[a] * C[a, j]
-        out[at, j] = acc
-    for u in range(d):
-        acc = 0.0
-        for a in range(p):
-            acc += lam[a] * D[a, u]
-        out[at, n + u] = acc
-
-
-@jit(inline=True)
-def multipliers_of(L, inv, rbar, p, lam, kept):
-    """``λ = −L⁻ᵀ r̄`` (a dropped equation's 0) and the kept equations' indices; returns
-    their number."""
-    pk = 0
-    unwhiten_column(L, inv, rbar, p, lam)
-    for a in range(p):
-        lam[a] = -lam[a]
-        if inv[a] != 0.0:
-            kept[pk] = a
-            pk += 1
-    return pk
+from .measures import STEP, eval_shaped, fields, multipliers_of, row_buffer, weighted_gradient
 
 
 @jit(inline=True)

@@ -15,6 +15,7 @@ from kanagen.common.borrow import alive, borrow
 from kanagen.common.jit import jit
 from kanagen.common.link import linked, record_kind
 
+from ..linalg import solve_small
 from ..sqrt import REDUNDANT
 from .rows import call3, call4
 
@@ -33,6 +34,8 @@ _NEWTON = 8  # normal (Newton) steps onto the manifold, at most
 _HALVINGS = 12  # halvings of a step along the manifold
 _DESCENT = 12  # steps along the manifold, at most
 _PROJECT_HALVINGS = 4  # halvings of a projector step per measure (eq. 18)
+#: Relative step of the central differences of the equations' Jacobians.
+STEP = 1e-5
 
 
 # -- equations --------------------------------------------------------------------------
@@ -341,6 +344,36 @@ def correct(E, L, inv, G, z, p, d, y, dm):
         dm[u] = acc
 
 
+@jit(inline=True)
+def multipliers_of(L, inv, rbar, p, lam, kept):
+    """``λ = −L⁻ᵀ r̄`` (a dropped equation's 0) and the kept equations' indices; returns
+    their number."""
+    pk = 0
+    unwhiten_column(L, inv, rbar, p, lam)
+    for a in range(p):
+        lam[a] = -lam[a]
+        if inv[a] != 0.0:
+            kept[pk] = a
+            pk += 1
+    return pk
+
+
+@jit(inline=True)
+def weighted_gradient(lam, c, C, D, p, n, d, out, at):
+    """``out[at] = (Cᵀλ, Dᵀλ)``: the gradient of ``λᵀ c`` in ``(q, m̃)`` (``n = 0``: in ``m̃``
+    alone, ``C`` unread)."""
+    for j in range(n):
+        acc = 0.0
+        for a in range(p):
+            acc += lam[a] * C[a, j]
+        out[at, j] = acc
+    for u in range(d):
+        acc = 0.0
+        for a in range(p):
+            acc += lam[a] * D[a, u]
+        out[at, n + u] = acc
+
+
 #: The buffers of :func:`scratch` (a plain tuple).
 record_kind("Work", None, "f2 f2 f1 b1 f1 f1 f1 f1 f1 f1 f1 f1")
 
@@ -364,28 +397,29 @@ def scratch(A, n):
 @jit(inline=True)
 def violation(c, D, G, p, d, eps, work):
     """A measure's whitened violation ``‖c‖²_{(D Q⁺ Dᵀ)⁻}`` in metric ``G``, and whether
-    the whitened values are finite (``work``: :func:`scratch`)."""
+    the whitened values are finite (``work``: :func:`scratch`); infinite where ``D`` is
+    not (:func:`whitened`)."""
     E, L, inv, kept, y, w1, w2, dm, step, cand, moved, x = work
-    factor(D, G, p, d, eps, E, L, inv, kept)
-    whiten_column(L, inv, c, p, w1)
-    total = 0.0
-    finite = True
-    for a in range(p):
-        total += w1[a] ** 2
-        finite = finite and np.isfinite(w1[a])
-    return total, finite
+    total = whitened(c, D, G, p, d, eps, E, L, inv, kept, w1)[0]
+    return total, np.isfinite(total)
 
 
 @jit(inline=True)
 def whitened(c, D, G, p, d, eps, E, L, inv, kept, w):
     """``S = D Q⁺ Dᵀ`` factored (:func:`factor`) and ``c`` whitened into ``w``: the
-    violation ``‖c‖²_{S⁻}`` and the number of equations kept."""
+    violation ``‖c‖²_{S⁻}`` and the number of equations kept. The violation is infinite
+    where ``E = D Gᵀ`` is not finite: an infinite pivot whitens any ``c`` to 0, and a NaN
+    drops its equation — a point where the equations' slope is infinite (``dose**n`` at
+    ``dose = 0``, ``n < 1``) would pass for one on them."""
     factor(D, G, p, d, eps, E, L, inv, kept)
     whiten_column(L, inv, c, p, w)
     viol, rank = 0.0, 0
     for a in range(p):
         viol += w[a] ** 2
         rank += 1 if kept[a] else 0
+        for j in range(d):
+            if not np.isfinite(E[a, j]):
+                viol = np.inf
     return viol, rank
 
 
@@ -660,6 +694,96 @@ def normal(A, i, q, values, c, C, D, reach, work, spare):
         newton(A, i, q, values, c, C, D, reach, work, *spare)
 
 
+@jit(inline=True)
+def curved_step(F, i, q, values, m_obs, c, D, G, Q, p, d, work, sqp, evals):
+    """The step from ``values`` (on the manifold ``c(q, ·) = 0``) to the nearest point of
+    the distance's second-order model there — the tangent-plane step with the equations'
+    curvature weighted by their multipliers (the SQP step of ``min ½‖m̃ − m‖²_Q`` subject
+    to ``c = 0``, in the whitened corrections ``m̃ = m + Gᵀz``: the KKT system of
+    ``curvature.measure_hessian``). Written into ``work``'s ``step``; returns the fall of
+    the distance ``‖m̃ − m‖²_Q`` that the model predicts, −1 where the system is singular
+    or its step is no descent along a positive curvature (the tangent-plane step is then
+    the one to take). ``work``:
+    :func:`scratch`, factored at ``values`` (``E, L, inv`` and the whitened residual
+    ``w1``); ``sqp``: :func:`newton_scratch`; ``evals``: buffers for ``c, D``."""
+    E, L, inv, kept, y, w1, w2, dm, step, cand, moved, x = work
+    lam, index, Pmm, grads, H, S, R, z, t = sqp
+    pk = multipliers_of(L, inv, w1, p, lam, index)
+    if pk == 0:
+        return -1.0
+    c2, D2 = evals
+    scale = 0.0
+    for u in range(d):
+        scale = max(scale, abs(values[u]))
+    for v in range(d):  # Φmm: central differences of Dᵀλ along each component
+        h = STEP * max(abs(values[v]), 1e-3 * scale, 1e-8)
+        for side in range(2):
+            for u in range(d):
+                cand[u] = values[u] + ((h if side == 0 else -h) if u == v else 0.0)
+            eval_values(F, i, q, cand, c2, D2, x, p, d)
+            weighted_gradient(lam, c2, D2, D2, p, 0, d, grads, side)
+        for u in range(d):
+            Pmm[u, v] = (grads[0, u] - grads[1, u]) / (2.0 * h)
+    for u in range(d):  # t = Q (m̃ − m), z = G t: the distance's gradient in z
+        acc = 0.0
+        for v in range(d):
+            acc += Q[u, v] * (values[v] - m_obs[v])
+        t[u] = acc
+    for a in range(d):
+        acc = 0.0
+        for u in range(d):
+            acc += G[a, u] * t[u]
+        z[a] = acc
+    size = d + pk
+    for a in range(size):
+        R[a, 0] = 0.0
+        for b in range(size):
+            S[a, b] = 0.0
+    for a in range(d):  # H = G (Q + Φmm) Gᵀ, Φmm symmetrised
+        for b in range(d):
+            acc = 0.0
+            for u in range(d):
+                row = 0.0
+                for v in range(d):
+                    row += (Q[u, v] + 0.5 * (Pmm[u, v] + Pmm[v, u])) * G[b, v]
+                acc += G[a, u] * row
+            H[a, b] = acc
+            S[a, b] = acc
+        R[a, 0] = -z[a]
+    for e in range(pk):  # E on the kept equations
+        for b in range(d):
+            S[d + e, b] = E[index[e], b]
+            S[b, d + e] = E[index[e], b]
+        R[d + e, 0] = -c[index[e]]
+    if not solve_small(S, R, size, 1):
+        return -1.0
+    slope, curve = 0.0, 0.0
+    for a in range(d):
+        slope += z[a] * R[a, 0]
+        acc = 0.0
+        for b in range(d):
+            acc += H[a, b] * R[b, 0]
+        curve += R[a, 0] * acc
+    if not (slope < 0.0 and curve > 0.0):
+        return -1.0
+    for u in range(d):  # the step in m̃: Gᵀ Δz
+        acc = 0.0
+        for a in range(d):
+            acc += G[a, u] * R[a, 0]
+        if not np.isfinite(acc):
+            return -1.0
+        step[u] = acc
+    return max(-(2.0 * slope + curve), 0.0)
+
+
+@jit
+def newton_scratch(p, d):
+    """Buffers of :func:`curved_step` for ``p`` equations and ``d`` components."""
+    return (np.zeros(p), np.zeros(p, np.int64), np.zeros((d, d)), np.zeros((2, d)),
+            np.zeros((d, d)), np.zeros((d + p, d + p)), np.zeros((d + p, 1)), np.zeros(d),
+            np.zeros(d))
+
+
 @linked("A i f1 f1 f2 f1 f2 f2 Work -> f1 f")
 def descend(A, i, q, start, top, c, C, D, work):
     """Measure ``i`` moved onto ``c(q, ·) = 0`` and down the distance along it from
@@ -678,18 +802,30 @@ def descend(A, i, q, start, top, c, C, D, work):
     active = violation(c, D, G, p, d, A.eps, work)[0] <= UNREACHED
     c2, C2, D2 = c.copy(), C.copy(), D.copy()
     r = np.zeros(p)
+    sqp = newton_scratch(p, d)
+    evals = (np.zeros(c.size), np.zeros(D.shape))
     for _ in range(_DESCENT):
         if not active:
             break
         residual_into(D, values, m_obs, c, p, d, r)
         factor(D, G, p, d, A.eps, E, L, inv, kept)
         whiten_column(L, inv, r, p, w)
-        correct(E, L, inv, G, w, p, d, y, dm)
         along = values.copy()
+        fall = curved_step(F, i, q, values, m_obs, c, D, G, Q, p, d, work, sqp, evals)
+        if fall >= 0.0:
+            if fall <= ROUNDING * distance:
+                break  # no fall the distance's rounding would show: there
+            for j in range(d):
+                along[j] = step[j]
+        else:  # the tangent-plane projection of the observed measure
+            correct(E, L, inv, G, w, p, d, y, dm)
+            for j in range(d):
+                along[j] = m_obs[j] + dm[j] - values[j]
         finite = True
         for j in range(d):
-            along[j] = m_obs[j] + dm[j] - values[j]
             finite = finite and np.isfinite(along[j])
+        if finite and quad(along, Q, d) <= RESTORE_TOL ** 2:
+            break  # a step below the tolerance: there
         shift = 0.0
         if finite:
             alpha = 1.0
