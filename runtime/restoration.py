@@ -9,7 +9,10 @@ tangent plane plus a normal correction, raises the violation at every fraction a
 stops off its equations. Those measures are finished by a feasible descent on the manifold:
 
 1. onto the manifold: Newton steps on ``c = 0`` along ``Q⁺ Dᵀ`` (the normal in the metric),
-   with halving on ``|c|``;
+   with halving on ``|c|`` — in the measure's metric, then in its channel's largest
+   variances, then in its data's extent (the squared ranges of the observed values: a
+   point above a peak whose ordinate is far more precise than its abscissa reaches the
+   curve only by moving the ordinate);
 2. along it: the step to the nearest point of the distance's second-order model on the
    manifold — the equations' curvature weighted by their multipliers, the SQP (Newton) step
    of ``min ½‖m̃ − m‖²_Q`` subject to ``c = 0`` (``measures.curved_step``) — or, where that

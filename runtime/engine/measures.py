@@ -614,24 +614,37 @@ def project_shaped(args, p, d):
 # -- the restoration: measures the projector's steps leave off ---------------------------
 
 @jit
-def top_variances(A):
-    """Per channel, each component's largest variance over its measures (``Q⁺ = GᵀG``)."""
+def wide_variances(A):
+    """Per channel and component, the variances of the metrics that a restoration's Newton
+    steps try where the measure's own leaves it off: ``[0]`` the largest over the channel's
+    measures (``Q⁺ = GᵀG``), ``[1]`` the square of its observed values' range — the data's
+    extent, which moves a precise component as far as the others (a point above a peak
+    whose ordinate is far more precise than its abscissa: in the first two metrics its
+    steps move the abscissa to the peak and stop short) — the largest variance where that
+    range is 0."""
     nch, dmax = A.P.size, A.m.shape[1]
-    top = np.zeros((nch, dmax))
+    out = np.zeros((2, nch, dmax))
+    lo, hi = np.full((nch, dmax), np.inf), np.full((nch, dmax), -np.inf)
     for i in range(A.chan.size):
         ch = A.chan[i]
         for u in range(A.Dn[ch]):
             var = 0.0
             for j in range(A.Dn[ch]):
                 var += A.G[i, j, u] ** 2
-            top[ch, u] = max(top[ch, u], var)
-    return top
+            out[0, ch, u] = max(out[0, ch, u], var)
+            lo[ch, u] = min(lo[ch, u], A.m[i, u])
+            hi[ch, u] = max(hi[ch, u], A.m[i, u])
+    for ch in range(nch):
+        for u in range(dmax):
+            span = hi[ch, u] - lo[ch, u]
+            out[1, ch, u] = span * span if span > 0.0 and np.isfinite(span) else out[0, ch, u]
+    return out
 
 
 @jit
 def reaching(A, i, top):
-    """``G`` of the diagonal metric of the channel's largest variances (zero where the
-    measure's component is exact)."""
+    """``G`` of the diagonal metric of the channel's variances ``top`` (one of
+    :func:`wide_variances`; zero where the measure's component is exact)."""
     ch = A.chan[i]
     d = A.Dn[ch]
     R = np.zeros((A.m.shape[1], A.m.shape[1]))
@@ -686,12 +699,14 @@ def newton(A, i, q, values, c, C, D, G, work, c_new, C_new, D_new):
 
 
 @jit
-def normal(A, i, q, values, c, C, D, reach, work, spare):
+def normal(A, i, q, values, c, C, D, reach, span, work, spare):
     """Newton steps onto the manifold in the measure's metric, then — for a measure they
-    leave off — in its channel's largest variances (runtime/restoration.py describes it).
-    ``spare``: buffers for trial equations ``(c, C, D)``."""
+    leave off — in its channel's largest variances (``reach``), then in its data's extent
+    (``span``; :func:`wide_variances`, runtime/restoration.py describes it). ``spare``:
+    buffers for trial equations ``(c, C, D)``."""
     if not newton(A, i, q, values, c, C, D, A.G[i], work, *spare):
-        newton(A, i, q, values, c, C, D, reach, work, *spare)
+        if not newton(A, i, q, values, c, C, D, reach, work, *spare):
+            newton(A, i, q, values, c, C, D, span, work, *spare)
 
 
 @jit(inline=True)
@@ -701,13 +716,13 @@ def curved_step(F, i, q, values, m_obs, c, D, G, Q, p, d, work, sqp, evals):
     curvature weighted by their multipliers (the SQP step of ``min ½‖m̃ − m‖²_Q`` subject
     to ``c = 0``, in the whitened corrections ``m̃ = m + Gᵀz``: the KKT system of
     ``curvature.measure_hessian``). Written into ``work``'s ``step``; returns the fall of
-    the distance ``‖m̃ − m‖²_Q`` that the model predicts, −1 where the system is singular
-    or its step is no descent along a positive curvature (the tangent-plane step is then
-    the one to take). ``work``:
+    the distance ``‖m̃ − m‖²_Q`` along the equations that the model predicts, −1 where the
+    system is singular or the model's curvature along the equations is not positive (no
+    minimum there: the tangent-plane step is then the one to take). ``work``:
     :func:`scratch`, factored at ``values`` (``E, L, inv`` and the whitened residual
     ``w1``); ``sqp``: :func:`newton_scratch`; ``evals``: buffers for ``c, D``."""
     E, L, inv, kept, y, w1, w2, dm, step, cand, moved, x = work
-    lam, index, Pmm, grads, H, S, R, z, t = sqp
+    lam, index, Pmm, grads, H, S, R, z, t, Ew = sqp
     pk = multipliers_of(L, inv, w1, p, lam, index)
     if pk == 0:
         return -1.0
@@ -750,21 +765,37 @@ def curved_step(F, i, q, values, m_obs, c, D, G, Q, p, d, work, sqp, evals):
             H[a, b] = acc
             S[a, b] = acc
         R[a, 0] = -z[a]
-    for e in range(pk):  # E on the kept equations
+    # the kept equations whitened, L⁻¹E (orthonormal rows) and L⁻¹c: the KKT system's
+    # scale is then the Hessian's alone (E's rows may be 10⁻⁴ of it where the metric is
+    # narrow, and its last pivot below any tolerance relative to it)
+    whiten_rows(L, inv, E, p, d, Ew)
+    whiten_column(L, inv, c, p, w2)
+    for e in range(pk):
         for b in range(d):
-            S[d + e, b] = E[index[e], b]
-            S[b, d + e] = E[index[e], b]
-        R[d + e, 0] = -c[index[e]]
+            S[d + e, b] = Ew[index[e], b]
+            S[b, d + e] = Ew[index[e], b]
+        R[d + e, 0] = -w2[index[e]]
     if not solve_small(S, R, size, 1):
         return -1.0
+    # the step's part back onto the linearised equations, −Eᵀ S⁻ c, and its part along
+    # them: the model's fall and curvature are those along them (the part back onto them
+    # may raise the distance, and by far more than the fall where the metric is narrow)
+    back, along = grads[0], grads[1]
+    for a in range(d):
+        acc = 0.0
+        for e in range(pk):
+            acc += Ew[index[e], a] * w2[index[e]]
+        back[a] = -acc
+        along[a] = R[a, 0] + acc
     slope, curve = 0.0, 0.0
     for a in range(d):
-        slope += z[a] * R[a, 0]
-        acc = 0.0
+        pull, bend = 0.0, 0.0
         for b in range(d):
-            acc += H[a, b] * R[b, 0]
-        curve += R[a, 0] * acc
-    if not (slope < 0.0 and curve > 0.0):
+            pull += H[a, b] * back[b]
+            bend += H[a, b] * along[b]
+        slope += (z[a] + pull) * along[a]
+        curve += along[a] * bend
+    if not curve > 0.0:
         return -1.0
     for u in range(d):  # the step in m̃: Gᵀ Δz
         acc = 0.0
@@ -781,23 +812,23 @@ def newton_scratch(p, d):
     """Buffers of :func:`curved_step` for ``p`` equations and ``d`` components."""
     return (np.zeros(p), np.zeros(p, np.int64), np.zeros((d, d)), np.zeros((2, d)),
             np.zeros((d, d)), np.zeros((d + p, d + p)), np.zeros((d + p, 1)), np.zeros(d),
-            np.zeros(d))
+            np.zeros(d), np.zeros((p, d)))
 
 
-@linked("A i f1 f1 f2 f1 f2 f2 Work -> f1 f")
-def descend(A, i, q, start, top, c, C, D, work):
+@linked("A i f1 f1 f3 f1 f2 f2 Work -> f1 f")
+def descend(A, i, q, start, wide, c, C, D, work):
     """Measure ``i`` moved onto ``c(q, ·) = 0`` and down the distance along it from
     ``start``; writes ``c, C, D``; returns ``(m̃, violation)``."""
     ch = A.chan[i]
     p, d = A.P[ch], A.Dn[ch]
     G, Q, m_obs = A.G[i], A.Q[i], A.m[i, :d]
     E, L, inv, kept, y, w, w2, dm, step, cand, moved, x = work
-    reach = reaching(A, i, top)
+    reach, span = reaching(A, i, wide[0]), reaching(A, i, wide[1])
     spare = (c.copy(), C.copy(), D.copy())
     values = start.copy()
     F = fields(A)
     eval_measure(F, i, q, values, c, C, D, x)
-    normal(A, i, q, values, c, C, D, reach, work, spare)
+    normal(A, i, q, values, c, C, D, reach, span, work, spare)
     distance = quad_between(values, m_obs, Q, d)
     active = violation(c, D, G, p, d, A.eps, work)[0] <= UNREACHED
     c2, C2, D2 = c.copy(), C.copy(), D.copy()
@@ -832,7 +863,7 @@ def descend(A, i, q, start, top, c, C, D, work):
             for _ in range(_HALVINGS):
                 trial = values + alpha * along
                 eval_measure(F, i, q, trial, c2, C2, D2, x)
-                normal(A, i, q, trial, c2, C2, D2, reach, work, spare)
+                normal(A, i, q, trial, c2, C2, D2, reach, span, work, spare)
                 d_trial = quad_between(trial, m_obs, Q, d)
                 worst = worst_abs(c, p)
                 if d_trial < distance and worst_abs(c2, p) <= worst + 1e-12 * (1 + worst):
@@ -861,7 +892,7 @@ def restore_all(A, q, mt, iterations):
         left_off = left_off or not viol[i] <= UNREACHED
     if not left_off:  # the usual case
         return out, viol, c, C, D
-    top = top_variances(A)
+    wide = wide_variances(A)
     work = scratch(A, q.size)
     for i in range(A.chan.size):
         if viol[i] <= UNREACHED:
@@ -872,7 +903,7 @@ def restore_all(A, q, mt, iterations):
         starts = (out[i, :d].copy(), m_obs.copy())
         for s in range(2):
             c2, C2, D2 = c[i].copy(), C[i].copy(), D[i].copy()
-            m_new, v_new = descend(A, i, q, starts[s], top, c2, C2, D2, work)
+            m_new, v_new = descend(A, i, q, starts[s], wide, c2, C2, D2, work)
             old = viol[i]
             d_old = quad_between(out[i, :d], m_obs, Q, d)
             d_new = quad_between(m_new, m_obs, Q, d)
