@@ -80,8 +80,6 @@ def real_pairs(groups: Sequence[str] = GROUPS) -> Iterator[tuple[str, datasets.T
             yield group, pair, datasets.nominal_constants(pair)
 
 
-
-
 def expected_models(group: str, pair: datasets.TwoViewPair) -> set[str]:
     """The models that name the pair's motion correctly (``none`` too for an H pair whose
     ground truth moves the annotated points by less than :data:`STILL` px)."""

@@ -193,12 +193,13 @@ def iterate(problem: Problem, q_start: np.ndarray, max_iter: int = 100,
     at = starts[8]
     head = point_head(A, values, starts)
     detail = _DETAILS.get(kind)
-    if status == FAILED and kind == engine.AT_START or status == INFEASIBLE:
+    at_start = status == FAILED and kind == engine.AT_START
+    if at_start or status == INFEASIBLE:
         # the start's equations are not finite, or the end is off them: its cost (the
         # observed measures', 0, at the start) is no cost of a point on them, and must not
         # win a comparison of fits
         head = (*head[:2], np.inf, head[3])
-    if status == FAILED and kind == engine.AT_START:
+    if at_start:
         detail += not_finite_at(A, problem, values, starts, width)
     n_direction, n_vector, n_info, n_covariance = sizes
     checked = status in (CONVERGED, STALLED, SADDLE) or kind == engine.PLATEAU_DETAIL

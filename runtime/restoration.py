@@ -22,16 +22,16 @@ stops off its equations. Those measures are finished by a feasible descent on th
    until the fall the model predicts is below the distance's rounding.
 
 Each accepted step lowers the distance on the manifold: it ends at a local nearest point.
-The tangent-plane step alone is the same step without the curvature: far from a curved
-manifold it converges linearly, and at its cap of 12 steps it stopped short of the nearest
-point (a measure under a Gaussian's tail, its ordinate 10⁴ times more precise than its
-abscissa: 3.7e-10 relative in the distance, and twice the fit's time in halvings).
+Both are kernels, measure by measure (:mod:`kanagen.runtime.engine.measures`:
+``restore_all``, ``descend``). The tangent-plane step alone is the same step without the
+curvature: far from a curved manifold it converges linearly, and at its cap of 12 steps it
+stopped short of the nearest point (a measure under a Gaussian's tail, its ordinate 10⁴
+times more precise than its abscissa: 3.7e-10 relative in the distance, and twice the
+fit's time in halvings).
 
 A point where the equations' slope is infinite (``sqrt(x)`` at ``x = 0``) is not on them:
 its whitened violation ``c² / (D Q⁺ Dᵀ)`` would be 0 for any ``c`` (``measures.whitened``
 makes it infinite there).
-Both are kernels, measure by measure (:mod:`kanagen.runtime.engine.measures`:
-``restore_all``, ``descend``).
 
 A local nearest point may not be the nearest: with an anisotropic information a curve can
 hold two nearest points of a measure (the near and the far side of a circle). The iteration
