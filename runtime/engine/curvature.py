@@ -36,7 +36,15 @@ from kanagen.common.jit import jit
 from kanagen.common.link import linked
 
 from ..linalg import matmul, solve_small
-from .measures import STEP, eval_shaped, fields, multipliers_of, row_buffer, weighted_gradient
+from .measures import (
+    STEP,
+    difference_step,
+    eval_shaped,
+    fields,
+    multipliers_of,
+    row_buffer,
+    weighted_gradient,
+)
 
 
 @jit(inline=True)
@@ -49,14 +57,11 @@ def measure_hessian(args, p, d):
     pk = multipliers_of(L, inv, rbar, p, lam, kept)
     if pk == 0:
         return True
-    scale_m = 0.0
-    for u in range(d):
-        scale_m = max(scale_m, abs(mt[i, u]))
     # central differences of (Cᵀλ, Dᵀλ): along each corrected component, then along
     # each direction of W — but for equations linear in q: Φqq = 0 and Φmq W = Φqmᵀ W
     for v in range(d if linear else d + k):
         if v < d:
-            h = STEP * max(abs(mt[i, v]), 1e-3 * scale_m, 1e-8)
+            h = difference_step(mt[i], v, d)
         else:
             h = steps[v - d]
             if h == 0.0:

@@ -374,6 +374,16 @@ def weighted_gradient(lam, c, C, D, p, n, d, out, at):
         out[at, n + u] = acc
 
 
+@jit(inline=True)
+def difference_step(m, v, d):
+    """The step of a central difference along component ``v`` of a measure ``m`` (``d``
+    components): ``STEP · max(|m_v|, 10⁻³ max|m|, 10⁻⁸)``."""
+    scale = 0.0
+    for u in range(d):
+        scale = max(scale, abs(m[u]))
+    return STEP * max(abs(m[v]), 1e-3 * scale, 1e-8)
+
+
 #: The buffers of :func:`scratch` (a plain tuple).
 record_kind("Work", None, "f2 f2 f1 b1 f1 f1 f1 f1 f1 f1 f1 f1")
 
@@ -727,11 +737,8 @@ def curved_step(F, i, q, values, m_obs, c, D, G, Q, p, d, work, sqp, evals):
     if pk == 0:
         return -1.0
     c2, D2 = evals
-    scale = 0.0
-    for u in range(d):
-        scale = max(scale, abs(values[u]))
     for v in range(d):  # Φmm: central differences of Dᵀλ along each component
-        h = STEP * max(abs(values[v]), 1e-3 * scale, 1e-8)
+        h = difference_step(values, v, d)
         for side in range(2):
             for u in range(d):
                 cand[u] = values[u] + ((h if side == 0 else -h) if u == v else 0.0)
