@@ -13,8 +13,10 @@ corrected measures, a function of ``q`` alone, and the projector's right-hand si
 exact gradient (eq. 44's multipliers): ``P`` is a Gauss–Newton step on ``F``.
 
 Trust region (ours; Moré 1978, Nocedal & Wright §4). The projector's step is tried first
-whatever its length and taken when the cost falls as the linearisation predicts, to 5 %
-(a linear problem in one step, Newton's iterates: report §3.6); otherwise a step within a
+up to a hundred times the radius and taken when the cost falls as the linearisation
+predicts, to 5 % (a linear problem in one step, Newton's iterates: report §3.6) — a longer
+one, whose restored point is costly and may lie in another valley, is not tried on its
+prediction alone (docs/engine.md, thirty-second session); otherwise a step within a
 radius on ``‖Δq‖`` (Levenberg–Marquardt damping of the parameter block, the linearised
 equations still solved exactly) is taken when the cost falls by at least 1e-4 of the
 prediction, the radius shrinking or growing with the ratio ``ρ`` of actual to predicted
@@ -54,8 +56,10 @@ within rounding (each row of ``c0`` within the rounding of the components it inv
 only their whitened violation, which a dropped pivot of dependent rows does not see; a slack
 run off elsewhere does not loosen it). A saddle or a maximum
 (report footnote 5) is left along its negative-curvature direction and the iteration goes
-on; only a verified minimum is status 0. An iteration that runs off along a lost direction
-(five rounds in a row, the parameter growing) stops there.
+on; only a verified minimum is status 0. Where the measures have a lower cost at the
+end's parameter (the nearer points of a restoration), the iteration goes on from there
+with the radius its refused steps shrank started again. An iteration that runs off along a
+lost direction (five rounds in a row, the parameter growing) stops there.
 
 The iteration is one compiled kernel (:func:`kanagen.runtime.engine.iterate.run`, with the
 checks of :mod:`kanagen.runtime.engine.verify`); this module runs it on a

@@ -324,13 +324,32 @@ def test_a_full_joint_step_into_another_valley_is_not_the_last_word():
     _reaches_the_minimum("michaelis", 7, 2)
 
 
-def _reaches_the_minimum(name: str, index: int, start: int) -> None:
+def test_a_step_far_beyond_the_trust_radius_is_not_taken_on_its_prediction():
+    """gauss, problem 7 of ``benchmarks/eiv.py --seed 123``, start 2: the projector's full
+    step, 100 times the trust radius and more, lowered the cost as predicted and was taken
+    — into a valley whose verified minimum is 440 times the best. Such a step is now
+    damped to the radius, and the descent reaches the best minimum."""
+    _reaches_the_minimum("gauss", 7, 2, seed=123)
+
+
+def test_a_better_restoration_at_the_end_restarts_the_trust_radius():
+    """gauss, problem 4 of ``benchmarks/eiv.py --seed 123``, start 1: every step refused,
+    the radius shrank to rounding, then the end's check found the measures a lower cost at
+    the same parameter; the descent went on from there with the collapsed radius, and
+    stalled (status 2) a Gauss–Newton step away from the minimum. The radius now starts
+    again at the descent's first: a verified minimum, at the cost of the fit from the
+    truth."""
+    _reaches_the_minimum("gauss", 4, 1, seed=123, truth_verified=False)
+
+
+def _reaches_the_minimum(name: str, index: int, start: int, seed: int = 0,
+                         truth_verified: bool = True) -> None:
     """From start ``start`` of the benchmark's problem ``index`` of family ``name`` (its
-    stream seeded as the benchmark seeds it), the fit is a success at the cost of the fit
-    from the truth."""
-    fam, problem = _benchmark_problem(name, sum(map(ord, name)), index)
+    stream seeded as the benchmark seeds it, ``--seed seed``), the fit is a success at the
+    cost of the fit from the truth (``truth_verified``: that fit a success too)."""
+    fam, problem = _benchmark_problem(name, seed + sum(map(ord, name)), index)
     data, info = {"pt": problem.data()}, {"pt": problem.info()}
     res = kanagen.fit(fam, "m", data=data, info=info, q0=problem.starts[start])
     best = kanagen.fit(fam, "m", data=data, info=info, q0=problem.truth)
-    assert res.success and best.success, res.message
+    assert res.success and (best.success or not truth_verified), res.message
     assert res.cost == pytest.approx(best.cost, rel=1e-9)

@@ -70,6 +70,9 @@ _CRAWL = 3
 _GROWING = 1.0
 _JOINT_STEPS = 4
 _DAMPING_DECADES = 12.0
+#: A full step longer than this many trust radii is not tried on its prediction alone
+#: (runtime/iterate.py: "Trust region").
+_BEYOND = 100.0
 
 #: What a fit reports from the projector at a point (:func:`projected_at`): ``have`` False
 #: when not taken (the rest empty); ``ok`` False where the projector fails there.
@@ -289,9 +292,10 @@ def step(A, st, scale, x, violation, lin, proj):
     alpha = 1.0
     strict = st[3] != 0
     line_steps = 0 if length > st[0] else _LINE_STEPS
+    far = on and length > _BEYOND * st[0]
     for attempt in range(_MAX_REFUSALS):
-        line = attempt <= line_steps and not (strict and length > st[0])
-        beyond = attempt == 0 and length > st[0] and not strict
+        line = attempt <= line_steps and not (strict and length > st[0]) and not far
+        beyond = attempt == 0 and length > st[0] and not strict and not far
         if line:
             target_q = x.q + alpha * full
             target_mt = x.mt + alpha * (proj.mt - x.mt)
@@ -353,8 +357,9 @@ def end(A, st, info0, x, violation, have_lin, lin, proj, mlin, mproj, it, verify
     root = info_root(A, lin.info)
     if st[2] < _ESCAPES:
         found, moved, mv = nearer(A, x, root)
-        if found:
+        if found:  # a lower cost at x: the radius its refused steps shrank starts again
             st[2] += 1
+            st[0] = max(st[0], st[1])
             return False, outcome(x, it, FAILED, NO_DETAIL, none), moved, mv
     if not have_lin:
         mlin, mproj = lagrangian(A, x, lin, proj)
