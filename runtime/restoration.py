@@ -19,7 +19,9 @@ stops off its equations. Those measures are finished by a feasible descent on th
    model has no minimum along the step (a negative curvature) or its system is singular,
    the tangent-plane projection of the observed measure (the projector's point at a feasible
    ``m̃``); back onto the manifold by 1., taken when the distance falls, halved otherwise,
-   until the fall the model predicts is below the distance's rounding.
+   until the fall the model predicts is below the distance's rounding — or until eight
+   trial points were left off the manifold by 1. (where it runs off: a flat curve whose
+   nearest points lie at overflowing abscissas), the point reached kept.
 
 Each accepted step lowers the distance on the manifold: it ends at a local nearest point.
 Both are kernels, measure by measure (:mod:`kanagen.runtime.engine.measures`:

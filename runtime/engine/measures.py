@@ -33,6 +33,8 @@ _ALL = np.zeros(0, dtype=np.bool_)
 _NEWTON = 8  # normal (Newton) steps onto the manifold, at most
 _HALVINGS = 12  # halvings of a step along the manifold
 _DESCENT = 12  # steps along the manifold, at most
+_MISSES = 8  # trial points of a descent left off the manifold, at most (each tried in
+# every metric: the descent's cost where the manifold runs off, docs/engine.md)
 _PROJECT_HALVINGS = 4  # halvings of a projector step per measure (eq. 18)
 #: Relative step of the central differences of the equations' Jacobians.
 STEP = 1e-5
@@ -825,7 +827,8 @@ def newton_scratch(p, d):
 @linked("A i f1 f1 f3 f1 f2 f2 Work -> f1 f")
 def descend(A, i, q, start, wide, c, C, D, work):
     """Measure ``i`` moved onto ``c(q, ·) = 0`` and down the distance along it from
-    ``start``; writes ``c, C, D``; returns ``(m̃, violation)``."""
+    ``start``; writes ``c, C, D``; returns ``(m̃, violation)``. The descent stops, keeping
+    its point, once :data:`_MISSES` of its trial points were left off the manifold."""
     ch = A.chan[i]
     p, d = A.P[ch], A.Dn[ch]
     G, Q, m_obs = A.G[i], A.Q[i], A.m[i, :d]
@@ -842,6 +845,7 @@ def descend(A, i, q, start, wide, c, C, D, work):
     r = np.zeros(p)
     sqp = newton_scratch(p, d)
     evals = (np.zeros(c.size), np.zeros(D.shape))
+    misses = 0
     for _ in range(_DESCENT):
         if not active:
             break
@@ -873,7 +877,11 @@ def descend(A, i, q, start, wide, c, C, D, work):
                 normal(A, i, q, trial, c2, C2, D2, reach, span, work, spare)
                 d_trial = quad_between(trial, m_obs, Q, d)
                 worst = worst_abs(c, p)
-                if d_trial < distance and worst_abs(c2, p) <= worst + 1e-12 * (1 + worst):
+                if not worst_abs(c2, p) <= worst + 1e-12 * (1 + worst):
+                    misses += 1  # its Newton steps, every metric tried, left it off
+                    if misses >= _MISSES:
+                        break
+                elif d_trial < distance:
                     shift = quad_between(trial, values, Q, d)
                     copy_into(values, trial)
                     copy_into(c, c2)
@@ -882,7 +890,7 @@ def descend(A, i, q, start, wide, c, C, D, work):
                     distance = d_trial
                     break
                 alpha /= 2
-        active = shift > RESTORE_TOL ** 2
+        active = shift > RESTORE_TOL ** 2 and misses < _MISSES
     eval_measure(F, i, q, values, c, C, D, x)
     return values, violation(c, D, G, p, d, A.eps, work)[0]
 
