@@ -33,8 +33,9 @@ _ALL = np.zeros(0, dtype=np.bool_)
 _NEWTON = 8  # normal (Newton) steps onto the manifold, at most
 _HALVINGS = 12  # halvings of a step along the manifold
 _DESCENT = 12  # steps along the manifold, at most
-_MISSES = 8  # trial points of a descent left off the manifold, at most (each tried in
-# every metric: the descent's cost where the manifold runs off, docs/engine.md)
+#: Trial points of a descent left off the manifold, at most: each was tried in every metric,
+#: the descent's cost where the manifold runs off (docs/engine.md, thirty-second session).
+_MISSES = 8
 _PROJECT_HALVINGS = 4  # halvings of a projector step per measure (eq. 18)
 #: Relative step of the central differences of the equations' Jacobians.
 STEP = 1e-5
@@ -890,7 +891,7 @@ def descend(A, i, q, start, wide, c, C, D, work):
                     distance = d_trial
                     break
                 alpha /= 2
-        active = shift > RESTORE_TOL ** 2 and misses < _MISSES
+        active = shift > RESTORE_TOL ** 2  # 0 after the last miss: no trial taken
     eval_measure(F, i, q, values, c, C, D, x)
     return values, violation(c, D, G, p, d, A.eps, work)[0]
 
