@@ -24,6 +24,11 @@ stops off its equations. Those measures are finished by a feasible descent on th
    nearest points lie at overflowing abscissas), the point reached kept.
 
 Each accepted step lowers the distance on the manifold: it ends at a local nearest point.
+A measure the projector's steps leave on its equations but still moving (observed above a
+peak, near the centre of the curve's curvature, where the steps contract slowly) is finished
+by the same descent from where they left it: "on" by the whitened violation's 1e-16, it
+could still be off enough to lower its distance by 1e-8, above the cost differences the
+trust region compares, which then refused every step at a minimum.
 Both are kernels, measure by measure (:mod:`kanagen.runtime.engine.measures`:
 ``restore_all``, ``descend``). The tangent-plane step alone is the same step without the
 curvature: far from a curved manifold it converges linearly, and at its cap of 12 steps it

@@ -464,9 +464,10 @@ def project_measure(args, p, d):
     ``Q_i`` metric (eq. 22 with eq. 18's halving; ``F``: :func:`fields`). ``iterations``
     counts projector steps plus one. Writes ``c, C, D`` at the returned point (``C`` only
     with ``jacobian``: else the values forms alone, the same ``c`` and ``D``); returns
-    ``(violation, rank)``. ``args``: ``(F, i, q, m, iterations, tol, eps, c, C, D,
+    ``(violation, rank, unsettled)``. ``args``: ``(F, i, q, m, iterations, tol, eps, c, C, D,
     jacobian)`` and the buffers of :func:`scratch`; ``p, d`` the measure's equations and
-    components."""
+    components. ``unsettled``: its last step still moved it (the steps ran out before it
+    converged)."""
     F, i, q, m, iterations, tol, eps, c, C, D, jacobian, E, L, inv, kept, y, rbar, cbar, dm, \
         step, cand, moved, x = args
     G, Q, m_obs = F[8][i], F[9][i], F[10][i]
@@ -491,7 +492,7 @@ def project_measure(args, p, d):
             step[:d] = 0.0
         active = halving(F, i, q, m, c, C, D, step, p, d, cand, moved, x, Q, tol,
                          it == iterations - 2, jacobian)
-    return viol, rank
+    return viol, rank, active and iterations > 1
 
 
 @jit(inline=True)
@@ -538,13 +539,20 @@ def halving(F, i, q, m, c, C, D, step, p, d, cand, moved, x, Q, tol, last, jacob
 @linked("A f1 f2 i f -> f2 f1 i1 f2 f3 f3", python=True)
 def project_all(A, q, mt, iterations, tol):
     """:func:`project_measure` for every measure: ``(m̃, violations, ranks, c, C, D)``."""
+    return project_flagged(A, q, mt, iterations, tol, np.zeros(0, dtype=np.bool_))
+
+
+@jit
+def project_flagged(A, q, mt, iterations, tol, unsettled):
+    """:func:`project_all`, each measure's ``unsettled`` flag (:func:`project_measure`)
+    written into ``unsettled`` unless it is empty."""
     q = np.ascontiguousarray(q)
     M = A.chan.size
     c, C, D = empty_evals(A, q.size)
     out = mt.copy()
     viol = np.zeros(M)
     rank = np.zeros(M, dtype=np.int64)
-    project_each(A, q, out, iterations, tol, c, C, D, True, viol, rank, _ALL)
+    project_each(A, q, out, iterations, tol, c, C, D, True, viol, rank, _ALL, unsettled)
     return out, viol, rank, c, C, D
 
 
@@ -558,7 +566,8 @@ def project_chosen(A, q, mt, chosen, iterations, tol):
     out = mt.copy()
     viol = np.full(A.chan.size, np.inf)
     rank = np.zeros(A.chan.size, dtype=np.int64)
-    project_each(A, q, out, iterations, tol, c, C, D, True, viol, rank, chosen)
+    project_each(A, q, out, iterations, tol, c, C, D, True, viol, rank, chosen,
+                 np.zeros(0, dtype=np.bool_))
     return out, viol, c, C, D
 
 
@@ -575,7 +584,8 @@ def projected_errors(A, q, iterations, tol):
     viol = np.zeros(M)
     rank = np.zeros(M, dtype=np.int64)
     c, C, D = np.zeros((1, pmax)), np.zeros((1, pmax, q.size)), np.zeros((1, pmax, A.m.shape[1]))
-    project_each(A, q, out, iterations, tol, c, C, D, False, viol, rank, _ALL)
+    project_each(A, q, out, iterations, tol, c, C, D, False, viol, rank, _ALL,
+                 np.zeros(0, dtype=np.bool_))
     totals = np.empty(M)
     F = fields(A)
     for i in range(M):
@@ -589,10 +599,12 @@ def projected_errors(A, q, iterations, tol):
 
 
 @jit(inline=True)
-def project_each(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank, chosen):
+def project_each(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank, chosen,
+                 unsettled):
     """:func:`project_measure` for every measure of ``A`` (those flagged in ``chosen``
     unless it is empty) from ``out`` (updated in place), its violation and rank into
-    ``viol, rank``; its equations into the rows of ``c, C, D`` (its own row each, or one
+    ``viol, rank`` and, unless it is empty, whether its steps ran out before it converged
+    into ``unsettled``; its equations into the rows of ``c, C, D`` (its own row each, or one
     row for all when they have one)."""
     work = scratch(A, q.size)
     E, L, inv, kept, y, rbar, cbar, dm, step, cand, moved, x = borrow(work)
@@ -607,7 +619,9 @@ def project_each(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank, chos
         r = i if own else 0
         args = (F, i, bq, bout[i], iterations, tol, eps, bc[r], bC[r], bD[r], jacobian, E, L,
                 inv, kept, y, rbar, cbar, dm, step, cand, moved, x)
-        viol[i], rank[i] = project_shaped(args, F[1][ch], F[2][ch])
+        viol[i], rank[i], moving = project_shaped(args, F[1][ch], F[2][ch])
+        if unsettled.size:
+            unsettled[i] = moving
     alive((q, out, c, C, D, work))
 
 
@@ -900,24 +914,36 @@ def descend(A, i, q, start, wide, c, C, D, work):
 def restore_all(A, q, mt, iterations):
     """The measures projected onto their equations for ``q`` from ``mt`` (eq. 22), those
     left off finished by the descent on the manifold from where they were left and from
-    their observed values, the nearer kept: ``(m̃, violations, c, C, D)``."""
+    their observed values, the nearer kept, and those whose steps ran out before they
+    converged by the descent from where they were left: ``(m̃, violations, c, C, D)``.
+
+    A measure the steps leave unsettled (observed near the centre of the curve's
+    curvature: above a peak, the steps' contraction is slow) may be on its equations by
+    :data:`UNREACHED` and still off them by enough to lower its distance, to first order,
+    by far more than the cost's rounding: the iteration's comparisons of costs then see
+    that error, not the steps' falls. Its descent from where the steps left it (in its
+    basin: not from its observed value), reached, replaces it."""
     q = np.ascontiguousarray(q)
-    out, viol, rank, c, C, D = project_all(A, q, mt, iterations, RESTORE_TOL)
+    unsettled = np.zeros(A.chan.size, dtype=np.bool_)
+    out, viol, rank, c, C, D = project_flagged(A, q, mt, iterations, RESTORE_TOL, unsettled)
     left_off = False
     for i in range(A.chan.size):
-        left_off = left_off or not viol[i] <= UNREACHED
+        left_off = left_off or not viol[i] <= UNREACHED or unsettled[i]
     if not left_off:  # the usual case
         return out, viol, c, C, D
     wide = wide_variances(A)
     work = scratch(A, q.size)
     for i in range(A.chan.size):
-        if viol[i] <= UNREACHED:
+        if viol[i] <= UNREACHED and not unsettled[i]:
             continue
         ch = A.chan[i]
         d = A.Dn[ch]
         Q, m_obs = A.Q[i], A.m[i, :d]
         starts = (out[i, :d].copy(), m_obs.copy())
+        on = viol[i] <= UNREACHED  # on its equations, unsettled only
         for s in range(2):
+            if s == 1 and on and not unsettled[i]:
+                break  # finished from where the steps left it: its own basin
             c2, C2, D2 = c[i].copy(), C[i].copy(), D[i].copy()
             m_new, v_new = descend(A, i, q, starts[s], wide, c2, C2, D2, work)
             old = viol[i]
@@ -925,10 +951,11 @@ def restore_all(A, q, mt, iterations):
             d_new = quad_between(m_new, m_obs, Q, d)
             reached = v_new <= UNREACHED
             if reached:
-                better = not (old <= UNREACHED) or d_new < d_old
+                better = unsettled[i] or not (old <= UNREACHED) or d_new < d_old
             else:
                 better = v_new < (old if np.isfinite(old) else np.inf)
             if better:
+                unsettled[i] = False
                 for j in range(d):
                     out[i, j] = m_new[j]
                 viol[i] = v_new
