@@ -942,8 +942,8 @@ def restore_all(A, q, mt, iterations):
         starts = (out[i, :d].copy(), m_obs.copy())
         on = viol[i] <= UNREACHED  # on its equations, unsettled only
         for s in range(2):
-            if s == 1 and on and not unsettled[i]:
-                break  # finished from where the steps left it: its own basin
+            if s == 1 and on:
+                break  # finished from where the steps left it, its own basin, alone
             c2, C2, D2 = c[i].copy(), C[i].copy(), D[i].copy()
             m_new, v_new = descend(A, i, q, starts[s], wide, c2, C2, D2, work)
             old = viol[i]
