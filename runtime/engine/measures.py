@@ -951,11 +951,10 @@ def restore_all(A, q, mt, iterations):
             d_new = quad_between(m_new, m_obs, Q, d)
             reached = v_new <= UNREACHED
             if reached:
-                better = unsettled[i] or not (old <= UNREACHED) or d_new < d_old
+                better = on or not (old <= UNREACHED) or d_new < d_old
             else:
                 better = v_new < (old if np.isfinite(old) else np.inf)
             if better:
-                unsettled[i] = False
                 for j in range(d):
                     out[i, j] = m_new[j]
                 viol[i] = v_new
