@@ -28,8 +28,6 @@ RESTORE_STEPS, RESTORE_TOL = 30, 1e-10
 #: A measure whose whitened violation stays above this (cost units) did not reach its
 #: equations by the projector's steps.
 UNREACHED = 1e-16
-#: No measure flagged: :func:`project_each` projects them all.
-_ALL = np.zeros(0, dtype=np.bool_)
 _NEWTON = 8  # normal (Newton) steps onto the manifold, at most
 _HALVINGS = 12  # halvings of a step along the manifold
 _DESCENT = 12  # steps along the manifold, at most
@@ -552,7 +550,8 @@ def project_flagged(A, q, mt, iterations, tol, unsettled):
     out = mt.copy()
     viol = np.zeros(M)
     rank = np.zeros(M, dtype=np.int64)
-    project_each(A, q, out, iterations, tol, c, C, D, True, viol, rank, _ALL, unsettled)
+    project_each(A, q, out, iterations, tol, c, C, D, True, viol, rank,
+                 np.zeros(0, dtype=np.bool_), unsettled)  # chosen empty: every measure
     return out, viol, rank, c, C, D
 
 
@@ -584,8 +583,8 @@ def projected_errors(A, q, iterations, tol):
     viol = np.zeros(M)
     rank = np.zeros(M, dtype=np.int64)
     c, C, D = np.zeros((1, pmax)), np.zeros((1, pmax, q.size)), np.zeros((1, pmax, A.m.shape[1]))
-    project_each(A, q, out, iterations, tol, c, C, D, False, viol, rank, _ALL,
-                 np.zeros(0, dtype=np.bool_))
+    project_each(A, q, out, iterations, tol, c, C, D, False, viol, rank,
+                 np.zeros(0, dtype=np.bool_), np.zeros(0, dtype=np.bool_))
     totals = np.empty(M)
     F = fields(A)
     for i in range(M):
@@ -598,44 +597,122 @@ def projected_errors(A, q, iterations, tol):
     return totals, rank
 
 
-@jit(inline=True)
+@jit
 def project_each(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank, chosen,
                  unsettled):
     """:func:`project_measure` for every measure of ``A`` (those flagged in ``chosen``
     unless it is empty) from ``out`` (updated in place), its violation and rank into
     ``viol, rank`` and, unless it is empty, whether its steps ran out before it converged
     into ``unsettled``; its equations into the rows of ``c, C, D`` (its own row each, or one
-    row for all when they have one)."""
+    row for all when they have one). Returns the number of measures projected.
+
+    The measures of each shipped shape (:data:`SHAPES`) are projected by that shape's
+    kernel, its loops unrolled, the others by the generic one (:func:`project_span`); each
+    measure's projection is its own, so their order does not matter. The four kernels are
+    linked (compiled once each, called through their addresses): inlined into each of the
+    three callers, the four copies of :func:`project_measure` made two thirds of the
+    engine's first compile (docs/performance.md)."""
+    present = 0  # a bit per shape's index (the last: another shape)
+    for ch in range(A.P.size):
+        present |= 1 << shape_index(A.P[ch], A.Dn[ch])
+    count = 0
+    if present & 1:
+        count += project_1_2(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank,
+                             chosen, unsettled)
+    if present & 2:
+        count += project_1_4(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank,
+                             chosen, unsettled)
+    if present & 4:
+        count += project_3_4(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank,
+                             chosen, unsettled)
+    if present & 8:
+        count += project_other(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank,
+                               chosen, unsettled)
+    return count
+
+
+#: The shipped families' measure shapes ``(equations, components)``: each has a projection
+#: kernel with its loops unrolled (:func:`project_each`).
+SHAPES = ((1, 2), (1, 4), (3, 4))
+
+
+@jit(inline=True)
+def shape_index(p, d):
+    """The index of ``(p, d)`` in :data:`SHAPES`, ``len(SHAPES)`` for another shape."""
+    if p == 1 and d == 2:
+        return 0
+    if p == 1 and d == 4:
+        return 1
+    if p == 3 and d == 4:
+        return 2
+    return 3
+
+
+@jit(inline=True)
+def project_span(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank, chosen,
+                 unsettled, P, Dm, shape):
+    """:func:`project_each` for the measures of one shape: ``shape`` its index in
+    :data:`SHAPES` and ``(P, Dm)`` the shape (constants: the loops unrolled), or ``shape``
+    ``len(SHAPES)`` for every measure of another shape (``P``, ``Dm`` unused: its own).
+    Returns the number of measures it projected."""
     work = scratch(A, q.size)
     E, L, inv, kept, y, rbar, cbar, dm, step, cand, moved, x = borrow(work)
     bq, bout, bc, bC, bD = borrow((q, out, c, C, D))
     F = fields(A)
     eps = A.eps
     own = c.shape[0] == out.shape[0]
+    count = 0
     for i in range(out.shape[0]):
         if chosen.size and not chosen[i]:
             continue
         ch = F[0][i]
+        p, d = F[1][ch], F[2][ch]
+        if shape_index(p, d) != shape:
+            continue
+        count += 1
         r = i if own else 0
         args = (F, i, bq, bout[i], iterations, tol, eps, bc[r], bC[r], bD[r], jacobian, E, L,
                 inv, kept, y, rbar, cbar, dm, step, cand, moved, x)
-        viol[i], rank[i], moving = project_shaped(args, F[1][ch], F[2][ch])
+        if shape < len(SHAPES):  # a constant of each kernel: one call, its shape constant
+            p, d = P, Dm
+        viol[i], rank[i], moving = project_measure(args, p, d)
         if unsettled.size:
             unsettled[i] = moving
     alive((q, out, c, C, D, work))
+    return count
 
 
-@jit(inline=True)
-def project_shaped(args, p, d):
-    """:func:`project_measure` of a measure of ``p`` equations and ``d`` components: the
-    shipped families' shapes as constants, their loops unrolled."""
-    if p == 1 and d == 2:
-        return project_measure(args, 1, 2)
-    if p == 1 and d == 4:
-        return project_measure(args, 1, 4)
-    if p == 3 and d == 4:
-        return project_measure(args, 3, 4)
-    return project_measure(args, p, d)
+#: The kinds of :func:`project_each`'s kernels.
+_EACH = "A f1 f2 i f f2 f3 f3 b f1 i1 b1 b1 -> i"
+
+
+@linked(_EACH)
+def project_1_2(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank, chosen, unsettled):
+    """:func:`project_span` of the measures of one equation in two components."""
+    return project_span(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank, chosen,
+                        unsettled, 1, 2, 0)
+
+
+@linked(_EACH)
+def project_1_4(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank, chosen, unsettled):
+    """:func:`project_span` of the measures of one equation in four components."""
+    return project_span(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank, chosen,
+                        unsettled, 1, 4, 1)
+
+
+@linked(_EACH)
+def project_3_4(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank, chosen, unsettled):
+    """:func:`project_span` of the measures of three equations in four components."""
+    return project_span(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank, chosen,
+                        unsettled, 3, 4, 2)
+
+
+@linked(_EACH)
+def project_other(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank, chosen,
+                  unsettled):
+    """:func:`project_span` of the measures of any shape not in :data:`SHAPES`."""
+    return project_span(A, q, out, iterations, tol, c, C, D, jacobian, viol, rank, chosen,
+                        unsettled, 0, 0, 3)
 
 
 # -- the restoration: measures the projector's steps leave off ---------------------------
