@@ -114,7 +114,8 @@ def test_a_restored_measure_is_a_local_nearest_point(x0, side, y0, log_ratio, a,
 
 
 @pytest.mark.xfail(strict=True, reason="known: both descents stop 2.2e-6 short of the nearest "
-                   "point (1.8e-10 of the distance; docs/engine.md, thirty-fourth section)")
+                   "point (1.8e-10 of the distance), their misses budget spent on their first "
+                   "steps (docs/engine.md, thirty-fourth section)")
 def test_a_restored_measure_left_off_by_the_steps_is_a_local_nearest_point():
     """A random draw of the property above: observed left of the peak, the projector's steps
     leave the measure off the curve (whitened violation 4e-8); the descents from where they
