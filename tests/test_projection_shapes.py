@@ -47,7 +47,7 @@ def _data(rng):
 
 
 def _project(fam, data, info, q, chosen=None):
-    """``project_each`` on the problem of ``data``: ``(count, m̃, violations, ranks)``."""
+    """``project_each`` on the problem of ``data``: ``(count, m̃, violations, ranks, A)``."""
     problem = fitting.make_problem(fam, "m", data, info, q, None, None)
     A = arrays(problem)
     c, C, D = measures.empty_evals(A, q.size)
@@ -77,8 +77,8 @@ def test_each_measure_is_projected_once_as_in_its_channel_alone(seed):
     # each channel alone: the same numbers, to the last bit
     for name in data:
         alone = {name: data[name]}
-        _, out1, viol1, rank1, A1 = _project(fam, alone, {k: v for k, v in info.items()
-                                                          if k == name}, q)
+        _, out1, viol1, rank1, _ = _project(fam, alone, {k: v for k, v in info.items()
+                                                         if k == name}, q)
         ch = list(data).index(name)
         rows = slice(int(A.start[ch]), int(A.start[ch] + A.size[ch]))
         d = int(A.Dn[ch])
