@@ -31,8 +31,9 @@ UNREACHED = 1e-16
 _NEWTON = 8  # normal (Newton) steps onto the manifold, at most
 _HALVINGS = 12  # halvings of a step along the manifold
 _DESCENT = 12  # steps along the manifold, at most
-#: Trial points of a descent left off the manifold, at most: each was tried in every metric,
-#: the descent's cost where the manifold runs off (docs/engine.md, thirty-second session).
+#: Trial points of a descent left off the manifold since its last full step, at most: each
+#: was tried in every metric, the descent's cost where the manifold runs off (docs/engine.md,
+#: thirty-second and thirty-fifth sections).
 _MISSES = 8
 _PROJECT_HALVINGS = 4  # halvings of a projector step per measure (eq. 18)
 #: Relative step of the central differences of the equations' Jacobians.
@@ -920,7 +921,9 @@ def newton_scratch(p, d):
 def descend(A, i, q, start, wide, c, C, D, work):
     """Measure ``i`` moved onto ``c(q, ·) = 0`` and down the distance along it from
     ``start``; writes ``c, C, D``; returns ``(m̃, violation)``. The descent stops, keeping
-    its point, once :data:`_MISSES` of its trial points were left off the manifold."""
+    its point, once :data:`_MISSES` of its trial points since its last full step taken were
+    left off the manifold (counted over the whole descent, the misses of its first, far
+    steps stopped it short of the nearest point where its full steps converge linearly)."""
     ch = A.chan[i]
     p, d = A.P[ch], A.Dn[ch]
     G, Q, m_obs = A.G[i], A.Q[i], A.m[i, :d]
@@ -980,6 +983,8 @@ def descend(A, i, q, start, wide, c, C, D, work):
                     copy_into(C, C2)
                     copy_into(D, D2)
                     distance = d_trial
+                    if alpha == 1.0:  # a full step taken: the misses counted since
+                        misses = 0
                     break
                 alpha /= 2
         active = shift > RESTORE_TOL ** 2  # 0 after the last miss: no trial taken
