@@ -89,11 +89,39 @@ def write(path: str | None = None) -> tuple[str, int]:
                 continue
             if address:
                 placed[address] = (size, name)
+    placed.update(runtime_functions())
     path = path or f"/tmp/perf-{os.getpid()}.map"
     with open(path, "w") as out:
         for address, (size, name) in sorted(placed.items()):
             out.write(f"{address:x} {size:x} {name}\n")
     return path, len(placed)
+
+
+def runtime_functions() -> dict[int, tuple[int, str]]:
+    """numba's reference counts and allocation helpers (``NRT_incref``, ``NRT_decref``, ...):
+    compiled in the process when its runtime starts, not through the object-code hooks, so
+    named here from its library — each sized up to the next one (at most 256 bytes). A
+    kernel's reference counts are calls of these: unnamed, they were a tenth of a conic fit's
+    kernel time seen as bare addresses (docs/performance.md, thirty-fifth session)."""
+    from numba.core.runtime import nrt
+
+    library = getattr(nrt.rtsys, "_library", None)
+    if library is None:
+        return {}
+    found = {}
+    for function in library._final_module.functions:
+        if function.is_declaration:
+            continue
+        try:
+            address = library.get_pointer_to_function(function.name)
+        except Exception:  # noqa: BLE001 — not kept by the JIT: skipped
+            continue
+        if address:
+            found[address] = function.name
+    ordered = sorted(found)
+    return {address: (min(256, following - address), found[address])
+            for address, following in zip(ordered, ordered[1:] + [ordered[-1] + 256],
+                                          strict=True)}
 
 
 def main(argv: list[str] | None = None) -> None:
