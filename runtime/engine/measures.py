@@ -144,10 +144,12 @@ def empty_evals(A, n):
 @jit(inline=True)
 def copy_into(dst, src):
     """``dst[...] = src`` for C-ordered arrays of one size, without the broadcasting
-    check whose error message (built at run time) is most of a small kernel's code."""
-    flat, values = dst.reshape(dst.size), src.reshape(src.size)
-    for a in range(values.size):
-        flat[a] = values[a]
+    check whose error message (built at run time) is most of a small kernel's code; through
+    their flat iterators, not a reshape (numba's reshape calls a C helper: 30-40 ns a copy of
+    a few numbers, against 3-7)."""
+    into, values = dst.flat, src.flat
+    for a in range(src.size):
+        into[a] = values[a]
 
 
 @jit(inline=True)
@@ -764,13 +766,23 @@ def reaching(A, i, top):
 @linked("A i f1 f1 f1 f2 f2 f2 Work f1 f2 f2 -> b")
 def newton(A, i, q, values, c, C, D, G, work, c_new, C_new, D_new):
     """Newton steps of measure ``i`` onto its equations along ``Q⁺Dᵀ`` in the metric ``G``,
-    halved where ``|c|`` grows; updates ``values, c, C, D``; True when it is on them."""
+    halved where ``|c|`` grows; updates ``values, c, C, D``; True when it is on them.
+    Its arrays borrowed (the caller's: alive through the call): no reference counts in
+    its loops — counted, they were a fifth of a hard Hill fit's time (docs/engine.md)."""
     ch = A.chan[i]
-    p, d = A.P[ch], A.Dn[ch]
+    on = newton_steps(fields(A), i, A.P[ch], A.Dn[ch], A.eps, borrow(work),
+                      borrow((q, values, c, C, D, G, c_new, C_new, D_new)))
+    alive((q, values, c, C, D, G, work, c_new, C_new, D_new))
+    return on
+
+
+@jit(inline=True)
+def newton_steps(F, i, p, d, eps, work, arrays):
+    """:func:`newton`'s steps on borrowed arrays (``F``: :func:`fields`)."""
+    q, values, c, C, D, G, c_new, C_new, D_new = arrays
     E, L, inv, kept, y, w, w2, dm, step, cand, moved, x = work
-    F = fields(A)
     for attempt in range(_NEWTON + 1):
-        size, finite = violation(c, D, G, p, d, A.eps, work)  # the factor and w = L⁻¹c
+        size, finite = violation(c, D, G, p, d, eps, work)  # the factor and w = L⁻¹c
         if not (size > UNREACHED * 1e-4 and finite):
             return True
         correct(E, L, inv, G, w, p, d, y, dm)
@@ -923,23 +935,36 @@ def descend(A, i, q, start, wide, c, C, D, work):
     ``start``; writes ``c, C, D``; returns ``(m̃, violation)``. The descent stops, keeping
     its point, once :data:`_MISSES` of its trial points since its last full step taken were
     left off the manifold (counted over the whole descent, the misses of its first, far
-    steps stopped it short of the nearest point where its full steps converge linearly)."""
+    steps stopped it short of the nearest point where its full steps converge linearly).
+    Its buffers made here, its arrays borrowed in its loops (:func:`descent`)."""
     ch = A.chan[i]
     p, d = A.P[ch], A.Dn[ch]
-    G, Q, m_obs = A.G[i], A.Q[i], A.m[i, :d]
-    E, L, inv, kept, y, w, w2, dm, step, cand, moved, x = work
     reach, span = reaching(A, i, wide[0]), reaching(A, i, wide[1])
     spare = (c.copy(), C.copy(), D.copy())
     values = start.copy()
-    F = fields(A)
+    trials = (c.copy(), C.copy(), D.copy())  # the trial points' equations
+    steps = (np.zeros(p), values.copy(), values.copy())  # r, the step, the trial point
+    sqp = newton_scratch(p, d)
+    evals = (np.zeros(c.size), np.zeros(D.shape))
+    owned = (A.G[i], A.Q[i], A.m[i, :d], q, values, c, C, D, reach, span)
+    violation_ = descent(A, fields(A), i, p, d, borrow(owned), borrow(work), borrow(spare),
+                         borrow(trials), borrow(steps), borrow(sqp), borrow(evals))
+    alive((owned, work, spare, trials, steps, sqp, evals))
+    return values, violation_
+
+
+@jit(inline=True)
+def descent(A, F, i, p, d, owned, work, spare, trials, steps, sqp, evals):
+    """:func:`descend`'s steps on borrowed arrays; returns the violation at the end (the
+    point in ``owned``'s ``values``, its equations in ``c, C, D``)."""
+    G, Q, m_obs, q, values, c, C, D, reach, span = owned
+    E, L, inv, kept, y, w, w2, dm, step, cand, moved, x = work
+    c2, C2, D2 = trials
+    r, along, trial = steps
     eval_measure(F, i, q, values, c, C, D, x)
     normal(A, i, q, values, c, C, D, reach, span, work, spare)
     distance = quad_between(values, m_obs, Q, d)
     active = violation(c, D, G, p, d, A.eps, work)[0] <= UNREACHED
-    c2, C2, D2 = c.copy(), C.copy(), D.copy()
-    r = np.zeros(p)
-    sqp = newton_scratch(p, d)
-    evals = (np.zeros(c.size), np.zeros(D.shape))
     misses = 0
     for _ in range(_DESCENT):
         if not active:
@@ -947,7 +972,7 @@ def descend(A, i, q, start, wide, c, C, D, work):
         residual_into(D, values, m_obs, c, p, d, r)
         factor(D, G, p, d, A.eps, E, L, inv, kept)
         whiten_column(L, inv, r, p, w)
-        along = values.copy()
+        copy_into(along, values)
         fall = curved_step(F, i, q, values, m_obs, c, D, G, Q, p, d, work, sqp, evals)
         if fall >= 0.0:
             if fall <= ROUNDING * distance:
@@ -967,7 +992,8 @@ def descend(A, i, q, start, wide, c, C, D, work):
         if finite:
             alpha = 1.0
             for _ in range(_HALVINGS):
-                trial = values + alpha * along
+                for j in range(trial.size):  # values + alpha * along
+                    trial[j] = values[j] + alpha * along[j]
                 eval_measure(F, i, q, trial, c2, C2, D2, x)
                 normal(A, i, q, trial, c2, C2, D2, reach, span, work, spare)
                 d_trial = quad_between(trial, m_obs, Q, d)
@@ -989,7 +1015,7 @@ def descend(A, i, q, start, wide, c, C, D, work):
                 alpha /= 2
         active = shift > RESTORE_TOL ** 2  # 0 after the last miss: no trial taken
     eval_measure(F, i, q, values, c, C, D, x)
-    return values, violation(c, D, G, p, d, A.eps, work)[0]
+    return violation(c, D, G, p, d, A.eps, work)[0]
 
 
 @linked("A f1 f2 i -> f2 f1 f2 f3 f3", python=True)
