@@ -778,16 +778,21 @@ def newton(A, i, q, values, c, C, D, G, work, c_new, C_new, D_new):
 
 @jit(inline=True)
 def newton_steps(F, i, p, d, eps, work, arrays):
-    """:func:`newton`'s steps on borrowed arrays (``F``: :func:`fields`)."""
+    """:func:`newton`'s steps on borrowed arrays (``F``: :func:`fields`). The trial points
+    are evaluated in the values form (``c`` and ``D``: the same numbers, without the
+    Jacobian in the parameter, most of the row form's work — its powers and logarithms);
+    ``C`` once, at the point the steps reached."""
     q, values, c, C, D, G, c_new, C_new, D_new = arrays
     E, L, inv, kept, y, w, w2, dm, step, cand, moved, x = work
+    on, stepped = False, False
     for attempt in range(_NEWTON + 1):
         size, finite = violation(c, D, G, p, d, eps, work)  # the factor and w = L⁻¹c
         if not (size > UNREACHED * 1e-4 and finite):
-            return True
+            on = True
+            break
         correct(E, L, inv, G, w, p, d, y, dm)
         if attempt == _NEWTON:
-            return False
+            break
         finite = True
         for j in range(d):
             step[j] = -dm[j]
@@ -800,19 +805,20 @@ def newton_steps(F, i, p, d, eps, work, arrays):
         for _ in range(_HALVINGS):
             for j in range(d):
                 cand[j] = values[j] + alpha * step[j]
-            eval_measure(F, i, q, cand, c_new, C_new, D_new, x)
+            eval_values(F, i, q, cand, c_new, D_new, x, p, d)
             if worst_abs(c_new, p) < worst:
                 for j in range(d):
                     values[j] = cand[j]
                 copy_into(c, c_new)
-                copy_into(C, C_new)
                 copy_into(D, D_new)
-                done = True
+                done = stepped = True
                 break
             alpha /= 2
         if not done:
-            return False
-    return False
+            break
+    if stepped:  # C at the point reached (c and D the same numbers again)
+        eval_shaped(F, i, q, values, c, C, D, x, p, d)
+    return on
 
 
 @jit
