@@ -763,16 +763,16 @@ def reaching(A, i, top):
     return R
 
 
-@linked("A i f1 f1 f1 f2 f2 f2 Work f1 f2 f2 -> b")
-def newton(A, i, q, values, c, C, D, G, work, c_new, C_new, D_new):
+@linked("A i f1 f1 f1 f2 f2 f2 Work f1 f2 -> b")
+def newton(A, i, q, values, c, C, D, G, work, c_new, D_new):
     """Newton steps of measure ``i`` onto its equations along ``Q⁺Dᵀ`` in the metric ``G``,
     halved where ``|c|`` grows; updates ``values, c, C, D``; True when it is on them.
     Its arrays borrowed (the caller's: alive through the call): no reference counts in
     its loops — counted, they were a fifth of a hard Hill fit's time (docs/engine.md)."""
     ch = A.chan[i]
     on = newton_steps(fields(A), i, A.P[ch], A.Dn[ch], A.eps, borrow(work),
-                      borrow((q, values, c, C, D, G, c_new, C_new, D_new)))
-    alive((q, values, c, C, D, G, work, c_new, C_new, D_new))
+                      borrow((q, values, c, C, D, G, c_new, D_new)))
+    alive((q, values, c, C, D, G, work, c_new, D_new))
     return on
 
 
@@ -782,7 +782,7 @@ def newton_steps(F, i, p, d, eps, work, arrays):
     are evaluated in the values form (``c`` and ``D``: the same numbers, without the
     Jacobian in the parameter, most of the row form's work — its powers and logarithms);
     ``C`` once, at the point the steps reached."""
-    q, values, c, C, D, G, c_new, C_new, D_new = arrays
+    q, values, c, C, D, G, c_new, D_new = arrays
     E, L, inv, kept, y, w, w2, dm, step, cand, moved, x = work
     on, stepped = False, False
     for attempt in range(_NEWTON + 1):
@@ -826,7 +826,7 @@ def normal(A, i, q, values, c, C, D, reach, span, work, spare):
     """Newton steps onto the manifold in the measure's metric, then — for a measure they
     leave off — in its channel's largest variances (``reach``), then in its data's extent
     (``span``; :func:`wide_variances`, runtime/restoration.py describes it). ``spare``:
-    buffers for trial equations ``(c, C, D)``."""
+    buffers for the trial points' ``(c, D)`` (their ``C`` is not made: :func:`newton_steps`)."""
     if not newton(A, i, q, values, c, C, D, A.G[i], work, *spare):
         if not newton(A, i, q, values, c, C, D, reach, work, *spare):
             newton(A, i, q, values, c, C, D, span, work, *spare)
@@ -946,7 +946,7 @@ def descend(A, i, q, start, wide, c, C, D, work):
     ch = A.chan[i]
     p, d = A.P[ch], A.Dn[ch]
     reach, span = reaching(A, i, wide[0]), reaching(A, i, wide[1])
-    spare = (c.copy(), C.copy(), D.copy())
+    spare = (c.copy(), D.copy())  # the Newton steps' trial equations (c, D)
     values = start.copy()
     trials = (c.copy(), C.copy(), D.copy())  # the trial points' equations
     steps = (np.zeros(p), values.copy(), values.copy())  # r, the step, the trial point
